@@ -1,0 +1,1 @@
+"""SymPy derivations of the angular observation equations and their code generation."""

@@ -1,0 +1,5 @@
+import sys
+
+from polarref.cli import main
+
+sys.exit(main())

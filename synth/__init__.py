@@ -1,0 +1,1 @@
+"""Synthetic scenes rendered with Mitsuba 3, with exactly known cameras."""
