@@ -91,8 +91,9 @@ class Reconstruction:
             track = pycolmap.Track()
             for image_id, idx in p.track:
                 track.add_element(int(image_id), int(idx))
-            rec.add_point3D_with_id(int(pid), np.asarray(p.xyz, dtype=np.float64), track,
-                                    np.asarray(p.color, dtype=np.uint8))
+            point = pycolmap.Point3D(xyz=np.asarray(p.xyz, dtype=np.float64), track=track,
+                                     color=np.asarray(p.color, dtype=np.uint8))
+            rec.add_point3D_with_id(int(pid), point)  # keeps our ids; links the images' points2D
         return rec
 
     @staticmethod
