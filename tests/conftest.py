@@ -13,3 +13,38 @@ def shared_data():
         where = os.environ.get("POLARREF_DATA") or "../shared/data beside the repo root"
         pytest.skip(f"reference data not found ({where}); set $POLARREF_DATA")
     return root
+
+
+# ---- rendered synthetic scenes (owner: synth/rendering) --------------------------------------
+def _cached_scene(scene: str, preset_name: str, seed: int = 0):
+    """Render (once, resumably) into the shared cache and return the scene folder Path.
+
+    The folder name carries a short hash of all parameters and of the synth code, so a change
+    in either renders a new folder; a file lock serializes concurrent test sessions.
+    """
+    import fcntl
+
+    from polarref.data import cache_root
+    from synth.config import preset
+    from synth.render import code_version, render_scene
+
+    cfg = preset(scene, preset_name, seed=seed)
+    root = cache_root() / "scenes"
+    root.mkdir(parents=True, exist_ok=True)
+    out = root / f"{scene}-{preset_name}-seed{seed}-{cfg.digest(code_version())}"
+    with open(root / f".{out.name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        render_scene(scene, out, cfg)
+    return out
+
+
+@pytest.fixture(scope="session")
+def comet_small_scene():
+    """Folder of the small comet scene (12 views, 320x240), see synth/scene.py for the layout."""
+    return _cached_scene("comet", "small")
+
+
+@pytest.fixture(scope="session")
+def uav_small_scene():
+    """Folder of the small UAV scene (12 views, 320x240), see synth/scene.py for the layout."""
+    return _cached_scene("uav", "small")
