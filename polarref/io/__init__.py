@@ -1,0 +1,91 @@
+"""Readers and writers for bundle-adjustment and ground-truth camera files.
+
+Every reader raises :class:`FormatError` (a :class:`polarref.errors.PolarrefError`) naming the
+file and the 1-based line of the first problem found.
+
+Modules: :mod:`polarref.io.bal` (Bundle Adjustment in the Large), :mod:`polarref.io.parallaxba`
+(ParallaxBA's Cam.txt / Feature.pmba / intrinsic_matrix.txt), :mod:`polarref.io.pvlba` (PVL-BA
+four-file problems and BlocksExchange XML), :mod:`polarref.io.strecha` (Strecha ``*.camera``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from polarref.errors import PolarrefError
+
+
+class FormatError(PolarrefError):
+    """A malformed input file; ``path`` and ``line`` (1-based, or None) name the place."""
+
+    def __init__(self, path, line: int | None, message: str) -> None:
+        self.path = Path(path)
+        self.line = line
+        where = f"{self.path}:{line}" if line is not None else f"{self.path}"
+        super().__init__(f"{where}: {message}")
+
+
+def read_lines(path) -> list[str]:
+    """All lines of a text file; FormatError when it is missing or not text."""
+    path = Path(path)
+    if not path.is_file():
+        raise FormatError(path, None, "file not found")
+    try:
+        return path.read_text(encoding="utf-8").splitlines()
+    except UnicodeDecodeError as exc:
+        raise FormatError(path, None, f"not a UTF-8 text file ({exc})") from exc
+
+
+def parse_numbers(path, lineno: int, tokens: list[str], kind=float, count: int | None = None,
+                  what: str = "values") -> list:
+    """Convert tokens to numbers, raising FormatError naming ``path:lineno`` on failure."""
+    if count is not None and len(tokens) != count:
+        raise FormatError(path, lineno, f"expected {count} {what}, found {len(tokens)}: "
+                          f"{' '.join(tokens)!r}")
+    try:
+        return [kind(t) for t in tokens]
+    except ValueError as exc:
+        raise FormatError(path, lineno, f"bad number in {what}: {exc}") from exc
+
+
+def build_reconstruction(cameras, camera_of_image, cam_from_world, names, obs_image, obs_point,
+                         obs_uv, points):
+    """A :class:`polarref.reconstruction.Reconstruction` from flat observation arrays.
+
+    Args:
+        cameras: list of :class:`polarref.camera.Camera`; camera id = list index + 1.
+        camera_of_image: (N,) 0-based index into ``cameras`` per image.
+        cam_from_world: list of N :class:`polarref.geometry.Rigid3`.
+        names: N image names.
+        obs_image, obs_point: (L,) 0-based image and point index per observation.
+        obs_uv: (L, 2) pixels (COLMAP convention).
+        points: (M, 3) world points.
+
+    Image ids are ``index + 1``, point ids ``index + 1``; each image's keypoints are its
+    observations in input order.
+    """
+    import numpy as np
+
+    from polarref.reconstruction import Image, Point3D, Reconstruction
+
+    obs_image = np.asarray(obs_image, dtype=np.int64)
+    obs_point = np.asarray(obs_point, dtype=np.int64)
+    rec = Reconstruction()
+    for c, camera in enumerate(cameras):
+        rec.cameras[c + 1] = camera
+    order = np.argsort(obs_image, kind="stable")
+    starts = np.searchsorted(obs_image[order], np.arange(len(names) + 1))
+    kp_index = np.empty(len(obs_image), dtype=np.int64)
+    for i in range(len(names)):
+        obs = order[starts[i]:starts[i + 1]]
+        kp_index[obs] = np.arange(len(obs))
+        rec.images[i + 1] = Image(i + 1, names[i], int(camera_of_image[i]) + 1, cam_from_world[i],
+                                  np.asarray(obs_uv, dtype=np.float64)[obs].reshape(-1, 2),
+                                  obs_point[obs] + 1)
+    by_point = np.argsort(obs_point, kind="stable")
+    pstarts = np.searchsorted(obs_point[by_point], np.arange(len(points) + 1))
+    for j in range(len(points)):
+        obs = by_point[pstarts[j]:pstarts[j + 1]]
+        track = np.stack([obs_image[obs] + 1, kp_index[obs]], axis=1).astype(np.int64)
+        rec.points3D[j + 1] = Point3D(np.array(points[j], dtype=np.float64), track.reshape(-1, 2))
+    return rec
