@@ -61,16 +61,33 @@ class Reconstruction:
         xyz = np.array([self.points3D[i].xyz for i in ids]).reshape(-1, 3)
         return ids, xyz
 
+    def observations(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """All observations in track order: (image_ids (K,), point_ids (K,), point2D_idx (K,))."""
+        rows = [(np.full(len(p.track), pid), p.track) for pid, p in self.points3D.items()]
+        if not rows:
+            empty = np.zeros(0, dtype=np.int64)
+            return empty, empty, empty
+        pids = np.concatenate([r[0] for r in rows]).astype(np.int64)
+        tracks = np.concatenate([r[1] for r in rows]).astype(np.int64).reshape(-1, 2)
+        return tracks[:, 0], pids, tracks[:, 1]
+
     def reprojection_errors(self) -> np.ndarray:
-        """Per-observation reprojection error in px, (num_observations,), track order."""
-        errs = []
-        for p in self.points3D.values():
-            for image_id, idx in p.track:
-                img = self.images[int(image_id)]
-                cam = self.cameras[img.camera_id]
-                uv = cam.project(img.cam_from_world.apply(p.xyz))
-                errs.append(np.linalg.norm(uv - img.keypoints[int(idx)]))
-        return np.asarray(errs, dtype=np.float64)
+        """Per-observation reprojection error in px, (num_observations,), track order.
+
+        Vectorized per image: one ``project`` call per image, not per observation.
+        """
+        image_ids, point_ids, idx = self.observations()
+        errs = np.full(len(image_ids), np.nan)
+        if len(image_ids) == 0:
+            return errs
+        xyz = {pid: p.xyz for pid, p in self.points3D.items()}
+        X = np.array([xyz[int(i)] for i in point_ids]).reshape(-1, 3)
+        for image_id in np.unique(image_ids):
+            sel = image_ids == image_id
+            img = self.images[int(image_id)]
+            uv = self.cameras[img.camera_id].project(img.cam_from_world.apply(X[sel]))
+            errs[sel] = np.linalg.norm(uv - img.keypoints[idx[sel]], axis=1)
+        return errs
 
     # ---- pycolmap ----------------------------------------------------------------------
     def to_pycolmap(self):
@@ -79,9 +96,10 @@ class Reconstruction:
 
         rec = pycolmap.Reconstruction()
         for cam_id, cam in self.cameras.items():
-            pc = pycolmap.Camera(model=cam.model, width=int(cam.width), height=int(cam.height),
-                                 params=np.asarray(cam.params, dtype=np.float64), camera_id=int(cam_id))
-            rec.add_camera_with_trivial_rig(pc)
+            try:
+                rec.add_camera_with_trivial_rig(cam.to_pycolmap(int(cam_id)))
+            except ValueError as exc:
+                raise PolarrefError(f"camera {cam_id}: {exc}") from exc
         for img in self.images.values():
             pimg = pycolmap.Image(name=img.name, keypoints=np.asarray(img.keypoints, dtype=np.float64),
                                   camera_id=int(img.camera_id), image_id=int(img.image_id))
@@ -103,8 +121,10 @@ class Reconstruction:
 
         out = Reconstruction()
         for cam_id, c in rec.cameras.items():
-            out.cameras[int(cam_id)] = Camera(model=c.model.name, width=int(c.width),
-                                              height=int(c.height), params=np.array(c.params))
+            try:
+                out.cameras[int(cam_id)] = Camera.from_pycolmap(c)
+            except ValueError as exc:
+                raise PolarrefError(f"camera {cam_id}: {exc}") from exc
         for image_id, im in rec.images.items():
             if not im.has_pose:
                 continue
