@@ -1,0 +1,109 @@
+"""Reconstruction <-> BAProblem, and :func:`adjust`, the entry point the SfM pipeline calls."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from polarref.ba.options import BAOptions, BASummary
+from polarref.ba.problem import BAProblem, prepare
+from polarref.ba.solver import solve
+from polarref.errors import PolarrefError
+from polarref.geometry import Rigid3
+
+
+def problem_from_reconstruction(rec, *, variable_image_ids=None, fixed_image_ids=None,
+                                variable_point_ids=None) -> BAProblem:
+    """Build a BAProblem from a ``polarref.reconstruction.Reconstruction``.
+
+    Point set: ``variable_point_ids`` if given; else the points seen by the variable images
+    when ``variable_image_ids`` is given; else all points. Every image observing a chosen point
+    enters the problem; it is variable when listed in ``variable_image_ids`` (default: all) and
+    not in ``fixed_image_ids``.
+    """
+    if not rec.images or not rec.points3D:
+        raise PolarrefError(f"bundle adjustment: empty reconstruction ({len(rec.images)} images, "
+                            f"{len(rec.points3D)} points)")
+    fixed = set(int(i) for i in (fixed_image_ids or ()))
+    variable = (set(int(i) for i in rec.images) if variable_image_ids is None
+                else set(int(i) for i in variable_image_ids))
+    unknown = (fixed | variable) - set(rec.images)
+    if unknown:
+        raise PolarrefError(f"bundle adjustment: unknown image ids {sorted(unknown)[:5]}")
+    variable -= fixed
+    if variable_point_ids is not None:
+        pids = sorted(int(p) for p in variable_point_ids)
+        missing = [p for p in pids if p not in rec.points3D]
+        if missing:
+            raise PolarrefError(f"bundle adjustment: unknown point ids {missing[:5]}")
+    elif variable_image_ids is not None:
+        chosen = set()
+        for i in variable:
+            ids = rec.images[i].point3D_ids
+            chosen.update(int(p) for p in ids[ids >= 0] if int(p) in rec.points3D)
+        pids = sorted(chosen)
+    else:
+        pids = sorted(rec.points3D)
+    if not pids:
+        raise PolarrefError("bundle adjustment: no 3D points to adjust")
+    tracks = [np.asarray(rec.points3D[p].track, np.int64).reshape(-1, 2) for p in pids]
+    lens = np.array([len(t) for t in tracks])
+    track = np.concatenate(tracks) if tracks else np.zeros((0, 2), np.int64)
+    obs_pt = np.repeat(np.arange(len(pids)), lens)
+    image_ids = np.array(sorted(set(track[:, 0].tolist()) & set(rec.images)), np.int64)
+    if len(image_ids) == 0:
+        raise PolarrefError("bundle adjustment: the chosen points have no observations")
+    index = {int(i): k for k, i in enumerate(image_ids)}
+    known = np.array([int(i) in index for i in track[:, 0]], bool)
+    obs_cam = np.array([index.get(int(i), -1) for i in track[:, 0]], np.int64)
+    uv = np.full((len(track), 2), np.nan)
+    for k, i in enumerate(image_ids):  # one vectorized gather per image
+        sel = np.flatnonzero(obs_cam == k)
+        kp = rec.images[int(i)].keypoints
+        idx = track[sel, 1]
+        ok = (idx >= 0) & (idx < len(kp))
+        uv[sel[ok]] = kp[idx[ok]]
+    imgs = [rec.images[int(i)] for i in image_ids]
+    R = np.array([im.cam_from_world.R for im in imgs])
+    C = np.array([im.cam_from_world.center for im in imgs])
+    X = np.array([rec.points3D[p].xyz for p in pids], np.float64)
+    cam_fixed = np.array([int(i) not in variable for i in image_ids])
+    problem = BAProblem(cameras=[rec.cameras[im.camera_id] for im in imgs], R=R, C=C, X=X,
+                        obs_cam=np.where(known, obs_cam, -1), obs_pt=obs_pt, obs_uv=uv,
+                        cam_fixed=cam_fixed, image_ids=image_ids,
+                        point_ids=np.array(pids, np.int64))
+    problem.exclusions["observations_unknown_image"] = int((~known).sum())
+    return problem
+
+
+def write_back(rec, problem: BAProblem) -> None:
+    """Copy the adjusted variable poses and the points back into ``rec``."""
+    for k, i in enumerate(problem.image_ids):
+        if problem.cam_mask is not None and problem.cam_mask[k].any():
+            R = problem.R[k]
+            rec.images[int(i)].cam_from_world = Rigid3(R, -R @ problem.C[k])
+    for k, p in enumerate(problem.point_ids):
+        rec.points3D[int(p)].xyz = problem.X[k].copy()
+
+
+def adjust(rec, options: BAOptions = BAOptions(), *, variable_image_ids=None,
+           fixed_image_ids=None, variable_point_ids=None) -> BASummary:
+    """Bundle-adjust a Reconstruction in place (poses and points; intrinsics fixed).
+
+    Args:
+        rec: ``polarref.reconstruction.Reconstruction``.
+        options: solver options; ``options.param`` picks the parameterization (parallax forms
+            convert XYZ -> parallax landmarks, solve, and convert back).
+        variable_image_ids: images whose poses are refined (default: all).
+        fixed_image_ids: images held fixed (wins over variable_image_ids).
+        variable_point_ids: points refined (default: all, or those seen by the variable images).
+
+    Returns:
+        BASummary. Gauge: see :func:`polarref.ba.problem.fix_gauge` (``summary.gauge``).
+    """
+    problem = problem_from_reconstruction(rec, variable_image_ids=variable_image_ids,
+                                          fixed_image_ids=fixed_image_ids,
+                                          variable_point_ids=variable_point_ids)
+    prepare(problem)
+    summary = solve(problem, options, prepared=True)
+    write_back(rec, problem)
+    return summary

@@ -1,0 +1,63 @@
+"""Euclidean parameterization: XYZ points, pixel residuals ``uv(R (X - C)) - uv_obs``."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from polarref.ba.problem import BAProblem
+from polarref.ba.projection import Projector
+
+
+def rot_columns(Xc: np.ndarray, Juv: np.ndarray) -> np.ndarray:
+    """``Juv @ d Xc / d dtheta`` for R <- exp(dtheta) R: (M, k, 3).
+
+    With dXc = dtheta x Xc = -[Xc]x dtheta, the row ``a^T (-[Xc]x)`` equals ``Xc x a``.
+    """
+    return np.cross(Xc[:, None, :], Juv)
+
+
+class Euclidean:
+    """XYZ landmarks; one camera slot per observation (the observing camera)."""
+
+    name = "euclidean"
+    k = 2
+    groups = ((0, 2),)
+
+    def __init__(self, problem: BAProblem, options=None):
+        self.p = problem
+        self.proj = Projector(problem.cameras, problem.obs_cam)
+        self.slot_cams = problem.obs_cam[None, :]
+
+    def init_points(self) -> np.ndarray:
+        return self.p.X.copy()
+
+    def camera_frame(self, R, C, pts):
+        p = self.p
+        Ri = R[p.obs_cam]
+        Xc = np.einsum("mij,mj->mi", Ri, pts[p.obs_pt] - C[p.obs_cam])
+        return Ri, Xc
+
+    def evaluate(self, R, C, pts, jac: bool = True):
+        """Residuals (M, 2); with jac also ``res_D_point`` (M, 2, 3) and [``res_D_cam`` (M, 2, 6)]."""
+        Ri, Xc = self.camera_frame(R, C, pts)
+        if not jac:
+            return self.proj(Xc, jac=False) - self.p.obs_uv, None, None
+        uv, Juv = self.proj(Xc)
+        Jp = Juv @ Ri
+        Jc = np.empty((len(Xc), 2, 6))
+        Jc[:, :, :3] = rot_columns(Xc, Juv)
+        Jc[:, :, 3:] = -Jp
+        return uv - self.p.obs_uv, Jp, [Jc]
+
+    def pixel_residuals(self, R, C, pts) -> np.ndarray:
+        return self.evaluate(R, C, pts, jac=False)[0]
+
+    def to_xyz(self, R, C, pts) -> np.ndarray:
+        return pts.copy()
+
+    def retract_points(self, pts, dp):
+        return pts + dp
+
+    def store(self, R, C, pts) -> None:
+        """Write the solution's points back into the problem (XYZ)."""
+        self.p.X = pts.copy()

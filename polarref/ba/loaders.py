@@ -1,0 +1,71 @@
+"""Read a BA problem from BAL, ParallaxBA, a COLMAP model folder, or a synthetic spec."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from polarref.ba.problem import BAProblem
+from polarref.errors import PolarrefError
+
+
+def load_problem(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]:
+    """(problem, truth Reconstruction or None) for a path or ``synth-20``/``synth-60``/``synth-200``.
+
+    BAL: a ``.txt`` file (RADIAL cameras via ``polarref.io.bal``); ParallaxBA: a folder with
+    ``Cam.txt`` and ``Feature.pmba`` (points by DLT triangulation, PINHOLE); COLMAP: a model folder.
+    """
+    from polarref.ba.adapter import problem_from_reconstruction
+
+    if spec.startswith("synth-"):
+        from polarref.ba.synthetic import SIZES, synthetic_reconstruction
+        if spec not in SIZES:
+            raise PolarrefError(f"unknown synthetic problem {spec!r}; known: {', '.join(SIZES)}")
+        init, truth = synthetic_reconstruction(*SIZES[spec], seed=seed, rot_deg=0.3,
+                                               point_sigma=0.05, center_sigma=0.05)
+        return problem_from_reconstruction(init), truth
+    path = Path(spec)
+    if not path.exists():
+        raise PolarrefError(f"BA problem not found: {path}")
+    if path.is_dir() and (path / "Cam.txt").exists() and (path / "Feature.pmba").exists():
+        from polarref.io.parallaxba import read_parallaxba, triangulate_dlt
+        pb = read_parallaxba(path)
+        X = triangulate_dlt(pb)
+        cam = pb.camera()
+        N = pb.num_cameras
+        return BAProblem(cameras=[cam] * N, R=pb.R.copy(), C=pb.centers.copy(), X=X,
+                         obs_cam=pb.obs_camera.copy(), obs_pt=pb.obs_point.copy(),
+                         obs_uv=pb.obs_uv.copy()), None
+    if path.is_dir():
+        from polarref.reconstruction import Reconstruction
+        return problem_from_reconstruction(Reconstruction.read(path)), None
+    from polarref.io.bal import bal_to_reconstruction, read_bal
+    try:
+        bal = read_bal(path)
+    except (ValueError, OSError) as exc:
+        raise PolarrefError(f"cannot read BAL problem {path}: {exc}") from exc
+    return problem_from_reconstruction(bal_to_reconstruction(bal)), None
+
+
+def problem_to_reconstruction(problem: BAProblem):
+    """A Reconstruction holding the problem's cameras, poses, points and observations."""
+    from polarref.geometry import Rigid3
+    from polarref.reconstruction import Image, Point3D, Reconstruction
+
+    rec = Reconstruction()
+    order = np.argsort(problem.obs_cam, kind="stable")
+    starts = np.searchsorted(problem.obs_cam[order], np.arange(problem.num_cameras + 1))
+    p2d = np.empty(problem.num_observations, np.int64)
+    for i in range(problem.num_cameras):
+        obs = order[starts[i]:starts[i + 1]]
+        p2d[obs] = np.arange(len(obs))
+        rec.cameras[i + 1] = problem.cameras[i]
+        R = problem.R[i]
+        rec.images[i + 1] = Image(i + 1, f"img_{i:05d}", i + 1, Rigid3(R, -R @ problem.C[i]),
+                                  problem.obs_uv[obs].copy(), problem.obs_pt[obs] + 1)
+    tracks = np.stack([problem.obs_cam + 1, p2d], axis=1)
+    starts = np.searchsorted(problem.obs_pt, np.arange(problem.num_points + 1))
+    for j in range(problem.num_points):
+        rec.points3D[j + 1] = Point3D(problem.X[j].copy(), tracks[starts[j]:starts[j + 1]])
+    return rec

@@ -1,0 +1,81 @@
+"""Bundle-adjustment options and the summary every solve returns."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+PARAMS = ("euclidean", "parallax", "polar", "angular")
+
+
+@dataclass(frozen=True)
+class BAOptions:
+    """Options of :func:`polarref.ba.adjust` / :func:`polarref.ba.solver.solve`.
+
+    Change with ``dataclasses.replace``. Tolerances follow Ceres' definitions.
+    """
+
+    param: str = "euclidean"  # landmark/residual parameterization, one of PARAMS
+    loss: str = "trivial"  # robust loss on each residual block: trivial | huber | cauchy
+    loss_scale: float = 1.0  # loss scale a [px-equivalent]: Huber/Cauchy knee at |r| = a
+    max_iterations: int = 100  # LM iterations, accepted and rejected steps both count (Ceres)
+    function_tolerance: float = 1e-6  # stop when |d cost| / cost < this after an accepted step
+    gradient_tolerance: float = 1e-10  # stop when max |gradient| < this
+    parameter_tolerance: float = 1e-8  # stop when |step| < this * (|x| + this)
+    initial_trust_radius: float = 1e4  # 1 / initial LM damping mu (Ceres' default)
+    max_trust_radius: float = 1e16  # cap on the trust radius
+    min_trust_radius: float = 1e-32  # stop (failure) below this radius
+    staged: bool = False  # angular only: theta-only residuals first, then theta and phi jointly
+    sigma_px: float = 1.0  # pixel noise used to weight angular residuals into px-equivalent units
+    max_sigma_phi: float = 0.05  # angular: use phi only where its propagated sigma <= this [rad]
+    dense_max_cameras: int = 700  # reduced camera system solved densely up to this many cameras
+
+    def __post_init__(self) -> None:
+        if self.param not in PARAMS:
+            raise ValueError(f"unknown BA parameterization {self.param!r}; choose {', '.join(PARAMS)}")
+        if self.loss not in ("trivial", "huber", "cauchy"):
+            raise ValueError(f"unknown loss {self.loss!r}; choose trivial, huber or cauchy")
+        if not self.loss_scale > 0:
+            raise ValueError(f"loss_scale must be > 0, got {self.loss_scale}")
+        if self.max_iterations < 0:
+            raise ValueError(f"max_iterations must be >= 0, got {self.max_iterations}")
+
+
+@dataclass
+class IterationRecord:
+    """One LM iteration of the trace (for plots)."""
+
+    iteration: int
+    cost: float  # objective after the iteration (the new one if accepted)
+    accepted: bool
+    trust_radius: float  # radius used for this step (mu = 1 / radius)
+    step_norm: float
+    gradient_max_norm: float
+    wall_s: float  # since the start of the solve
+
+
+@dataclass
+class BASummary:
+    """Result of one bundle adjustment (the problem is updated in place)."""
+
+    param: str
+    loss: str
+    initial_cost: float  # objective 1/2 sum rho(|r|^2) of the chosen parameterization
+    final_cost: float
+    initial_pixel_cost: float  # 1/2 sum rho(|uv - proj|^2): one cost definition for all forms
+    final_pixel_cost: float
+    initial_rms_px: float  # sqrt(mean squared pixel-residual component), no robust loss
+    final_rms_px: float
+    iterations: int  # LM iterations (accepted + rejected)
+    accepted_iterations: int
+    wall_s: float
+    termination: str  # function_tolerance | gradient_tolerance | parameter_tolerance | ...
+    num_cameras: int
+    num_points: int
+    num_observations: int
+    num_variable_cameras: int
+    gauge: str  # which 7 DoF were fixed, in words
+    exclusions: dict = field(default_factory=dict)  # what was left out and how many
+    linear_solver: str = ""
+    trace: list[IterationRecord] = field(default_factory=list)
+    time_in: dict = field(default_factory=dict)  # seconds per solver phase (profiling)
+    points_state: object = field(default=None, repr=False)  # (P, 3) internal landmark params

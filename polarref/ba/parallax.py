@@ -1,0 +1,162 @@
+"""ParallaxBA landmarks (Zhao et al. 2015): main/associate anchors, azimuth, elevation, parallax.
+
+Binding definition: ``d = direction_from_azimuth_elevation(alpha, beta)`` is the world
+direction from the main anchor centre ``C_m`` to the point; ``e = C_a - C_m``;
+``phi_a = angle(d, e)``; the unnormalized ray from camera centre ``C_i`` is
+``v_i = sin(w) (C_m - C_i) + |e| sin(w + phi_a) d``. We write
+``|e| sin(w + phi_a) = sin(w) (d.e) + cos(w) |d x e|``, which has no inverse trigonometry,
+so ``v_i = sin(w) (P - C_i)`` for a finite point and ``|d x e| d`` at infinity (w = 0).
+The point's 3 parameters also couple to the anchors' centres: an observation has 3 camera
+slots (observing, main, associate) whose Jacobians go into those cameras' blocks.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from polarref.angular import (azimuth_elevation_from_direction, direction_from_azimuth_elevation,
+                              direction_jacobian)
+from polarref.ba.euclidean import rot_columns
+from polarref.ba.problem import BAProblem
+from polarref.ba.projection import Projector
+from polarref.errors import PolarrefError
+
+FAR = 1e8  # points at infinity are written back this many baselines from the main anchor
+
+
+def choose_anchors(problem: BAProblem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Main anchor = first observation's camera; associate = the camera whose ray to the point
+    makes the largest angle with the main ray. Returns (main (P,), assoc (P,), omega (P,)).
+    Observations are sorted by point (see prepare)."""
+    p = problem
+    starts = np.flatnonzero(np.r_[True, p.obs_pt[1:] != p.obs_pt[:-1]])
+    main = p.obs_cam[starts]
+    Xo = p.X[p.obs_pt]
+    rm = Xo - p.C[main][p.obs_pt]
+    ri = Xo - p.C[p.obs_cam]
+    cosang = np.einsum("mi,mi->m", rm, ri) / np.maximum(
+        np.linalg.norm(rm, axis=1) * np.linalg.norm(ri, axis=1), 1e-300)
+    ang = np.arccos(np.clip(cosang, -1.0, 1.0))
+    base = np.linalg.norm(p.C[p.obs_cam] - p.C[main][p.obs_pt], axis=1)
+    ang = np.where(base > 0, ang, -1.0)  # same centre as the main anchor: unusable
+    # arg-max per point over its sorted run of observations
+    P = len(p.X)
+    order = np.lexsort((-ang, p.obs_pt))
+    best = order[starts]
+    assoc = p.obs_cam[best]
+    omega = ang[best]
+    if (omega < 0).any():
+        raise PolarrefError(f"parallax landmarks: {int((omega < 0).sum())} points are seen only "
+                            "from one camera centre (no associate anchor)")
+    assert len(assoc) == P
+    return main, assoc, omega
+
+
+class Parallax:
+    """Parallax-angle landmarks with pixel residuals."""
+
+    name = "parallax"
+    k = 2
+    groups = ((0, 2),)
+
+    def __init__(self, problem: BAProblem, options=None):
+        self.p = problem
+        self.proj = Projector(problem.cameras, problem.obs_cam)
+        self.main, self.assoc, omega0 = choose_anchors(problem)
+        self.omega0 = omega0
+        op = problem.obs_pt
+        self.slot_cams = np.stack([problem.obs_cam, self.main[op], self.assoc[op]])
+
+    def init_points(self) -> np.ndarray:
+        p = self.p
+        a, b = azimuth_elevation_from_direction(p.X - p.C[self.main])
+        return np.stack([a, b, self.omega0], axis=1)
+
+    def rays(self, R, C, pts, jac: bool):
+        """Camera-frame rays Xc (M, 3) = R_i v_i and, with jac, the pieces of their Jacobians."""
+        p = self.p
+        Cm, Ca = C[self.main], C[self.assoc]
+        d = direction_from_azimuth_elevation(pts[:, 0], pts[:, 1])
+        e = Ca - Cm
+        c = np.einsum("pi,pi->p", d, e)
+        crs = np.cross(d, e)
+        s = np.linalg.norm(crs, axis=1)
+        sw, cw = np.sin(pts[:, 2]), np.cos(pts[:, 2])
+        h = sw * c + cw * s
+        op, oc = p.obs_pt, p.obs_cam
+        sw_o = sw[op]
+        base = Cm[op] - C[oc]
+        v = sw_o[:, None] * base + (h[:, None] * d)[op]
+        Ri = R[oc]
+        Xc = np.einsum("mij,mj->mi", Ri, v)
+        if not jac:
+            return Xc, None
+        # per point: dv/d(alpha, beta) (excluding the observation-dependent part) and dh/de
+        Dd = direction_jacobian(pts[:, 0], pts[:, 1])  # (P, 3, 2)
+        inv_s = 1.0 / s
+        e2 = np.einsum("pi,pi->p", e, e)
+        dh_dd = sw[:, None] * e + (cw * inv_s)[:, None] * (e2[:, None] * d - c[:, None] * e)
+        dh_de = sw[:, None] * d + (cw * inv_s)[:, None] * (e - c[:, None] * d)
+        dv_dab = d[:, :, None] * np.einsum("pi,pij->pj", dh_dd, Dd)[:, None, :] + h[:, None, None] * Dd
+        dh_dw = cw * c - sw * s
+        dv_dw_pt = dh_dw[:, None] * d  # plus cos(w) (C_m - C_i), per observation
+        dv_dpt = np.empty((len(op), 3, 3))
+        dv_dpt[:, :, :2] = dv_dab[op]
+        dv_dpt[:, :, 2] = dv_dw_pt[op] + cw[op][:, None] * base
+        return Xc, (Ri, sw_o, d, dh_de, dv_dpt)
+
+    def residual_rows(self, Xc: np.ndarray, jac: bool):
+        """Residuals (M, k) and ``res_D_Xc`` (M, k, 3); pixel residuals here."""
+        if not jac:
+            return self.proj(Xc, jac=False) - self.p.obs_uv, None
+        uv, Juv = self.proj(Xc)
+        return uv - self.p.obs_uv, Juv
+
+    def evaluate(self, R, C, pts, jac: bool = True):
+        Xc, parts = self.rays(R, C, pts, jac)
+        res, Jx = self.residual_rows(Xc, jac)
+        if not jac:
+            return res, None, None
+        Ri, sw_o, d, dh_de, dv_dpt = parts
+        k = res.shape[1]
+        A = Jx @ Ri  # res_D_v (M, k, 3)
+        Jp = A @ dv_dpt
+        M = len(Xc)
+        op = self.p.obs_pt
+        J_obs = np.empty((M, k, 6))
+        J_obs[:, :, :3] = rot_columns(Xc, Jx)
+        J_obs[:, :, 3:] = -sw_o[:, None, None] * A
+        # d v / d C_a = d dh_de^T ; d v / d C_m = sin(w) I - d dh_de^T
+        Ad = np.einsum("mki,mi->mk", A, d[op])  # (M, k)
+        outer = Ad[:, :, None] * dh_de[op][:, None, :]  # A d dh_de^T (M, k, 3)
+        J_m = np.zeros((M, k, 6))
+        J_m[:, :, 3:] = sw_o[:, None, None] * A - outer
+        J_a = np.zeros((M, k, 6))
+        J_a[:, :, 3:] = outer
+        return res, Jp, [J_obs, J_m, J_a]
+
+    def pixel_residuals(self, R, C, pts) -> np.ndarray:
+        Xc, _ = self.rays(R, C, pts, False)
+        return self.proj(Xc, jac=False) - self.p.obs_uv
+
+    def retract_points(self, pts, dp):
+        return pts + dp
+
+    def to_xyz(self, R, C, pts) -> np.ndarray:
+        """XYZ of the landmarks; points at infinity (w ~ 0) go FAR baselines out along d."""
+        Cm, Ca = C[self.main], C[self.assoc]
+        d = direction_from_azimuth_elevation(pts[:, 0], pts[:, 1])
+        e = Ca - Cm
+        c = np.einsum("pi,pi->p", d, e)
+        s = np.linalg.norm(np.cross(d, e), axis=1)
+        sw, cw = np.sin(pts[:, 2]), np.cos(pts[:, 2])
+        h = sw * c + cw * s
+        base = np.linalg.norm(e, axis=1)
+        far = np.abs(sw) * FAR < 1.0
+        dist = np.where(far, FAR * base, h / np.where(far, 1.0, sw))
+        self.num_at_infinity = int(far.sum())
+        return Cm + dist[:, None] * d
+
+    def store(self, R, C, pts) -> None:
+        self.p.X = self.to_xyz(R, C, pts)
+        self.p.exclusions["points_at_infinity_written_far"] = self.num_at_infinity

@@ -1,0 +1,184 @@
+"""Peer solvers on the same problem: pycolmap's bundle adjuster (Ceres) and scipy least_squares.
+
+Both report the one cost definition of this package (:func:`polarref.ba.solver.pixel_cost`,
+projection regardless of depth) recomputed on their outputs, because COLMAP zeroes the
+residual of a point behind its camera.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from polarref.ba.euclidean import Euclidean
+from polarref.ba.options import BAOptions
+from polarref.ba.problem import BAProblem
+from polarref.ba.solver import pixel_cost
+from polarref.geometry import so3_exp
+
+
+@dataclass
+class PeerResult:
+    name: str
+    initial_cost: float
+    final_cost: float
+    final_rms_px: float
+    iterations: int
+    wall_s: float
+    termination: str
+    reported_cost: float  # the peer's own final cost (COLMAP: behind-camera residuals zeroed)
+
+
+def _cost_of(problem: BAProblem, R, C, X, options: BAOptions):
+    e = Euclidean(problem)
+    return pixel_cost(e.pixel_residuals(R, C, X), options.loss, options.loss_scale)
+
+
+def _to_pycolmap(problem: BAProblem):
+    """pycolmap.Reconstruction of the problem (image/camera id = index + 1) and point ids."""
+    import pycolmap
+
+    rec = pycolmap.Reconstruction()
+    order = np.argsort(problem.obs_cam, kind="stable")
+    starts = np.searchsorted(problem.obs_cam[order], np.arange(problem.num_cameras + 1))
+    p2d = np.empty(problem.num_observations, np.int64)
+    for i, cam in enumerate(problem.cameras):
+        obs = order[starts[i]:starts[i + 1]]
+        p2d[obs] = np.arange(len(obs))
+        rec.add_camera_with_trivial_rig(cam.to_pycolmap(i + 1))
+        img = pycolmap.Image(name=f"img_{i:05d}", keypoints=problem.obs_uv[obs].astype(np.float64),
+                             camera_id=i + 1, image_id=i + 1)
+        R = problem.R[i]
+        rec.add_image_with_trivial_frame(img, pycolmap.Rigid3d(pycolmap.Rotation3d(R), -R @ problem.C[i]))
+    starts = np.searchsorted(problem.obs_pt, np.arange(problem.num_points + 1))
+    ids = []
+    for j in range(problem.num_points):
+        track = pycolmap.Track()
+        for o in range(starts[j], starts[j + 1]):
+            track.add_element(int(problem.obs_cam[o]) + 1, int(p2d[o]))
+        ids.append(rec.add_point3D(problem.X[j], track))
+    return rec, ids
+
+
+def run_pycolmap(problem: BAProblem, options: BAOptions) -> PeerResult:
+    """Ceres via pycolmap: intrinsics fixed, gauge TWO_CAMS_FROM_WORLD, same robust loss,
+    pycolmap's default solver settings otherwise (max 100 iterations, gradient_tolerance 1e-4,
+    function_tolerance 0)."""
+    import pycolmap
+
+    rec, point_ids = _to_pycolmap(problem)
+    opts = pycolmap.BundleAdjustmentOptions()
+    opts.refine_focal_length = opts.refine_principal_point = opts.refine_extra_params = False
+    opts.refine_sensor_from_rig = False
+    opts.print_summary = False
+    opts.ceres.loss_function_type = {"trivial": pycolmap.LossFunctionType.TRIVIAL,
+                                     "huber": pycolmap.LossFunctionType.HUBER,
+                                     "cauchy": pycolmap.LossFunctionType.CAUCHY}[options.loss]
+    opts.ceres.loss_function_scale = options.loss_scale
+    opts.ceres.solver_options.max_num_iterations = options.max_iterations
+    config = pycolmap.BundleAdjustmentConfig()
+    for image_id in rec.images:
+        config.add_image(image_id)
+    config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    c0, _ = _cost_of(problem, problem.R, problem.C, problem.X, options)
+    t = time.perf_counter()
+    adjuster = pycolmap.create_default_bundle_adjuster(opts, config, rec)
+    summary = adjuster.solve()
+    wall = time.perf_counter() - t
+    cs = summary.ceres_summary
+    N = problem.num_cameras
+    R = np.empty((N, 3, 3))
+    C = np.empty((N, 3))
+    for i in range(N):
+        pose = rec.images[i + 1].cam_from_world()
+        R[i] = pose.rotation.matrix()
+        C[i] = -R[i].T @ np.asarray(pose.translation)
+    X = np.array([rec.points3D[int(pid)].xyz for pid in point_ids])
+    c1, rms = _cost_of(problem, R, C, X, options)
+    return PeerResult("pycolmap", c0, c1, rms, int(cs.num_successful_steps + cs.num_unsuccessful_steps),
+                      wall, str(cs.termination_type).split(".")[-1], float(cs.final_cost))
+
+
+def _left_jacobian(w: np.ndarray) -> np.ndarray:
+    """Left Jacobian of SO(3), (N, 3) -> (N, 3, 3)."""
+    from polarref.geometry import skew
+    th = np.linalg.norm(w, axis=1)[:, None, None]
+    small = th < 1e-6
+    t = np.where(small, 1.0, th)
+    a = np.where(small, 0.5 - th**2 / 24, (1 - np.cos(t)) / t**2)
+    b = np.where(small, 1 / 6 - th**2 / 120, (t - np.sin(t)) / t**3)
+    K = skew(w)
+    return np.eye(3) + a * K + b * (K @ K)
+
+
+def run_scipy(problem: BAProblem, options: BAOptions) -> PeerResult:
+    """scipy.optimize.least_squares (trf, sparse Jacobian from our analytic kernel, lsmr).
+
+    Same gauge as ours (the problem's ``cam_mask``); loss 'huber'/'cauchy' map to scipy's
+    with f_scale = loss_scale on each residual component (scipy has no block losses).
+    """
+    import scipy.optimize
+    import scipy.sparse
+
+    e = Euclidean(problem)
+    N, P, M = problem.num_cameras, problem.num_points, problem.num_observations
+    cam_cols = np.flatnonzero(problem.cam_mask.reshape(-1))
+    free_pt = ~problem.pt_fixed
+    pt_cols = np.flatnonzero(np.repeat(free_pt, 3))
+    nc = len(cam_cols)
+    R0, C0, X0 = problem.R.copy(), problem.C.copy(), problem.X.copy()
+
+    def unpack(x):
+        d = np.zeros(6 * N)
+        d[cam_cols] = x[:nc]
+        d = d.reshape(N, 6)
+        X = X0.reshape(-1).copy()
+        X[pt_cols] = x[nc:]
+        return so3_exp(d[:, :3]) @ R0, C0 + d[:, 3:], X.reshape(P, 3)
+
+    rows = np.arange(2 * M).reshape(M, 2)
+    # column layout: camera params (6N, masked) then point params (3P, masked)
+    cols_c = 6 * problem.obs_cam[:, None] + np.arange(6)
+    cols_p = 6 * N + 3 * problem.obs_pt[:, None] + np.arange(3)
+    full_cols = np.concatenate([cols_c, cols_p], axis=1)  # (M, 9)
+    keep = np.r_[cam_cols, 6 * N + pt_cols]
+    colmap = -np.ones(6 * N + 3 * P, np.int64)
+    colmap[keep] = np.arange(len(keep))
+    rr = np.repeat(rows, 9, axis=1).reshape(-1)
+    cc = colmap[np.tile(full_cols, (1, 2)).reshape(M, 2, 9).reshape(-1)]
+    ok = cc >= 0
+    n = len(keep)
+    sparsity = scipy.sparse.coo_matrix((np.ones(ok.sum()), (rr[ok], cc[ok])), shape=(2 * M, n))
+
+    def fun(x):
+        R, C, X = unpack(x)
+        return e.evaluate(R, C, X, jac=False)[0].reshape(-1)
+
+    def jac(x):
+        # x holds rotation vectors d with R = exp(d) R0: chain the left-increment Jacobian
+        # with the left Jacobian of SO(3), J_l(d).
+        R, C, X = unpack(x)
+        _, Jp, Jc = e.evaluate(R, C, X, jac=True)
+        d = np.zeros(6 * N)
+        d[cam_cols] = x[:nc]
+        Jl = _left_jacobian(d.reshape(N, 6)[:, :3])
+        Jc = [Jc[0].copy()]
+        Jc[0][:, :, :3] = Jc[0][:, :, :3] @ Jl[problem.obs_cam]
+        vals = np.concatenate([Jc[0], Jp], axis=2).reshape(-1)
+        return scipy.sparse.csr_matrix((vals[ok], (rr[ok], cc[ok])), shape=(2 * M, n))
+
+    loss = {"trivial": "linear", "huber": "huber", "cauchy": "cauchy"}[options.loss]
+    x0 = np.zeros(n)
+    x0[nc:] = X0.reshape(-1)[pt_cols]
+    c0, _ = _cost_of(problem, R0, C0, X0, options)
+    t = time.perf_counter()
+    res = scipy.optimize.least_squares(fun, x0, jac=jac, jac_sparsity=sparsity, method="trf",
+                                       loss=loss, f_scale=options.loss_scale, x_scale="jac",
+                                       ftol=options.function_tolerance, xtol=1e-10, gtol=1e-10,
+                                       max_nfev=max(1, options.max_iterations), tr_solver="lsmr")
+    wall = time.perf_counter() - t
+    R, C, X = unpack(res.x)
+    c1, rms = _cost_of(problem, R, C, X, options)
+    return PeerResult("scipy", c0, c1, rms, int(res.nfev), wall, str(res.status), float(res.cost))

@@ -1,0 +1,47 @@
+"""The paper's method: parallax landmarks, pixel residuals plus the view-angle residual.
+
+Per observation the residual is ``(u - u_obs, v - v_obs, (theta - theta_obs) / s_theta)`` with
+``s_theta = |d theta / d uv|`` at the observed pixel: the view-angle residual is weighted by
+the theta noise that 1 px of isotropic pixel noise propagates into, so it is in px-equivalent
+units like the pixel residuals. The robust loss acts on the pixel block and the theta block
+separately (two residual blocks per observation, as two Ceres cost functions would).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from polarref.ba.angular_obs import observed_angles, theta_rows
+from polarref.ba.parallax import Parallax
+from polarref.errors import PolarrefError
+
+
+class Polar(Parallax):
+    name = "polar"
+    k = 3
+    groups = ((0, 2), (2, 3))
+
+    def __init__(self, problem, options=None):
+        super().__init__(problem, options)
+        ang, J = observed_angles(problem)
+        s_theta = np.linalg.norm(J[:, 0, :], axis=1)
+        bad = ~(np.isfinite(ang[:, 0]) & np.isfinite(s_theta) & (s_theta > 0))
+        if bad.any():
+            raise PolarrefError(f"polar BA: {int(bad.sum())} observations outside the camera "
+                                "model's angular range")
+        self.theta_obs = ang[:, 0]
+        self.w_theta = 1.0 / s_theta
+
+    def residual_rows(self, Xc, jac):
+        res = np.empty((len(Xc), 3))
+        theta, Jt = theta_rows(Xc, jac)
+        res[:, 2] = (theta - self.theta_obs) * self.w_theta
+        if not jac:
+            res[:, :2] = self.proj(Xc, jac=False) - self.p.obs_uv
+            return res, None
+        uv, Juv = self.proj(Xc)
+        res[:, :2] = uv - self.p.obs_uv
+        J = np.empty((len(Xc), 3, 3))
+        J[:, :2] = Juv
+        J[:, 2] = Jt * self.w_theta[:, None]
+        return res, J

@@ -1,0 +1,193 @@
+"""The bundle-adjustment problem: cameras, points, observations, which blocks are fixed, gauge.
+
+Cameras are parameterized by ``(R, C)``: rotation ``cam_from_world`` and centre in world
+coordinates (``X_cam = R (X - C)``); steps are ``R <- exp(dtheta) R``, ``C <- C + dC``, so a
+camera block is 6 columns ``(dtheta, dC)``. The centre form lets the parallax landmarks, whose
+rays depend on anchor-camera centres, share the same camera blocks.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from polarref.errors import PolarrefError
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class BAProblem:
+    """A bundle-adjustment problem (updated in place by the solver).
+
+    Attributes:
+        cameras: one ``polarref.camera.Camera`` per problem camera (intrinsics, held fixed).
+        R: (N, 3, 3) cam_from_world rotations.
+        C: (N, 3) camera centres (world).
+        X: (P, 3) points (world).
+        obs_cam: (M,) camera index of each observation.
+        obs_pt: (M,) point index of each observation.
+        obs_uv: (M, 2) observed pixels (COLMAP convention).
+        cam_fixed: (N,) True for cameras held fixed.
+        pt_fixed: (P,) True for points held fixed.
+        image_ids / point_ids: ids to map results back (default 0..N-1 / 0..P-1).
+    """
+
+    cameras: list
+    R: np.ndarray
+    C: np.ndarray
+    X: np.ndarray
+    obs_cam: np.ndarray
+    obs_pt: np.ndarray
+    obs_uv: np.ndarray
+    cam_fixed: np.ndarray | None = None
+    pt_fixed: np.ndarray | None = None
+    image_ids: np.ndarray | None = None
+    point_ids: np.ndarray | None = None
+    # filled by prepare():
+    cam_mask: np.ndarray | None = None  # (N, 6) True = free parameter
+    gauge: str = ""
+    exclusions: dict = field(default_factory=dict)
+
+    @property
+    def num_cameras(self) -> int:
+        return len(self.R)
+
+    @property
+    def num_points(self) -> int:
+        return len(self.X)
+
+    @property
+    def num_observations(self) -> int:
+        return len(self.obs_cam)
+
+    def copy(self) -> "BAProblem":
+        import copy
+        return BAProblem(list(self.cameras), self.R.copy(), self.C.copy(), self.X.copy(),
+                         self.obs_cam.copy(), self.obs_pt.copy(), self.obs_uv.copy(),
+                         None if self.cam_fixed is None else self.cam_fixed.copy(),
+                         None if self.pt_fixed is None else self.pt_fixed.copy(),
+                         None if self.image_ids is None else self.image_ids.copy(),
+                         None if self.point_ids is None else self.point_ids.copy(),
+                         None if self.cam_mask is None else self.cam_mask.copy(),
+                         self.gauge, copy.deepcopy(self.exclusions))
+
+    def cam_from_world_t(self) -> np.ndarray:
+        """(N, 3) translations t = -R C."""
+        return -np.einsum("nij,nj->ni", self.R, self.C)
+
+
+def prepare(problem: BAProblem, min_track: int = 2) -> BAProblem:
+    """Validate, drop unusable data (counted in ``exclusions``), sort, and fix the gauge.
+
+    Excluded and counted: observations with non-finite pixels or of unknown cameras/points,
+    points with fewer than ``min_track`` observations, cameras without observations (held
+    fixed). Raises PolarrefError for an empty problem or non-finite poses/points.
+    """
+    p = problem
+    N, P = len(p.R), len(p.X)
+    if N == 0 or P == 0 or len(p.obs_cam) == 0:
+        raise PolarrefError(f"empty bundle-adjustment problem: {N} cameras, {P} points, "
+                            f"{len(p.obs_cam)} observations")
+    if not (np.isfinite(p.R).all() and np.isfinite(p.C).all()):
+        raise PolarrefError("bundle adjustment: non-finite camera pose in the input")
+    if not np.isfinite(p.X).all():
+        raise PolarrefError("bundle adjustment: non-finite 3D point in the input")
+    if len(p.cameras) != N:
+        raise PolarrefError(f"bundle adjustment: {len(p.cameras)} intrinsics for {N} cameras")
+    p.cam_fixed = np.zeros(N, bool) if p.cam_fixed is None else np.asarray(p.cam_fixed, bool).copy()
+    p.pt_fixed = np.zeros(P, bool) if p.pt_fixed is None else np.asarray(p.pt_fixed, bool).copy()
+    p.image_ids = np.arange(N) if p.image_ids is None else np.asarray(p.image_ids)
+    p.point_ids = np.arange(P) if p.point_ids is None else np.asarray(p.point_ids)
+    cam, pt, uv = (np.asarray(p.obs_cam, np.int64), np.asarray(p.obs_pt, np.int64),
+                   np.asarray(p.obs_uv, np.float64).reshape(-1, 2))
+    ex = dict(p.exclusions)
+    good = np.isfinite(uv).all(1)
+    ex["observations_nonfinite"] = ex.get("observations_nonfinite", 0) + int((~good).sum())
+    inrange = (cam >= 0) & (cam < N) & (pt >= 0) & (pt < P)
+    ex["observations_bad_index"] = ex.get("observations_bad_index", 0) + int((good & ~inrange).sum())
+    keep = good & inrange
+    # Points seen fewer than min_track times are unconstrained (drop them with their observations).
+    counts = np.bincount(pt[keep], minlength=P)
+    short = counts < min_track
+    ex["points_short_track"] = ex.get("points_short_track", 0) + int((short & (counts > 0)).sum())
+    ex["points_unobserved"] = ex.get("points_unobserved", 0) + int((counts == 0).sum())
+    keep &= ~short[np.clip(pt, 0, P - 1)]
+    ex["observations_of_dropped_points"] = int(((counts[np.clip(pt, 0, P - 1)] < min_track)
+                                                & good & inrange).sum())
+    cam, pt, uv = cam[keep], pt[keep], uv[keep]
+    if len(cam) == 0:
+        raise PolarrefError("bundle adjustment: no usable observations left "
+                            f"(exclusions: {_nonzero(ex)})")
+    # Re-index points densely, sort observations by point (the solver's reductions need it).
+    pts_used = np.flatnonzero(counts >= min_track)
+    remap = -np.ones(P, np.int64)
+    remap[pts_used] = np.arange(len(pts_used))
+    pt = remap[pt]
+    order = np.lexsort((cam, pt))
+    p.obs_cam, p.obs_pt, p.obs_uv = cam[order], pt[order], uv[order]
+    p.X = np.asarray(p.X, np.float64)[pts_used].copy()
+    p.pt_fixed = p.pt_fixed[pts_used]
+    p.point_ids = p.point_ids[pts_used]
+    cam_counts = np.bincount(p.obs_cam, minlength=N)
+    idle = (cam_counts == 0) & ~p.cam_fixed
+    ex["cameras_without_observations"] = int(idle.sum())
+    p.cam_fixed = p.cam_fixed | (cam_counts == 0)
+    p.exclusions = ex
+    if ex["cameras_without_observations"]:
+        log.warning("bundle adjustment: %d cameras without observations are held fixed",
+                    ex["cameras_without_observations"])
+    p.R = np.asarray(p.R, np.float64).copy()
+    p.C = np.asarray(p.C, np.float64).copy()
+    fix_gauge(p)
+    return p
+
+
+def fix_gauge(p: BAProblem) -> None:
+    """Fix the 7 similarity DoF (rotation 3, translation 3, scale 1) explicitly.
+
+    * No fixed camera: camera 0 (the first variable camera) is held fixed (rotation and centre:
+      6 DoF) and the scale by the centre coordinate of the next variable camera along which it
+      is farthest from camera 0 (1 DoF).
+    * One fixed camera (with observations): it fixes 6 DoF; the scale is fixed as above with
+      the first variable camera.
+    * Two or more fixed cameras with distinct centres: they fix all 7 DoF.
+    Fixed points are not counted toward the gauge (conservative).
+    """
+    N = len(p.R)
+    mask = np.ones((N, 6), bool)
+    mask[p.cam_fixed] = False
+    observed = np.bincount(p.obs_cam, minlength=N) > 0
+    fixed_obs = np.flatnonzero(p.cam_fixed & observed)
+    variable = np.flatnonzero(~p.cam_fixed)
+    gauge = ""
+    if len(fixed_obs) >= 2 and np.ptp(p.C[fixed_obs], axis=0).max() > 0:
+        gauge = f"{len(fixed_obs)} fixed cameras fix rotation, translation and scale"
+    elif len(variable):
+        if len(fixed_obs) == 0:
+            first = variable[0]
+            mask[first] = False
+            variable = variable[1:]
+            anchor, what = first, f"camera {int(p.image_ids[first])} pose fixed (6 DoF)"
+        else:
+            anchor = fixed_obs[0]
+            what = f"fixed camera {int(p.image_ids[anchor])} fixes 6 DoF"
+        if len(variable):
+            dist = np.linalg.norm(p.C[variable] - p.C[anchor], axis=1)
+            second = variable[int(np.argmax(dist > 1e-9 * max(dist.max(), 1e-300)))]
+            k = int(np.argmax(np.abs(p.C[second] - p.C[anchor])))
+            mask[second, 3 + k] = False
+            gauge = (f"{what}; scale by centre coordinate {'xyz'[k]} of camera "
+                     f"{int(p.image_ids[second])} (1 DoF)")
+        else:
+            gauge = what
+    else:
+        gauge = "all cameras fixed"
+    p.cam_mask = mask
+    p.gauge = gauge
+
+
+def _nonzero(d: dict) -> dict:
+    return {k: v for k, v in d.items() if v}

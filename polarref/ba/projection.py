@@ -1,0 +1,88 @@
+"""Pinhole + radial (k1, k2) projection kernel, vectorized over observations.
+
+The hot path of the bundle adjuster: COLMAP's SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL and RADIAL
+models are all ``u = fx x (1 + k1 r^2 + k2 r^4) + cx`` with ``(x, y) = (X, Y) / Z``, so one
+kernel with per-observation (fx, fy, cx, cy, k1, k2) covers them. Other models go through
+``Camera.project_with_jacobian`` (see :func:`intrinsics_table`). Points behind the camera are
+projected anyway (finite residual), like Ceres' BAL example; COLMAP instead zeroes them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+RADIAL_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "PERSPECTIVE")
+
+
+def radial_params(camera) -> np.ndarray | None:
+    """(6,) fx, fy, cx, cy, k1, k2 of a Camera, or None when the model is not pinhole+radial."""
+    p = np.asarray(camera.params, dtype=np.float64)
+    m = camera.model
+    if m in ("SIMPLE_PINHOLE", "PERSPECTIVE"):
+        return np.array([p[0], p[0], p[1], p[2], 0.0, 0.0])
+    if m == "PINHOLE":
+        return np.array([p[0], p[1], p[2], p[3], 0.0, 0.0])
+    if m == "SIMPLE_RADIAL":
+        return np.array([p[0], p[0], p[1], p[2], p[3], 0.0])
+    if m == "RADIAL":
+        return np.array([p[0], p[0], p[1], p[2], p[3], p[4]])
+    return None
+
+
+def project(Xc: np.ndarray, K: np.ndarray, jac: bool = True):
+    """Project camera-frame points.
+
+    Args:
+        Xc: (M, 3) camera-frame points.
+        K: (M, 6) per-observation fx, fy, cx, cy, k1, k2.
+        jac: also return ``uv_D_Xc``.
+
+    Returns:
+        uv (M, 2) and, if jac, uv_D_Xc (M, 2, 3).
+    """
+    fx, fy, cx, cy, k1, k2 = K.T
+    X, Y, Z = Xc.T
+    iz = 1.0 / Z
+    x, y = X * iz, Y * iz
+    r2 = x * x + y * y
+    dist = 1.0 + r2 * (k1 + k2 * r2)
+    uv = np.empty((len(Xc), 2))
+    uv[:, 0] = fx * x * dist + cx
+    uv[:, 1] = fy * y * dist + cy
+    if not jac:
+        return uv
+    a = 2.0 * (k1 + 2.0 * k2 * r2)  # d dist / d r2, doubled
+    # d(xd, yd)/d(x, y) = dist I + a (x, y)(x, y)^T, then d(x, y)/dXc = [I/Z, -(x, y)/Z]
+    dxx, dxy, dyy = dist + a * x * x, a * x * y, dist + a * y * y
+    J = np.empty((len(Xc), 2, 3))
+    J[:, 0, 0] = fx * dxx * iz
+    J[:, 0, 1] = fx * dxy * iz
+    J[:, 0, 2] = -(J[:, 0, 0] * x + J[:, 0, 1] * y)
+    J[:, 1, 0] = fy * dxy * iz
+    J[:, 1, 1] = fy * dyy * iz
+    J[:, 1, 2] = -(J[:, 1, 0] * x + J[:, 1, 1] * y)
+    return uv, J
+
+
+class Projector:
+    """Projects observations with their camera's model: the fast kernel or Camera's own."""
+
+    def __init__(self, cameras: list, obs_cam: np.ndarray):
+        """cameras: one Camera per problem camera (index = camera index); obs_cam (M,)."""
+        table = [radial_params(c) for c in cameras]
+        self.fast = all(t is not None for t in table)
+        if self.fast:
+            self.K = np.array(table).reshape(-1, 6)[obs_cam]
+        else:
+            self.cameras = cameras
+            self.groups = [(c, np.flatnonzero(obs_cam == i)) for i, c in enumerate(cameras)]
+
+    def __call__(self, Xc: np.ndarray, jac: bool = True):
+        if self.fast:
+            return project(Xc, self.K, jac)
+        uv = np.empty((len(Xc), 2))
+        J = np.empty((len(Xc), 2, 3))
+        for cam, idx in self.groups:
+            if len(idx):
+                uv[idx], J[idx] = cam.project_with_jacobian(Xc[idx])
+        return (uv, J) if jac else uv

@@ -1,0 +1,243 @@
+"""Levenberg-Marquardt (trust region, Ceres-style) with point blocks eliminated by Schur.
+
+Robust losses use IRLS-style reweighting: each residual block and its Jacobian rows are
+scaled by ``sqrt(rho'(s))`` (no Triggs second-order correction), which gives the exact
+gradient of ``1/2 sum rho(s)`` and a Gauss-Newton Hessian that is positive semi-definite.
+Damping follows Ceres' LM: ``(J^T J + mu D) dx = -g`` with ``D = diag(J^T J)`` clipped to
+[1e-6, 1e32] and ``mu = 1 / radius``; the radius grows by ``1 / max(1/3, 1 - (2 rho - 1)^3)``
+after a step with gain ratio ``rho > 1e-3`` and shrinks by a doubling factor otherwise.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+from polarref.ba.losses import rho as loss_rho
+from polarref.ba.options import BAOptions, BASummary, IterationRecord
+from polarref.ba.problem import BAProblem, prepare
+from polarref.ba.schur import SchurStructure
+from polarref.geometry import so3_exp
+
+log = logging.getLogger(__name__)
+
+_MIN_DIAG, _MAX_DIAG = 1e-6, 1e32  # Ceres' min/max_lm_diagonal
+_MIN_RELATIVE_DECREASE = 1e-3
+
+
+def make_param(problem: BAProblem, options: BAOptions):
+    """The parameterization object for ``options.param``."""
+    if options.param == "euclidean":
+        from polarref.ba.euclidean import Euclidean
+        return Euclidean(problem, options)
+    if options.param == "parallax":
+        from polarref.ba.parallax import Parallax
+        return Parallax(problem, options)
+    if options.param == "polar":
+        from polarref.ba.polar import Polar
+        return Polar(problem, options)
+    if options.param == "angular":
+        from polarref.ba.angular import Angular
+        return Angular(problem, options)
+    raise ValueError(f"unknown parameterization {options.param!r}")
+
+
+def _robust(r: np.ndarray, groups, loss: str, scale: float):
+    """Cost and per-residual-row weights sqrt(rho') for residuals (M, k)."""
+    cost = 0.0
+    w = np.ones(r.shape)
+    for a, b in groups:
+        s = np.einsum("mk,mk->m", r[:, a:b], r[:, a:b]) if b - a > 1 else r[:, a] ** 2
+        val, d1 = loss_rho(loss, s, scale)
+        cost += 0.5 * float(val.sum())
+        if loss != "trivial":
+            w[:, a:b] = np.sqrt(d1)[:, None]
+    return cost, (None if loss == "trivial" else w)
+
+
+def pixel_cost(res_px: np.ndarray, loss: str, scale: float) -> tuple[float, float]:
+    """(1/2 sum rho(|r|^2), RMS of residual components) of pixel residuals (M, 2)."""
+    s = np.einsum("mk,mk->m", res_px, res_px)
+    val, _ = loss_rho(loss, s, scale)
+    return 0.5 * float(val.sum()), float(np.sqrt(s.mean() / 2.0))
+
+
+def solve(problem: BAProblem, options: BAOptions, *, prepared: bool = False,
+          param=None) -> BASummary:
+    """Run LM on ``problem`` (updated in place: R, C, X). See module docstring."""
+    t0 = time.perf_counter()
+    if not prepared:
+        prepare(problem)
+    if param is None:
+        param = make_param(problem, options)
+    if options.staged and hasattr(param, "set_stage"):
+        # Stage 1: theta only (half the iteration budget); stage 2: theta and phi jointly.
+        import dataclasses
+        param.set_stage(theta_only=True)
+        first = _lm(problem, dataclasses.replace(options, max_iterations=max(
+            1, options.max_iterations // 2)), param, t0)
+        param.set_stage(theta_only=False)
+        second = _lm(problem, dataclasses.replace(
+            options, max_iterations=max(0, options.max_iterations - first.iterations)),
+            param, t0, pts0=first.points_state)
+        for rec in second.trace:
+            rec.iteration += first.iterations
+        second.trace = first.trace + second.trace
+        second.initial_cost, second.initial_pixel_cost = first.initial_cost, first.initial_pixel_cost
+        second.initial_rms_px = first.initial_rms_px
+        second.iterations += first.iterations
+        second.accepted_iterations += first.accepted_iterations
+        second.termination = f"theta-only: {first.termination}; joint: {second.termination}"
+        second.wall_s = time.perf_counter() - t0
+        return second
+    return _lm(problem, options, param, t0)
+
+
+def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
+        pts0: np.ndarray | None = None) -> BASummary:
+    times = {"evaluate": 0.0, "normal_equations": 0.0, "schur": 0.0, "solve": 0.0,
+             "structure": 0.0, "update": 0.0}
+    tic = time.perf_counter()
+    cam_var = problem.cam_mask.any(1)
+    st = SchurStructure(param.slot_cams, problem.obs_pt, cam_var, problem.num_points,
+                        options.dense_max_cameras)
+    st.set_slot_cams(param.slot_cams)
+    mask_v = problem.cam_mask[st.var_cams].astype(np.float64)  # (Nv, 6)
+    slot_mask = [problem.cam_mask[param.slot_cams[s]][:, None, :].astype(np.float64)
+                 for s in range(st.S)]
+    pt_free = (~problem.pt_fixed).astype(np.float64)[:, None]
+    times["structure"] = time.perf_counter() - tic
+    R, C = problem.R.copy(), problem.C.copy()
+    pts = param.init_points() if pts0 is None else pts0.copy()
+    loss, scale = options.loss, options.loss_scale
+
+    tic = time.perf_counter()
+    r, Jp, Jc = param.evaluate(R, C, pts, jac=True)
+    times["evaluate"] += time.perf_counter() - tic
+    if not np.isfinite(r).all():
+        from polarref.errors import PolarrefError
+        raise PolarrefError(f"bundle adjustment ({options.param}): non-finite residuals at the "
+                            "initial estimate (degenerate geometry?)")
+    cost, w = _robust(r, param.groups, loss, scale)
+    initial_cost = cost
+    init_px_cost, init_rms = pixel_cost(param.pixel_residuals(R, C, pts), loss, scale)
+    radius, decrease_factor = options.initial_trust_radius, 2.0
+    trace: list[IterationRecord] = []
+    termination = "max_iterations"
+    accepted_n = 0
+    it = 0
+    need_build = True
+    while it < options.max_iterations:
+        if need_build:
+            tic = time.perf_counter()
+            if w is not None:
+                r_w = r * w
+                Jp_w = Jp * w[:, :, None]
+                Jc_w = [J * w[:, :, None] * m for J, m in zip(Jc, slot_mask)]
+            else:
+                r_w, Jp_w = r, Jp
+                Jc_w = [J * m for J, m in zip(Jc, slot_mask)]
+            Jp_w = Jp_w * pt_free[problem.obs_pt][:, :, None]
+            g_p = st.reduce_points(np.einsum("mki,mk->mi", Jp_w, r_w))
+            V = st.reduce_points(np.matmul(Jp_w.transpose(0, 2, 1), Jp_w))
+            g_c = st.camera_vector(Jc_w, r_w) * mask_v
+            W = st.entries_W(Jc_w, Jp_w)
+            U = st.camera_U(Jc_w)
+            diag_u = np.zeros((st.Nv, 6))
+            diag_u[st.u_ca[st.u_ca == st.u_cb]] = np.diagonal(
+                U[st.u_ca == st.u_cb], axis1=1, axis2=2)
+            D_c = np.clip(diag_u, _MIN_DIAG, _MAX_DIAG)
+            D_p = np.clip(np.diagonal(V, axis1=1, axis2=2), _MIN_DIAG, _MAX_DIAG)
+            gmax = max(float(np.abs(g_c).max(initial=0.0)), float(np.abs(g_p).max(initial=0.0)))
+            times["normal_equations"] += time.perf_counter() - tic
+            need_build = False
+            if gmax <= options.gradient_tolerance:
+                termination = "gradient_tolerance"
+                break
+        it += 1
+        mu = 1.0 / radius
+        tic = time.perf_counter()
+        Vd = V.copy()
+        Vd[:, [0, 1, 2], [0, 1, 2]] += mu * D_p
+        Vd[problem.pt_fixed] = np.eye(3)
+        Vinv = np.linalg.inv(Vd)
+        diag_c = np.where(mask_v > 0, mu * D_c, 1.0)
+        S, b, _ = st.reduced_system(U, W, Vinv, g_c, g_p, diag_c)
+        times["schur"] += time.perf_counter() - tic
+        tic = time.perf_counter()
+        x = st.solve(S, b)
+        times["solve"] += time.perf_counter() - tic
+        if x is None:
+            trace.append(IterationRecord(it, cost, False, radius, 0.0, gmax,
+                                         time.perf_counter() - t0))
+            radius /= decrease_factor
+            decrease_factor *= 2.0
+            if radius < options.min_trust_radius:
+                termination = "min_trust_radius"
+                break
+            continue
+        tic = time.perf_counter()
+        dc = x.reshape(st.Nv, 6) * mask_v
+        dp = st.back_substitute(W, Vinv, g_p, dc) * pt_free
+        step_norm = float(np.sqrt((dc**2).sum() + (dp**2).sum()))
+        x_norm = float(np.sqrt((C**2).sum() + (pts**2).sum()))
+        if step_norm <= options.parameter_tolerance * (x_norm + options.parameter_tolerance):
+            termination = "parameter_tolerance"
+            trace.append(IterationRecord(it, cost, False, radius, step_norm, gmax,
+                                         time.perf_counter() - t0))
+            break
+        # Predicted decrease of the linear model: 1/2 (-g^T dx + mu dx^T D dx).
+        model = 0.5 * (-(g_c * dc).sum() - (g_p * dp).sum()
+                       + mu * ((D_c * dc**2 * mask_v).sum() + (D_p * dp**2).sum()))
+        R_new = R.copy()
+        C_new = C.copy()
+        vc = st.var_cams
+        R_new[vc] = so3_exp(dc[:, :3]) @ R[vc]
+        C_new[vc] = C[vc] + dc[:, 3:]
+        pts_new = param.retract_points(pts, dp)
+        times["update"] += time.perf_counter() - tic
+        tic = time.perf_counter()
+        r_new, Jp_new, Jc_new = param.evaluate(R_new, C_new, pts_new, jac=True)
+        times["evaluate"] += time.perf_counter() - tic
+        new_cost, w_new = _robust(r_new, param.groups, loss, scale)
+        gain = (cost - new_cost) / model if model > 0 else -1.0
+        accepted = bool(np.isfinite(new_cost) and gain > _MIN_RELATIVE_DECREASE)
+        trace.append(IterationRecord(it, new_cost if accepted else cost, accepted, radius,
+                                     step_norm, gmax, time.perf_counter() - t0))
+        if accepted:
+            accepted_n += 1
+            rel = (cost - new_cost) / cost if cost > 0 else 0.0
+            R, C, pts = R_new, C_new, pts_new
+            r, Jp, Jc, w, cost = r_new, Jp_new, Jc_new, w_new, new_cost
+            radius = min(options.max_trust_radius,
+                         radius / max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3))
+            decrease_factor = 2.0
+            need_build = True
+            if rel < options.function_tolerance:
+                termination = "function_tolerance"
+                break
+        else:
+            radius /= decrease_factor
+            decrease_factor *= 2.0
+            if radius < options.min_trust_radius:
+                termination = "min_trust_radius"
+                break
+    problem.R, problem.C = R, C
+    param.store(R, C, pts)
+    final_px_cost, final_rms = pixel_cost(param.pixel_residuals(R, C, pts), loss, scale)
+    summary = BASummary(
+        param=options.param, loss=loss, initial_cost=initial_cost, final_cost=cost,
+        initial_pixel_cost=init_px_cost, final_pixel_cost=final_px_cost,
+        initial_rms_px=init_rms, final_rms_px=final_rms, iterations=it,
+        accepted_iterations=accepted_n, wall_s=time.perf_counter() - t0,
+        termination=termination, num_cameras=problem.num_cameras,
+        num_points=problem.num_points, num_observations=problem.num_observations,
+        num_variable_cameras=st.Nv, gauge=problem.gauge,
+        exclusions={k: v for k, v in problem.exclusions.items() if v},
+        linear_solver=st.linear_solver_name(), trace=trace, time_in=times)
+    summary.points_state = pts
+    log.debug("BA %s: cost %.6g -> %.6g in %d iterations (%s)", options.param, initial_cost,
+              cost, it, termination)
+    return summary

@@ -1,0 +1,38 @@
+"""``polarref bench ba``: our BA parameterizations vs pycolmap (Ceres) and scipy, side by side."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from polarref.errors import PolarrefError
+
+NAME = "bench"
+HELP = "benchmarks (currently: ba, bundle adjustment vs pycolmap and scipy)"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("what", choices=("ba",), help="which benchmark")
+    parser.add_argument("--problem", action="append", default=None,
+                        help="problem path or synth-20/60/200 (repeatable; default: the full set)")
+    parser.add_argument("--quick", action="store_true", help="only the small problems")
+    parser.add_argument("--loss", choices=("trivial", "huber", "cauchy"), default="trivial")
+    parser.add_argument("--max-iterations", type=int, default=100)
+    parser.add_argument("--scipy-max-obs", type=int, default=70_000,
+                        help="skip scipy on problems with more observations")
+    parser.add_argument("--out", required=True, help="output folder (bench.json, bench.md)")
+    parser.add_argument("--overwrite", action="store_true")
+
+
+def run(args) -> int:
+    from polarref.ba import BAOptions
+    from polarref.ba.bench import FULL, QUICK, run_bench
+
+    out = Path(args.out)
+    if (out / "bench.json").exists() and not args.overwrite:
+        raise PolarrefError(f"{out / 'bench.json'} exists; pass --overwrite to replace it")
+    problems = args.problem or (QUICK if args.quick else FULL)
+    results = run_bench(problems, out, BAOptions(loss=args.loss,
+                                                 max_iterations=args.max_iterations),
+                        args.scipy_max_obs)
+    print((out / "bench.md").read_text())
+    return 0 if results else 1
