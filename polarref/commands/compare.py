@@ -1,0 +1,63 @@
+"""``polarref compare``: our SfM (each BA form) vs pycolmap on the same images, with a report."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+from polarref.errors import PolarrefError
+
+NAME = "compare"
+HELP = ("run our SfM (euclidean/parallax/polar/angular BA) and pycolmap (incremental, global; its "
+        "SIFT and ours) on one scene and write report.md/report.html/metrics.json")
+
+log = logging.getLogger(__name__)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from polarref.compare.methods import METHOD_NAMES
+
+    parser.add_argument("scene", nargs="?", default=None, metavar="SCENE|DIR",
+                        help="comet (default), uav, a rendered scene folder, or an image set with ground "
+                             "truth (images/ + gt/ COLMAP model or Strecha gt_dense_cameras/)")
+    parser.add_argument("--preset", default="default", choices=("small", "default", "large"),
+                        help="synthetic scene size / real-image downscaling (default: default)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="report folder (default: reports/<scene>-<preset>); an existing folder is "
+                             "updated, never wiped")
+    parser.add_argument("--methods", nargs="+", default=None, metavar="METHOD", choices=METHOD_NAMES,
+                        help="subset of methods (default: all): " + ", ".join(METHOD_NAMES))
+    parser.add_argument("--seed", type=int, default=0, help="render seed and every method/experiment seed")
+    parser.add_argument("--method-timeout", type=float, default=None, metavar="S",
+                        help="wall-clock limit per method in seconds (default by preset: small 120, "
+                             "default 60, large 1800); a method over it is reported as timed out")
+    parser.add_argument("--budget", type=float, default=-1.0, metavar="S",
+                        help="whole-run time limit in seconds, rendering included (default by preset: "
+                             "default 290, others none; 0 = none); later methods get shorter limits")
+    parser.add_argument("--no-claims", action="store_true", help="skip the claim experiments")
+
+
+def run(args: argparse.Namespace) -> int:
+    import time
+
+    from polarref.compare.pipeline import CompareConfig, command_line, run_compare
+
+    if args.method_timeout is not None and not args.method_timeout > 0:
+        raise PolarrefError(f"--method-timeout must be > 0, got {args.method_timeout}")
+    cfg = CompareConfig(scene=args.scene, preset=args.preset, out=args.out,
+                        methods=tuple(args.methods or ()), seed=args.seed,
+                        method_timeout_s=args.method_timeout, claims=not args.no_claims,
+                        budget_s=None if args.budget == 0 else args.budget,
+                        command=command_line())
+    t0 = time.perf_counter()
+    out, metrics = run_compare(cfg)
+    ok = sum(m.status == "ok" for m in metrics.methods)
+    print(f"{ok}/{len(metrics.methods)} methods succeeded in {time.perf_counter() - t0:.1f} s; "
+          f"report: {out / 'report.html'} (and report.md, metrics.json)")
+    for m in metrics.methods:
+        if m.status != "ok":
+            print(f"  {m.name}: {m.status}: {m.reason}")
+    for c in metrics.claims:
+        print(f"  {c.claim_id} {c.verdict:<13} {c.claim}")
+    return 0

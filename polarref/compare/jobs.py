@@ -1,0 +1,92 @@
+"""Method jobs, each run in its own process by :func:`polarref.compare.runner.run_isolated`.
+
+Every job takes JSON-able keyword arguments (paths as ``str``) and returns a JSON-able dict;
+models are written to disk in COLMAP text format and scored by the parent with
+``polarref.metrics``, the same code for every method.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from polarref.compare.pycolmap_runs import (FixedCamera, PycolmapOptions, copy_database,
+                                            count_verified_pairs, extract_and_match_sift, run_mapper)
+
+
+def _camera(camera: dict) -> FixedCamera:
+    return FixedCamera(camera["model"], int(camera["width"]), int(camera["height"]),
+                       tuple(float(p) for p in camera["params"]))
+
+
+def pycolmap_sift_db(image_dir: str, image_names: list[str], camera: dict, db_path: str,
+                     seed: int, num_threads: int = 2) -> dict:
+    """pycolmap SIFT + exhaustive matching + verification into ``db_path``."""
+    opts = PycolmapOptions(seed=seed, num_threads=num_threads)
+    stages = extract_and_match_sift(Path(image_dir), image_names, _camera(camera), Path(db_path), opts)
+    return {"stage_runtime_s": stages, "verified_pairs": count_verified_pairs(Path(db_path))}
+
+
+def ours_features(image_dir: str, camera: dict, preset: str, cache_dir: str) -> dict:
+    """Our features and verified matches, computed once per comparison into ``cache_dir``."""
+    from polarref.compare import ours
+
+    return ours.prepare_features(Path(image_dir), _camera(camera), preset, Path(cache_dir))
+
+
+def ours_db(image_dir: str, camera: dict, preset: str, cache_dir: str, db_path: str) -> dict:
+    """Our keypoints and verified matches (from the shared cache) as a pycolmap database."""
+    from polarref.compare import ours
+
+    return ours.import_into_database(Path(image_dir), _camera(camera), preset, Path(cache_dir), Path(db_path))
+
+
+def pycolmap_map(db_path: str, image_dir: str, work_dir: str, mapper: str, seed: int,
+                 num_threads: int = 2) -> dict:
+    """Map a copy of a prepared database; the largest model goes to ``work_dir/model``."""
+    work = Path(work_dir)
+    db = copy_database(Path(db_path), work / "database.db")
+    run = run_mapper(db, Path(image_dir), work / "sparse", mapper,
+                     PycolmapOptions(seed=seed, num_threads=num_threads))
+    rec = run.reconstruction
+    if rec is None or rec.num_reg_images() == 0:
+        raise RuntimeError(f"pycolmap {mapper} mapping registered no images "
+                           f"({run.num_models} models, {run.verified_pairs} verified pairs)")
+    model = work / "model"
+    model.mkdir(parents=True, exist_ok=True)
+    rec.write_text(str(model))
+    return {"model_dir": str(model), "stage_runtime_s": run.stage_runtime_s,
+            "num_models": run.num_models, "verified_pairs": run.verified_pairs,
+            "registered": int(rec.num_reg_images())}
+
+
+def ours_sfm(image_dir: str, camera: dict, ba: str, work_dir: str, preset: str, cache_dir: str) -> dict:
+    """Our incremental SfM (``polarref.sfm``) with one BA parameterization."""
+    from polarref.compare import ours
+
+    return ours.run(Path(image_dir), _camera(camera), ba, Path(work_dir), preset, Path(cache_dir))
+
+
+def claim_experiments(seed: int, budget_s: float, out_json: str) -> dict:
+    """Controlled BA experiments for the scorecard (conditioning, correlation, robustness)."""
+    from polarref.compare import experiments
+
+    return experiments.run_all(seed=seed, budget_s=budget_s, out_json=Path(out_json))
+
+
+
+
+def derivation_evidence(n: int, out_json: str) -> dict:
+    """Numeric evidence on the printed view-angle equation and claim 7, from ``derivations.paper``.
+
+    Runs in its own process: the derivations package imports SymPy/mpmath, which runtime code
+    must not import.
+    """
+    import dataclasses
+    import json
+
+    from derivations import paper
+
+    cases = [dataclasses.asdict(c) for c in paper.all_case_evidence(n=n)]
+    result = {"cases": cases, "samples_per_case": n, "seed": paper.SEED}
+    Path(out_json).write_text(json.dumps(result, indent=1, default=float))
+    return result

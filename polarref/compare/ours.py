@@ -1,0 +1,88 @@
+"""Our SfM (``polarref.sfm``) as comparison methods, sharing one feature/match stage.
+
+Features and verified matches are computed once per comparison (timed) into a cache folder
+inside the run directory; every ``ours-*`` method and the ``pycolmap-*-ours`` imports then
+read that cache, and the shared stage's time is added to each method's runtime, exactly as
+pycolmap's shared SIFT database is for its two mappers.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from pathlib import Path
+
+import numpy as np
+
+from polarref.compare.pycolmap_runs import FixedCamera, count_verified_pairs, import_features
+
+# Timing keys of polarref.sfm that are not part of reconstructing (or double count).
+_NOT_STAGES = {"total", "metrics", "export", "features_cached", "matches_cached"}
+
+
+def sfm_config(preset: str, cache_dir: Path):
+    from polarref.sfm.pipeline import PRESETS
+
+    base = PRESETS["small" if preset == "small" else "default"]
+    return dataclasses.replace(base, use_cache=True, cache_dir=str(cache_dir))
+
+
+def _camera(cam: FixedCamera):
+    from polarref.camera import Camera
+
+    return Camera(model=cam.model, width=cam.width, height=cam.height, params=np.asarray(cam.params))
+
+
+def _features_and_matches(image_dir: Path, cam: FixedCamera, preset: str, cache_dir: Path):
+    from polarref.sfm.pipeline import load_images_and_features, match_and_verify
+
+    config = sfm_config(preset, cache_dir)
+    timings: dict = {}
+    feats, skipped, key = load_images_and_features(image_dir, config, timings)
+    matches = match_and_verify(feats, [_camera(cam)], np.zeros(len(feats), np.int64), config, key, timings)
+    return matches, skipped, timings
+
+
+def prepare_features(image_dir: Path, cam: FixedCamera, preset: str, cache_dir: Path) -> dict:
+    """Compute (and cache) features and verified matches; returns the timed stages."""
+    matches, skipped, timings = _features_and_matches(image_dir, cam, preset, cache_dir)
+    return {"stage_runtime_s": {k: float(timings[k]) for k in ("features", "matching", "verification")
+                                if k in timings},
+            "verified_pairs": len(matches.geometries), "skipped_images": skipped}
+
+
+def import_into_database(image_dir: Path, cam: FixedCamera, preset: str, cache_dir: Path, db_path: Path) -> dict:
+    """Our keypoints and verified inlier matches as a pycolmap database (no re-verification)."""
+    matches, _, _ = _features_and_matches(image_dir, cam, preset, cache_dir)
+    inliers = {k: g.inliers for k, g in matches.geometries.items()}
+    poses = {k: g.cam2_from_cam1 for k, g in matches.geometries.items()}
+    stages = import_features(db_path, cam, matches.names, [f.keypoints for f in matches.features],
+                             inliers, verified=True, poses=poses)
+    return {"stage_runtime_s": stages, "verified_pairs": count_verified_pairs(db_path)}
+
+
+def run(image_dir: Path, cam: FixedCamera, ba: str, work_dir: Path, preset: str, cache_dir: Path) -> dict:
+    """``polarref.sfm.run_sfm`` with BA ``ba``; model in ``work_dir/sfm/model``."""
+    from polarref.sfm.pipeline import run_sfm, with_ba
+
+    config = with_ba(sfm_config(preset, cache_dir), ba)
+    t0 = time.perf_counter()
+    result = run_sfm(image_dir, work_dir / "sfm", config, camera=_camera(cam), overwrite=True)
+    wall = time.perf_counter() - t0
+    t = result.metrics.get("runtime_s", {})
+    stages = {k: float(v) for k, v in t.items() if k not in _NOT_STAGES and isinstance(v, (int, float))}
+    # features/matching/verification came from the shared cache: their real cost is the shared stage's.
+    for k in ("features", "matching", "verification"):
+        stages.pop(k, None)
+    ba_s = stages.pop("ba", 0.0)
+    if "mapping" in stages:
+        stages["mapping (excl. BA)"] = max(0.0, stages.pop("mapping") - ba_s)
+    stages["bundle adjustment"] = ba_s
+    bas = [b for b in result.metrics.get("ba", []) if isinstance(b, dict)]
+    final = next((b for b in reversed(bas) if b.get("kind") == "global" and b.get("trace")), None)
+    trace = None
+    if final is not None:  # [iteration, wall_s, cost] of accepted steps, starting at the initial cost
+        trace = [[0, 0.0, float(final["initial_cost"])]] + [
+            [int(r["iteration"]), float(r["wall_s"]), float(r["cost"])] for r in final["trace"] if r.get("accepted")]
+    return {"model_dir": str(work_dir / "sfm" / "model"), "stage_runtime_s": stages, "wall_s": wall,
+            "num_ba_runs": len(bas), "final_ba_trace": trace}

@@ -1,0 +1,281 @@
+"""``polarref compare``: run every method on one scene, score, run the claim experiments, report.
+
+Stages (hloc style, each skipped if its output is already on disk and the inputs match):
+prepare scene -> feature databases -> methods (isolated, sequential, timed) -> scoring ->
+claims -> metrics.json -> report. Work products (databases, models, logs) live in
+``OUT/runs/``; an existing OUT is updated in place, never wiped.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shlex
+import sys
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+
+from polarref.compare import claims as claims_mod
+from polarref.compare import scenes
+from polarref.compare.methods import METHOD_NAMES, PAIRS, RUN_ORDER, MethodSpec, select
+from polarref.compare.runner import run_isolated
+from polarref.compare.schema import (SCHEMA_VERSION, STATUS_FAILED, STATUS_OK, STATUS_SKIPPED, STATUS_TIMEOUT,
+                                     BATrace, Environment, MethodResult, MetricsFile, SceneInfo,
+                                     TracePoint, save)
+from polarref.errors import PolarrefError
+from polarref.progress import track
+
+log = logging.getLogger(__name__)
+
+# Per-method wall-clock limit by preset.
+METHOD_TIMEOUT_S = {"small": 120.0, "default": 90.0, "large": 1800.0}
+CLAIMS_BUDGET_S = {"small": 60.0, "default": 25.0, "large": 300.0}
+# Whole-run budget (rendering included) by preset; None = unlimited. The default run must finish
+# in 5 minutes on 2 cores: methods run in RUN_ORDER, each may use what is left after keeping
+# MIN_METHOD_S for every later method and RESERVE_S for claims and the report.
+TOTAL_BUDGET_S = {"small": None, "default": 290.0, "large": None}
+MIN_METHOD_S = 8.0
+REPORT_RESERVE_S = 12.0
+
+
+@dataclass(frozen=True)
+class CompareConfig:
+    """One comparison run."""
+
+    scene: str | None = None          # comet | uav | folder; None = comet
+    preset: str = "default"           # small | default | large
+    out: Path | None = None           # report folder; None = reports/<scene>-<preset>
+    methods: tuple[str, ...] = ()     # empty = all
+    seed: int = 0                     # render seed and every method/experiment seed
+    method_timeout_s: float | None = None   # None = METHOD_TIMEOUT_S[preset]
+    budget_s: float | None = -1.0     # whole-run limit in s; -1 = TOTAL_BUDGET_S[preset], None = none
+    claims: bool = True               # run the claim experiments
+    command: str = ""                 # exact command line, recorded in the report
+
+
+@dataclass
+class _Context:
+    scene: scenes.PreparedScene
+    runs: Path
+    timeout: float
+    seed: int
+    preset: str
+    cache: Path                                      # shared feature/match cache of our SfM
+    camera: dict = field(default_factory=dict)
+    db_results: dict = field(default_factory=dict)   # shared stage -> (outcome, db path or None)
+
+
+def default_out(scene: scenes.PreparedScene, preset: str) -> Path:
+    from polarref.data import REPO_ROOT
+
+    name = scene.name if scene.kind == "real" else scene.name.split("-")[0]
+    return REPO_ROOT / "reports" / f"{name}-{preset}"
+
+
+def _shared(ctx: _Context, key: str):
+    """Run (once per comparison) a stage several methods share; returns (outcome, extra)."""
+    if key in ctx.db_results:
+        return ctx.db_results[key]
+    common = dict(image_dir=str(ctx.scene.image_dir), camera=ctx.camera)
+    if key == "ours-features":
+        job, kw, extra = "polarref.compare.jobs:ours_features", dict(preset=ctx.preset, cache_dir=str(ctx.cache)), None
+    elif key == "db-pycolmap-sift":
+        extra = ctx.runs / key / "database.db"
+        job, kw = "polarref.compare.jobs:pycolmap_sift_db", dict(image_names=ctx.scene.image_names,
+                                                                 db_path=str(extra), seed=ctx.seed)
+    elif key == "db-ours":
+        feat, _ = _shared(ctx, "ours-features")
+        if feat.status != STATUS_OK:
+            ctx.db_results[key] = (feat, None)
+            return ctx.db_results[key]
+        extra = ctx.runs / key / "database.db"
+        job, kw = "polarref.compare.jobs:ours_db", dict(preset=ctx.preset, cache_dir=str(ctx.cache),
+                                                        db_path=str(extra))
+    else:
+        raise ValueError(key)
+    outcome = run_isolated(job, {**common, **kw}, ctx.timeout, ctx.runs / key, "job")
+    ctx.db_results[key] = (outcome, extra)
+    return ctx.db_results[key]
+
+
+def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodResult, object | None, dict]:
+    """Run one method; returns (result with status/timings, Reconstruction or None, job result)."""
+    from polarref.reconstruction import Reconstruction
+
+    res = MethodResult(name=spec.name, label=spec.label, family=spec.family, features=spec.features,
+                       mapper=spec.mapper, ba=spec.ba, status=STATUS_FAILED, timeout_s=ctx.timeout,
+                       num_images=len(ctx.scene.image_names))
+    work = ctx.runs / spec.name
+    stages: dict[str, float] = {}
+    prereqs = ["ours-features"] if spec.features == "ours" else []
+    if spec.family == "pycolmap":
+        prereqs.append("db-ours" if spec.features == "ours" else "db-pycolmap-sift")
+    for key in prereqs:
+        pre, db = _shared(ctx, key)
+        if pre.status != STATUS_OK:
+            res.status = pre.status
+            res.reason = f"shared stage {key} failed: {pre.reason}"
+            return res, None, {}
+        for k, v in pre.result.get("stage_runtime_s", {}).items():
+            stages[k if key != "db-ours" else f"pycolmap {k}"] = float(v)
+    if spec.family == "pycolmap":
+        outcome = run_isolated("polarref.compare.jobs:pycolmap_map",
+                               dict(db_path=str(db), image_dir=str(ctx.scene.image_dir), work_dir=str(work),
+                                    mapper=spec.mapper.split("-")[1], seed=ctx.seed),
+                               ctx.timeout, work, "job")
+    else:
+        outcome = run_isolated("polarref.compare.jobs:ours_sfm",
+                               dict(image_dir=str(ctx.scene.image_dir), camera=ctx.camera, ba=spec.ba,
+                                    work_dir=str(work), preset=ctx.preset, cache_dir=str(ctx.cache)),
+                               ctx.timeout, work, "job")
+    res.status, res.reason = outcome.status, outcome.reason
+    if outcome.status != STATUS_OK:
+        return res, None, {}
+    stages.update(outcome.result.get("stage_runtime_s", {}))
+    res.stage_runtime_s = {k: float(v) for k, v in stages.items()}
+    res.runtime_s = float(sum(res.stage_runtime_s.values()))
+    try:
+        rec = Reconstruction.read(outcome.result["model_dir"])
+    except (PolarrefError, KeyError) as exc:
+        res.status, res.reason = STATUS_FAILED, f"cannot read the method's model: {exc}"
+        return res, None, outcome.result
+    return res, rec, outcome.result
+
+
+def _score_into(res: MethodResult, rec, scene: scenes.PreparedScene, mesh, seed: int,
+                notes: list[str]) -> None:
+    from polarref.compare.scoring import score
+
+    try:
+        s = score(rec, scene.gt, mesh, seed)
+    except Exception as exc:  # scoring must not take the other methods down
+        log.exception("scoring %s failed", res.name)
+        res.status, res.reason = STATUS_FAILED, f"scoring failed: {type(exc).__name__}: {exc}"
+        return
+    res.registered_images = s.registered_images
+    res.tie_points = s.tie_points
+    res.reprojected_px = s.reprojected_px
+    res.mean_reprojection_error_px = s.mean_reprojection_error_px
+    res.mean_reprojection_error_per_point_px = s.mean_reprojection_error_per_point_px
+    res.gt = s.gt
+    res.plot = s.plot
+    notes += [f"{res.name}: {n}" for n in s.notes]
+    if s.registered_images == 0:
+        res.status, res.reason = STATUS_FAILED, "no image registered"
+
+
+def _environment(cfg: CompareConfig, scene: scenes.PreparedScene, timeout: float, total_s: float) -> Environment:
+    try:
+        from polarref.commands.doctor import collect
+
+        info = collect()
+    except Exception as exc:  # the report must not fail for lack of version strings
+        info = {"doctor": f"failed: {type(exc).__name__}: {exc}"}
+    skip = {"broken_commands", "data", "data_reason", "cpu_count", "mitsuba_variant", "mitsuba_variant_reason",
+            "platform"}
+    versions = {k: str(v) for k, v in info.items() if k not in skip}
+    versions["platform"] = str(info.get("platform", ""))
+    variant = (scene.mitsuba_variant or str(info.get("mitsuba_variant") or "")) if scene.kind == "synthetic" \
+        else "not used (real images)"
+    return Environment(
+        command=cfg.command or "polarref compare", created=datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        versions=versions, cpu_count=int(os.cpu_count() or 0), mitsuba_variant=variant,
+        seeds={"scene": scene.seed, "methods": cfg.seed, "claims": cfg.seed}, preset=cfg.preset,
+        method_timeout_s=timeout, total_runtime_s=total_s)
+
+
+def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
+    """Run the comparison and write OUT/metrics.json, OUT/report.md, OUT/report.html, OUT/figures/."""
+    from polarref.compare.report import build_report
+
+    t_start = time.perf_counter()
+    specs = select(list(cfg.methods) or None)
+    if cfg.preset not in METHOD_TIMEOUT_S:
+        raise PolarrefError(f"unknown preset {cfg.preset!r} (choose from {', '.join(METHOD_TIMEOUT_S)})")
+    scene = scenes.prepare(cfg.scene, cfg.preset, cfg.seed)
+    out = Path(cfg.out) if cfg.out else default_out(scene, cfg.preset)
+    if out.exists() and not out.is_dir():
+        raise PolarrefError(f"--out {out} exists and is not a directory")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise PolarrefError(f"cannot create report folder {out}: {exc}") from exc
+    timeout = float(cfg.method_timeout_s or METHOD_TIMEOUT_S[cfg.preset])
+    ctx = _Context(scene, out / "runs", timeout, cfg.seed, cfg.preset, out / "runs" / "ours-features" / "cache",
+                   camera={"model": scene.camera.model, "width": scene.camera.width,
+                           "height": scene.camera.height, "params": list(scene.camera.params)})
+    from polarref.compare.scoring import load_mesh
+    from polarref.metrics import scene_size
+
+    if ctx.cache.is_dir():  # our own cache from an earlier run: the shared stage must be timed afresh
+        for f in ctx.cache.iterdir():
+            if f.is_file() and f.name.startswith(("features-", "matches-")):
+                f.unlink()
+    extent = scene_size(scene.gt) if scene.gt is not None else 0.0
+    mesh = load_mesh(scene.mesh_path)
+    notes: list[str] = []
+    if any(s.features == "ours" and s.family == "pycolmap" for s in specs):
+        notes.append("pycolmap-*-ours: our keypoints and our verified inlier matches (essential-matrix RANSAC "
+                     "of polarref.sfm) are imported into a pycolmap database as CALIBRATED two-view "
+                     "geometries, so pycolmap's mapper sees exactly our correspondences.")
+    if scene.kind == "real" and scene.downscale != 1.0:
+        notes.append(f"Images downscaled by {scene.downscale:g} (INTER_AREA) before every method; "
+                     "intrinsics divided by the same factor (exact with the corner pixel origin).")
+    budget = TOTAL_BUDGET_S[cfg.preset] if cfg.budget_s == -1.0 else cfg.budget_s
+    claims_budget = CLAIMS_BUDGET_S[cfg.preset] if cfg.claims else 0.0
+    deadline = None if budget is None else t_start + budget - claims_budget - REPORT_RESERVE_S
+    results: list[MethodResult] = []
+    job_results: dict[str, dict] = {}
+    ordered = sorted(specs, key=lambda m: RUN_ORDER.index(m.name))
+    for k, spec in enumerate(track(ordered, desc="methods", total=len(ordered))):
+        ctx.timeout = timeout
+        if deadline is not None:
+            left = deadline - time.perf_counter() - MIN_METHOD_S * (len(ordered) - k - 1)
+            ctx.timeout = min(timeout, max(left, 2.0))
+        log.info("running %s (limit %.0f s)", spec.name, ctx.timeout)
+        res, rec, job = _run_method(ctx, spec)
+        if res.status == STATUS_TIMEOUT and ctx.timeout < timeout:
+            res.reason += f" (limit cut from {timeout:.0f} s by the {budget:.0f} s run budget)"
+        if rec is not None:
+            _score_into(res, rec, scene, mesh, cfg.seed, notes)
+        job_results[spec.name] = job
+        log.info("%s: %s %s", spec.name, res.status, res.reason)
+        results.append(res)
+    results.sort(key=lambda r: METHOD_NAMES.index(r.name))
+    info = SceneInfo(name=scene.name, kind=scene.kind, source=scene.source, preset=scene.preset,
+                     seed=scene.seed, num_images=len(scene.image_names), width=scene.camera.width,
+                     height=scene.camera.height, camera_model=scene.camera.model,
+                     camera_params=[float(p) for p in scene.camera.params], has_gt=scene.gt is not None,
+                     has_mesh=scene.mesh_path is not None, downscale=scene.downscale,
+                     render_s=scene.render_s, scene_extent=extent)
+    metrics = MetricsFile(schema_version=SCHEMA_VERSION, scene=info,
+                          environment=_environment(cfg, scene, timeout, 0.0), methods=results,
+                          pairs=[p for p in PAIRS if any(r.name == p.baseline for r in results)
+                                 and any(r.name == p.candidate for r in results)],
+                          claims=[], notes=notes)
+    for spec in specs:
+        trace = (job_results.get(spec.name) or {}).get("final_ba_trace")
+        if trace:
+            metrics.ba_traces.append(BATrace(spec.ba, f"{scene.name}: final global BA of our SfM",
+                                             [TracePoint(int(i), float(t), float(c)) for i, t, c in trace]))
+    if cfg.claims:
+        c_budget = claims_budget
+        if budget is not None:
+            c_budget = max(0.0, min(claims_budget, t_start + budget - REPORT_RESERVE_S - time.perf_counter()))
+        claims_mod.evaluate_into(metrics, job_results, ctx.runs, cfg.seed, c_budget, timeout)
+    metrics.environment.run_budget_s = budget
+    metrics.environment.total_runtime_s = time.perf_counter() - t_start
+    save(metrics, out / "metrics.json")
+    build_report(out, metrics)
+    return out, metrics
+
+
+def command_line(argv: list[str] | None = None) -> str:
+    argv = sys.argv if argv is None else argv
+    prog = "polarref" if argv and (argv[0].endswith("polarref") or argv[0].endswith("__main__.py")) else argv[0]
+    return " ".join([prog, *map(shlex.quote, argv[1:])])
+
+
+__all__ = ["CompareConfig", "run_compare", "METHOD_TIMEOUT_S", "STATUS_SKIPPED"]

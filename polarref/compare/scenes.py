@@ -1,0 +1,194 @@
+"""Resolve ``polarref compare``'s SCENE|DIR argument into images, fixed camera and ground truth.
+
+* ``comet`` / ``uav`` (or nothing): a synthetic scene rendered by ``synth`` into the cache
+  (``polarref.data.cache_root()/scenes/...``) and reused on later runs.
+* a rendered scene folder (``scene.json``, ``images/``, ``gt/``, ``mesh.ply``).
+* a real image set with ground truth: Strecha ``*.camera`` files (``gt_dense_cameras/``) or a
+  COLMAP model in ``gt/``. Large images are downscaled by an integer factor (INTER_AREA) into
+  the cache; with COLMAP's corner pixel origin the intrinsics scale exactly by 1/factor.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from polarref.compare.pycolmap_runs import FixedCamera
+from polarref.data import cache_root
+from polarref.errors import PolarrefError
+
+log = logging.getLogger(__name__)
+
+SYNTHETIC = ("comet", "uav")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
+# Real images wider than this (per preset) are downscaled; SIFT on 3072 px is too slow for 2 cores.
+MAX_WIDTH = {"small": 768, "default": 1024, "large": 1536}
+
+
+@dataclass
+class PreparedScene:
+    """Everything the methods need, in COLMAP conventions."""
+
+    name: str
+    kind: str                       # synthetic | real
+    source: str                     # as given by the user
+    root: Path                      # scene folder (for synth: the rendered folder)
+    image_dir: Path                 # images actually used (maybe downscaled copies)
+    image_names: list[str]
+    camera: FixedCamera
+    gt: object | None               # polarref.reconstruction.Reconstruction or None
+    mesh_path: Path | None
+    preset: str
+    seed: int
+    downscale: float = 1.0
+    render_s: float = 0.0
+    mitsuba_variant: str = ""
+
+
+def _images_in(folder: Path) -> list[str]:
+    return sorted(p.name for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+
+
+def _synthetic(scene: str, preset: str, seed: int) -> PreparedScene:
+    """Render (or reuse) a synthetic scene in the cache; the folder is keyed by the scene digest."""
+    try:
+        from synth.config import preset as scene_preset
+        from synth.render import code_version, render_scene
+        from synth.scene import load_scene
+    except ImportError as exc:
+        raise PolarrefError(f"cannot render the {scene} scene: synth is not available ({exc})") from exc
+    cfg = scene_preset(scene, preset, seed=seed)
+    root = cache_root() / "scenes" / f"{scene}-{preset}-seed{seed}-{cfg.digest(code_version())}"
+    result = render_scene(scene, root, cfg)
+    if result.rendered:
+        log.info("rendered %d views of %s into %s in %.1f s", result.rendered, scene, root, result.total_seconds)
+    loaded = load_scene(root)
+    render_s = result.total_seconds if result.rendered else 0.0
+    return _from_rendered(loaded, f"{scene}-{preset}", scene, preset, seed, render_s)
+
+
+def _from_rendered(loaded, name: str, source: str, preset: str, seed: int, render_s: float) -> PreparedScene:
+    from polarref.reconstruction import Reconstruction
+
+    cam = loaded.camera
+    gt = Reconstruction.read(loaded.gt_dir) if loaded.gt_dir.is_dir() else None
+    return PreparedScene(
+        name=name, kind="synthetic", source=source, root=loaded.root, image_dir=loaded.root / "images",
+        image_names=[v.name for v in loaded.views],
+        camera=FixedCamera(cam.model, int(cam.width), int(cam.height), tuple(float(p) for p in cam.params)),
+        gt=gt, mesh_path=loaded.mesh_path if loaded.mesh_path.is_file() else None,
+        preset=preset, seed=seed, render_s=render_s,
+        mitsuba_variant=str(loaded.meta.get("mitsuba_variant", "")))
+
+
+def _strecha_gt(folder: Path, names: list[str]):
+    """GT cameras from Strecha ``.camera`` files, via ``polarref.io.strecha`` when available."""
+    try:
+        from polarref.io import strecha  # owned by the camera/io helper
+        return strecha.read_ground_truth(folder, names)
+    except (ImportError, AttributeError):
+        pass
+    # Minimal reader until polarref.io.strecha exists: K rows 1-3, R (cam-to-world) rows 5-7,
+    # centre row 8, size row 9; x ~ K R^T (X - C). Strecha's K puts pixel centres at integers,
+    # so cx, cy get +0.5 for COLMAP's corner origin.
+    from polarref.camera import Camera
+    from polarref.geometry import Rigid3
+    from polarref.reconstruction import Image, Reconstruction
+
+    rec = Reconstruction()
+    for i, name in enumerate(names, start=1):
+        f = folder / f"{name}.camera"
+        if not f.is_file():
+            raise PolarrefError(f"ground-truth camera file missing: {f}")
+        rows = [list(map(float, ln.split())) for ln in f.read_text().splitlines() if ln.strip()]
+        K, R, C, (w, h) = np.array(rows[0:3]), np.array(rows[4:7]), np.array(rows[7]), rows[8][:2]
+        if 1 not in rec.cameras:
+            rec.cameras[1] = Camera(model="PINHOLE", width=int(w), height=int(h),
+                                    params=np.array([K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5]))
+        rec.images[i] = Image(i, name, 1, Rigid3(R.T, -R.T @ C))
+    return rec
+
+
+def _downscale_factor(width: int, height: int, max_width: int) -> int:
+    """Smallest integer factor >= width / max_width that divides both sides (exact intrinsics)."""
+    f = max(1, math.ceil(width / max_width))
+    for k in range(f, 33):
+        if width % k == 0 and height % k == 0:
+            return k
+    raise PolarrefError(f"cannot downscale {width}x{height} images exactly to <= {max_width} px wide "
+                        "(no common integer factor <= 32); use --preset large")
+
+
+def _downscale(src_dir: Path, names: list[str], factor: int, dst_dir: Path) -> None:
+    import cv2
+
+    dst_dir.mkdir(parents=True, exist_ok=True)
+    for name in names:
+        out = dst_dir / (Path(name).stem + ".png")
+        if out.is_file():
+            continue
+        img = cv2.imread(str(src_dir / name), cv2.IMREAD_COLOR)
+        if img is None:
+            raise PolarrefError(f"cannot read image {src_dir / name}")
+        h, w = img.shape[:2]
+        small = cv2.resize(img, (w // factor, h // factor), interpolation=cv2.INTER_AREA)
+        tmp = out.with_name(f".{out.stem}.tmp.png")
+        cv2.imwrite(str(tmp), small)
+        tmp.replace(out)
+
+
+def _real(folder: Path, source: str, preset: str) -> PreparedScene:
+    from polarref.reconstruction import Image, Reconstruction
+
+    image_dir = folder / "images" if (folder / "images").is_dir() else folder
+    names = _images_in(image_dir)
+    if not names:
+        raise PolarrefError(f"no images (*{', *'.join(IMAGE_SUFFIXES)}) in {image_dir}")
+    if (folder / "gt_dense_cameras").is_dir():
+        gt = _strecha_gt(folder / "gt_dense_cameras", names)
+    elif (folder / "gt").is_dir():
+        gt = Reconstruction.read(folder / "gt")
+    else:
+        raise PolarrefError(f"{folder} has images but no ground truth (gt/ COLMAP model or "
+                            "gt_dense_cameras/*.camera); polarref compare needs the intrinsics")
+    cam = next(iter(gt.cameras.values()))
+    factor = _downscale_factor(int(cam.width), int(cam.height), MAX_WIDTH[preset])
+    used_dir, used_names = image_dir, names
+    if factor > 1:
+        used_dir = cache_root() / "compare-inputs" / f"{folder.name}-x{factor}"
+        _downscale(image_dir, names, factor, used_dir)
+        used_names = [Path(n).stem + ".png" for n in names]
+    params = tuple(float(p) / factor for p in np.asarray(cam.params))  # exact with corner origin
+    fixed = FixedCamera(cam.model, int(cam.width) // factor, int(cam.height) // factor, params)
+    # Ground truth keyed by the names the methods will see; poses do not change with scale.
+    gt_used = Reconstruction(cameras=dict(gt.cameras))
+    for (image_id, im), new_name in zip(sorted(gt.images.items()), used_names if factor > 1 else names):
+        gt_used.images[image_id] = Image(image_id, new_name, im.camera_id, im.cam_from_world)
+    return PreparedScene(name=folder.name, kind="real", source=source, root=folder, image_dir=used_dir,
+                         image_names=used_names, camera=fixed, gt=gt_used, mesh_path=None,
+                         preset=preset, seed=-1, downscale=float(factor))
+
+
+def prepare(arg: str | None, preset: str, seed: int) -> PreparedScene:
+    """Resolve SCENE|DIR (None = the default comet scene)."""
+    if preset not in MAX_WIDTH:
+        raise PolarrefError(f"unknown preset {preset!r} (choose from {', '.join(MAX_WIDTH)})")
+    if arg is None or arg in SYNTHETIC:
+        return _synthetic(arg or "comet", preset, seed)
+    path = Path(arg).expanduser()
+    if not path.exists():
+        raise PolarrefError(f"unknown scene {arg!r}: not one of {', '.join(SYNTHETIC)} and no such directory")
+    if not path.is_dir():
+        raise PolarrefError(f"{arg} is not a directory (give a scene name or an image folder)")
+    if (path / "scene.json").is_file():
+        from synth.scene import load_scene
+
+        loaded = load_scene(path)
+        meta = loaded.meta
+        return _from_rendered(loaded, path.name, str(arg), str(meta.get("preset", "")),
+                              int(meta.get("seed", meta.get("config", {}).get("seed", -1)) or 0), 0.0)
+    return _real(path, str(arg), preset)

@@ -1,0 +1,293 @@
+"""Typed, versioned schema of ``metrics.json``: the only input of every report.
+
+``polarref compare`` fills these dataclasses and writes them with :func:`save`;
+``polarref report`` reads them back with :func:`load` and never recomputes anything.
+Unknown keys and a newer ``schema_version`` are errors, so a stale or hand-edited file
+fails loudly instead of rendering half a report.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import re
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from polarref.errors import PolarrefError
+
+SCHEMA_VERSION = 1
+
+STATUS_OK = "ok"
+STATUS_FAILED = "failed"
+STATUS_TIMEOUT = "timeout"
+STATUS_SKIPPED = "skipped"
+
+VERDICTS = ("supported", "not supported", "inconclusive", "not tested")
+
+
+@dataclass
+class SceneInfo:
+    """What was reconstructed."""
+
+    name: str                 # scene key, e.g. "comet-small" or "strecha_fountain-P11"
+    kind: str                 # "synthetic" or "real"
+    source: str               # folder the images came from (as given on the command line)
+    preset: str               # render preset or "" for a real image set
+    seed: int                 # render seed (-1 for real data)
+    num_images: int
+    width: int                # image size actually used (after any downscaling)
+    height: int
+    camera_model: str         # COLMAP model name of the fixed intrinsics
+    camera_params: list[float]
+    has_gt: bool
+    has_mesh: bool
+    downscale: float = 1.0    # original width / used width
+    render_s: float = 0.0     # seconds spent rendering in this run (0 when reused)
+    scene_extent: float = 0.0  # GT scene size: RMS distance of GT camera centres from their centroid
+
+
+@dataclass
+class GtAccuracy:
+    """Errors after a Sim3 alignment of the estimate to ground truth."""
+
+    aligned_images: int
+    rotation_error_deg_mean: float
+    rotation_error_deg_median: float
+    rotation_error_deg_max: float
+    center_error_mean: float          # scene units (GT frame)
+    center_error_max: float
+    center_error_rel_mean: float      # center_error_mean / scene_extent
+    point_to_surface_mean: float | None = None   # scene units; None without a mesh
+    point_to_surface_median: float | None = None
+    point_to_surface_p90: float | None = None
+    point_to_surface_rel_median: float | None = None
+    points_scored: int = 0
+
+
+@dataclass
+class Histogram:
+    """Binned values (counts per [edges[i], edges[i+1]))."""
+
+    edges: list[float]
+    counts: list[int]
+
+
+@dataclass
+class TracePoint:
+    """One solver iteration (for convergence plots)."""
+
+    iteration: int
+    time_s: float
+    cost: float
+
+
+@dataclass
+class BATrace:
+    """Convergence of one bundle adjustment run."""
+
+    label: str                # e.g. "euclidean" or "pycolmap (Ceres)"
+    problem: str              # which problem the trace comes from
+    points: list[TracePoint]
+
+
+@dataclass
+class MethodPlot:
+    """Small plot data kept in metrics.json so figures can be redrawn from it alone."""
+
+    image_names: list[str] = field(default_factory=list)
+    centers_est_aligned: list[list[float]] = field(default_factory=list)  # (N, 3), GT frame
+    centers_gt: list[list[float]] = field(default_factory=list)           # (N, 3)
+    points_sample: list[list[float]] = field(default_factory=list)        # (<= 3000, 3), GT frame
+    reproj_hist: Histogram | None = None
+    rotation_err_hist: Histogram | None = None
+    surface_err_hist: Histogram | None = None
+
+
+@dataclass
+class MethodResult:
+    """One reconstruction method run on the scene, scored by ``polarref.metrics``."""
+
+    name: str                 # stable key, e.g. "ours-polar" or "pycolmap-incremental-sift"
+    label: str                # human label for tables
+    family: str               # "ours" or "pycolmap"
+    features: str             # "pycolmap-sift" or "ours"
+    mapper: str               # "polarref-incremental", "pycolmap-incremental", "pycolmap-global"
+    ba: str                   # BA parameterization or solver ("euclidean", ..., "ceres")
+    status: str               # ok | failed | timeout | skipped
+    reason: str = ""          # why it failed / was skipped (empty when ok)
+    runtime_s: float | None = None       # wall time of the whole method (features to final BA)
+    stage_runtime_s: dict[str, float] = field(default_factory=dict)
+    timeout_s: float | None = None
+    num_images: int = 0
+    registered_images: int | None = None
+    tie_points: int | None = None        # 3D points
+    reprojected_px: int | None = None    # observations (track elements)
+    mean_reprojection_error_px: float | None = None            # per observation
+    mean_reprojection_error_per_point_px: float | None = None  # COLMAP's per-point average
+    gt: GtAccuracy | None = None
+    plot: MethodPlot | None = None
+
+
+@dataclass
+class MethodPair:
+    """Which two methods a paper-style table compares (baseline first)."""
+
+    title: str
+    baseline: str             # MethodResult.name
+    candidate: str            # MethodResult.name
+    note: str = ""
+
+
+@dataclass
+class Figure:
+    """A measured figure a verdict rests on."""
+
+    key: str                  # referenced as {key} in a claim's rationale template
+    label: str
+    value: float | None
+    unit: str = ""            # "count" = an integer count (formatted without decimals)
+
+
+@dataclass
+class ClaimResult:
+    """One claim of the paper, its test, measurements and verdict."""
+
+    claim_id: str
+    claim: str                # what the paper says
+    source: str               # where it says it
+    test: str                 # how we tested it
+    figures: list[Figure]
+    sample_size: str          # e.g. "10^5 random angles", "1 scene x 2 methods"
+    verdict: str              # one of VERDICTS
+    rationale: str            # template: "{key}" placeholders filled from figures at report time
+
+
+@dataclass
+class Environment:
+    """Where and how the run happened."""
+
+    command: str              # exact command line
+    created: str              # ISO timestamp of the compare run (stored, never regenerated)
+    versions: dict[str, str]  # package -> version (from polarref doctor)
+    cpu_count: int
+    mitsuba_variant: str
+    seeds: dict[str, int]
+    preset: str
+    method_timeout_s: float
+    total_runtime_s: float
+    run_budget_s: float | None = None   # whole-run limit (None = unlimited)
+
+
+@dataclass
+class MetricsFile:
+    """Everything a report shows."""
+
+    schema_version: int
+    scene: SceneInfo
+    environment: Environment
+    methods: list[MethodResult]
+    pairs: list[MethodPair]
+    claims: list[ClaimResult]
+    ba_traces: list[BATrace] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    def method(self, name: str) -> MethodResult | None:
+        return next((m for m in self.methods if m.name == name), None)
+
+
+# ---- (de)serialisation ----------------------------------------------------------------------
+
+def _clean(value):
+    """JSON-safe copy: NaN/inf become None (JSON has no NaN), tuples become lists."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): _clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_clean(v) for v in value]
+    return value
+
+
+def to_dict(obj) -> dict:
+    return _clean(dataclasses.asdict(obj))
+
+
+def _build(tp, value, where: str):
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if value is None:
+            return None
+        return _build(args[0], value, where)
+    if dataclasses.is_dataclass(tp):
+        if not isinstance(value, dict):
+            raise PolarrefError(f"metrics.json: {where} should be an object, got {type(value).__name__}")
+        hints = typing.get_type_hints(tp)
+        names = {f.name for f in dataclasses.fields(tp)}
+        unknown = set(value) - names
+        if unknown:
+            raise PolarrefError(f"metrics.json: unknown key(s) {sorted(unknown)} in {where}")
+        kwargs = {k: _build(hints[k], v, f"{where}.{k}") for k, v in value.items()}
+        try:
+            return tp(**kwargs)
+        except TypeError as exc:
+            raise PolarrefError(f"metrics.json: {where}: {exc}") from exc
+    if origin is list:
+        (inner,) = typing.get_args(tp)
+        if not isinstance(value, list):
+            raise PolarrefError(f"metrics.json: {where} should be a list")
+        return [_build(inner, v, f"{where}[{i}]") for i, v in enumerate(value)]
+    if origin is dict:
+        _, inner = typing.get_args(tp)
+        return {k: _build(inner, v, f"{where}.{k}") for k, v in value.items()}
+    if tp is float:
+        if not isinstance(value, (int, float)):
+            raise PolarrefError(f"metrics.json: {where} should be a number, got {value!r}")
+        return float(value)
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value):
+            raise PolarrefError(f"metrics.json: {where} should be an integer, got {value!r}")
+        return int(value)
+    return value
+
+
+def from_dict(data: dict) -> MetricsFile:
+    version = data.get("schema_version") if isinstance(data, dict) else None
+    if not isinstance(version, int) or version < 1 or version > SCHEMA_VERSION:
+        raise PolarrefError(f"metrics.json: unsupported schema_version {version!r} "
+                            f"(this polarref reads 1..{SCHEMA_VERSION})")
+    return _build(MetricsFile, data, "metrics")
+
+
+_NUMBER_LIST = re.compile(r"\[\s*(-?[0-9][-0-9.eE+]*(?:,\s*-?[0-9][-0-9.eE+]*)*)\s*\]")
+
+
+def dumps(metrics: MetricsFile) -> str:
+    """Indented JSON with innermost number lists on one line (plot arrays stay compact)."""
+    text = json.dumps(to_dict(metrics), indent=1, allow_nan=False)
+    return _NUMBER_LIST.sub(lambda m: "[" + re.sub(r"\s+", "", m.group(1)).replace(",", ", ") + "]", text) + "\n"
+
+
+def save(metrics: MetricsFile, path: str | Path) -> Path:
+    """Write atomically (a crash never leaves a truncated metrics.json)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(dumps(metrics))
+    tmp.replace(path)
+    return path
+
+
+def load(path: str | Path) -> MetricsFile:
+    path = Path(path)
+    if not path.is_file():
+        raise PolarrefError(f"metrics file not found: {path}")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise PolarrefError(f"{path} is not valid JSON: {exc}") from exc
+    return from_dict(data)
