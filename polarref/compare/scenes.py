@@ -86,31 +86,10 @@ def _from_rendered(loaded, name: str, source: str, preset: str, seed: int, rende
 
 
 def _strecha_gt(folder: Path, names: list[str]):
-    """GT cameras from Strecha ``.camera`` files, via ``polarref.io.strecha`` when available."""
-    try:
-        from polarref.io import strecha  # owned by the camera/io helper
-        return strecha.read_ground_truth(folder, names)
-    except (ImportError, AttributeError):
-        pass
-    # Minimal reader until polarref.io.strecha exists: K rows 1-3, R (cam-to-world) rows 5-7,
-    # centre row 8, size row 9; x ~ K R^T (X - C). Strecha's K puts pixel centres at integers,
-    # so cx, cy get +0.5 for COLMAP's corner origin.
-    from polarref.camera import Camera
-    from polarref.geometry import Rigid3
-    from polarref.reconstruction import Image, Reconstruction
+    """GT cameras from Strecha ``.camera`` files (cx, cy +0.5 for COLMAP's corner origin)."""
+    from polarref.io import strecha
 
-    rec = Reconstruction()
-    for i, name in enumerate(names, start=1):
-        f = folder / f"{name}.camera"
-        if not f.is_file():
-            raise PolarrefError(f"ground-truth camera file missing: {f}")
-        rows = [list(map(float, ln.split())) for ln in f.read_text().splitlines() if ln.strip()]
-        K, R, C, (w, h) = np.array(rows[0:3]), np.array(rows[4:7]), np.array(rows[7]), rows[8][:2]
-        if 1 not in rec.cameras:
-            rec.cameras[1] = Camera(model="PINHOLE", width=int(w), height=int(h),
-                                    params=np.array([K[0, 0], K[1, 1], K[0, 2] + 0.5, K[1, 2] + 0.5]))
-        rec.images[i] = Image(i, name, 1, Rigid3(R.T, -R.T @ C))
-    return rec
+    return strecha.read_ground_truth(folder, names)
 
 
 def _downscale_factor(width: int, height: int, max_width: int) -> int:
