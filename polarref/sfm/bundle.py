@@ -1,0 +1,135 @@
+"""Bundle adjustment of a :class:`MapState` through the shared :class:`Reconstruction` type.
+
+``ba="colmap"`` runs pycolmap's Ceres adjuster (the reference); every other name runs
+``polarref.ba.adjust`` with that parameterization. Intrinsics are always held constant.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+
+import numpy as np
+
+from polarref.errors import PolarrefError
+from polarref.geometry import Rigid3
+from polarref.reconstruction import Image, Point3D, Reconstruction
+
+log = logging.getLogger(__name__)
+
+BA_NAMES = ("euclidean", "parallax", "polar", "angular", "colmap")
+
+
+def to_reconstruction(state, image_ids=None, track_ids=None, colors=None) -> Reconstruction:
+    """Reconstruction with image id = index + 1, point id = track + 1, camera id = index + 1.
+
+    Args:
+        image_ids: image indices to include (default: all registered).
+        track_ids: tracks whose points to include (default: all with a point); only their active
+            observations in included images are written.
+        colors: optional list of (K_i, 3) uint8 keypoint colours.
+    """
+    tr = state.tracks
+    imgs = np.flatnonzero(state.registered) if image_ids is None else np.asarray(image_ids)
+    tids = np.flatnonzero(state.has_point) if track_ids is None else np.asarray(track_ids)
+    rec = Reconstruction()
+    for c, cam in enumerate(state.cameras):
+        rec.cameras[c + 1] = cam
+    in_img = np.zeros(len(state.keypoints), bool)
+    in_img[imgs] = True
+    in_trk = np.zeros(tr.num_tracks, bool)
+    in_trk[tids] = True
+    obs = np.flatnonzero(state.active & in_img[tr.image] & in_trk[tr.track])
+    for i in imgs:
+        i = int(i)
+        rec.images[i + 1] = Image(i + 1, state.names[i], int(state.camera_of_image[i]) + 1,
+                                  state.pose(i), state.keypoints[i],
+                                  np.full(len(state.keypoints[i]), -1, np.int64))
+    o_sorted = obs[np.argsort(tr.track[obs], kind="stable")]
+    tk = tr.track[o_sorted]
+    bounds = np.flatnonzero(np.diff(tk)) + 1
+    for grp in np.split(o_sorted, bounds) if len(o_sorted) else []:
+        t = int(tr.track[grp[0]])
+        rows = np.stack([tr.image[grp] + 1, tr.keypoint[grp]], 1).astype(np.int64)
+        col = colors[tr.image[grp[0]]][tr.keypoint[grp[0]]] if colors is not None else np.zeros(3, np.uint8)
+        rec.points3D[t + 1] = Point3D(state.X[t].copy(), rows, -1.0, np.asarray(col, np.uint8))
+        for im, kp in zip(tr.image[grp], tr.keypoint[grp]):
+            rec.images[int(im) + 1].point3D_ids[int(kp)] = t + 1
+    return rec
+
+
+def _read_back(state, rec: Reconstruction, variable: list[int]) -> None:
+    for i in variable:
+        state.set_pose(i, rec.images[i + 1].cam_from_world)
+    for pid, p in rec.points3D.items():
+        state.X[pid - 1] = p.xyz
+
+
+def _colmap_adjust(rec: Reconstruction, variable: list[int], fixed: list[int], max_iterations: int,
+                   loss: str) -> dict:
+    import pycolmap
+
+    prec = rec.to_pycolmap()
+    cfg = pycolmap.BundleAdjustmentConfig()
+    for i in variable + fixed:
+        cfg.add_image(i + 1)
+    for i in fixed:
+        cfg.set_constant_rig_from_world_pose(prec.images[i + 1].frame_id)
+    for cam_id in prec.cameras:
+        cfg.set_constant_cam_intrinsics(cam_id)
+    if len(fixed) < 2:
+        # Gauge (7 DoF: rotation, translation, scale): pin two camera poses, COLMAP style.
+        cfg.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    opts = pycolmap.BundleAdjustmentOptions()
+    opts.refine_focal_length = opts.refine_principal_point = opts.refine_extra_params = False
+    opts.ceres.solver_options.max_num_iterations = max_iterations
+    opts.ceres.solver_options.num_threads = 1
+    opts.print_summary = False
+    opts.ceres.solver_options.function_tolerance = 1e-6
+    if loss != "trivial":
+        opts.ceres.loss_function_type = getattr(pycolmap.LossFunctionType, loss.upper())
+    t0 = time.perf_counter()
+    ba = pycolmap.create_default_bundle_adjuster(opts, cfg, prec)
+    summary = ba.solve()
+    cs = summary.ceres_summary if hasattr(summary, "ceres_summary") else summary
+    wall = time.perf_counter() - t0
+    for i in variable:
+        pose = prec.images[i + 1].cam_from_world()
+        rec.images[i + 1].cam_from_world = Rigid3(pose.rotation.matrix(), pose.translation)
+    for pid, p in prec.points3D.items():
+        rec.points3D[pid].xyz = np.array(p.xyz)
+    info = {"param": "colmap", "loss": loss, "wall_s": wall}
+    for key in ("initial_cost", "final_cost", "num_successful_steps", "num_unsuccessful_steps"):
+        if hasattr(cs, key):
+            info[key] = float(getattr(cs, key))
+    return info
+
+
+def adjust(state, variable: list[int], fixed: list[int], ba: str, max_iterations: int,
+           loss: str = "trivial", track_ids=None) -> dict:
+    """Adjust poses of ``variable`` images and the points (``track_ids`` or all) in place.
+
+    Returns a JSON-ready summary (with the iteration trace for polarref's adjusters).
+    """
+    if ba not in BA_NAMES:
+        raise PolarrefError(f"unknown --ba {ba!r}; choose one of {', '.join(BA_NAMES)}")
+    rec = to_reconstruction(state, sorted(set(variable) | set(fixed)), track_ids)
+    if not rec.points3D:
+        return {"param": ba, "skipped": "no points"}
+    if ba == "colmap":
+        info = _colmap_adjust(rec, list(variable), list(fixed), max_iterations, loss)
+    else:
+        try:
+            from polarref.ba import BAOptions, adjust as ba_adjust
+        except ImportError as exc:
+            raise PolarrefError(f"--ba {ba}: polarref.ba.adjust is not available ({exc}); "
+                                "use --ba colmap") from exc
+        opts = BAOptions(param=ba, loss=loss, max_iterations=max_iterations)
+        summary = ba_adjust(rec, opts, variable_image_ids=[i + 1 for i in variable],
+                            fixed_image_ids=[i + 1 for i in fixed])
+        info = dataclasses.asdict(summary) if dataclasses.is_dataclass(summary) else dict(summary)
+        # keep scalars and the iteration trace (convergence plots); drop bulky state dumps
+        info = {k: v for k, v in info.items() if k == "trace" or not isinstance(v, (list, np.ndarray))}
+    _read_back(state, rec, list(variable))
+    return info

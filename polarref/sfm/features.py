@@ -1,0 +1,145 @@
+"""Stage 1: SIFT keypoints and descriptors (OpenCV), in COLMAP pixel convention.
+
+OpenCV puts the centre of the first pixel at (0, 0); COLMAP (and polarref) at (0.5, 0.5), which
+is +0.5. But OpenCV's SIFT reports keypoints a further +0.25 px off (measured: a Gaussian blob
+centred on pixel (70, 50) is found at (70.24, 50.24), at every octave): it doubles the image for
+the first octave with a pixel-centre-aligned resize and maps the keypoints back with a plain
+factor 0.5, which shifts them by half an upsampled pixel. So the conversion is
+``+0.5 - OPENCV_SIFT_BIAS = +0.25`` (the pycolmap notes measured COLMAP's SIFT at OpenCV + 0.25,
+which agrees). Images larger than ``max_image_size`` are downscaled for detection
+(INTER_AREA) and the keypoints are scaled back to the original resolution: with the corner
+origin this is an exact multiplication by ``W / w`` (x) and ``H / h`` (y), so the camera of the
+original images stays valid (COLMAP does the same).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+OPENCV_SIFT_BIAS = 0.25  # px (detection resolution) added by OpenCV's 2x first-octave upsampling
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".exr")
+
+
+@dataclass(frozen=True)
+class FeatureConfig:
+    """SIFT settings."""
+
+    max_num_features: int = 4096      # strongest keypoints kept per image (by detector response)
+    contrast_threshold: float = 0.02  # OpenCV SIFT contrastThreshold (default 0.04 finds too few on synthetic renders)
+    edge_threshold: float = 10.0      # OpenCV SIFT edgeThreshold (Lowe's r)
+    n_octave_layers: int = 3          # scales per octave
+    sigma: float = 1.6                # blur of the first octave
+    root_sift: bool = True            # Hellinger kernel (Arandjelovic & Zisserman 2012): L1, sqrt, so dot = similarity
+    max_image_size: int = 0           # 0 = full resolution, else downscale so max(w, h) <= this
+
+
+@dataclass
+class Features:
+    """Keypoints of one image.
+
+    Attributes:
+        name: image file name (relative to the image folder).
+        width, height: original image size in px.
+        keypoints: (K, 2) float64, COLMAP pixel convention, original resolution.
+        descriptors: (K, 128) float32, unit L2 norm (RootSIFT or L2-normalized SIFT).
+        scales: (K,) keypoint size in original px; orientations: (K,) degrees.
+        colors: (K, 3) uint8 RGB sampled at the keypoints.
+    """
+
+    name: str
+    width: int
+    height: int
+    keypoints: np.ndarray
+    descriptors: np.ndarray
+    scales: np.ndarray
+    orientations: np.ndarray
+    colors: np.ndarray
+
+
+def list_images(image_dir: Path) -> list[Path]:
+    """Image files directly inside ``image_dir``, sorted by name."""
+    return sorted(p for p in Path(image_dir).iterdir()
+                  if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+
+
+def read_image(path: Path) -> np.ndarray | None:
+    """BGR uint8 image, or None when OpenCV cannot decode it."""
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if img is None or img.size == 0:
+        return None
+    if img.dtype != np.uint8:  # 16-bit PNG/TIFF: keep the range, drop precision
+        img = cv2.normalize(img, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)
+    return img
+
+
+def normalize_descriptors(desc: np.ndarray, root_sift: bool) -> np.ndarray:
+    """(K, 128) raw SIFT -> (K, 128) float32 with unit L2 norm (RootSIFT if asked)."""
+    d = np.asarray(desc, dtype=np.float32)
+    if root_sift:
+        d = np.sqrt(d / np.maximum(np.abs(d).sum(1, keepdims=True), 1e-12))
+    return d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+
+
+def extract(image: np.ndarray, name: str, config: FeatureConfig) -> Features:
+    """Detect SIFT on one BGR image (H, W, 3) uint8."""
+    import cv2
+
+    height, width = image.shape[:2]
+    gray = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    scale = 1.0
+    if config.max_image_size and max(width, height) > config.max_image_size:
+        scale = config.max_image_size / max(width, height)
+        gray = cv2.resize(gray, (round(width * scale), round(height * scale)), interpolation=cv2.INTER_AREA)
+    sx, sy = width / gray.shape[1], height / gray.shape[0]
+    sift = cv2.SIFT_create(nfeatures=config.max_num_features, nOctaveLayers=config.n_octave_layers,
+                           contrastThreshold=config.contrast_threshold,
+                           edgeThreshold=config.edge_threshold, sigma=config.sigma)
+    kps, desc = sift.detectAndCompute(gray, None)
+    if desc is None or not kps:
+        return Features(name, width, height, np.zeros((0, 2)), np.zeros((0, 128), np.float32),
+                        np.zeros(0), np.zeros(0), np.zeros((0, 3), np.uint8))
+    # OpenCV may return a few more than nfeatures (ties in response); keep the strongest.
+    order = np.argsort([-k.response for k in kps], kind="stable")[: config.max_num_features]
+    pts = np.array([kps[i].pt for i in order], dtype=np.float64)
+    xy = (pts + 0.5 - OPENCV_SIFT_BIAS) * np.array([sx, sy])
+    ij = np.clip(np.floor(xy).astype(int), 0, [width - 1, height - 1])
+    colors = image[ij[:, 1], ij[:, 0], ::-1].astype(np.uint8)
+    return Features(
+        name=name, width=width, height=height, keypoints=xy,
+        # Rounded to float16 here (not only in the cache) so cached and fresh runs match bit for bit.
+        descriptors=normalize_descriptors(desc[order], config.root_sift).astype(np.float16).astype(np.float32),
+        scales=np.array([kps[i].size for i in order]) * sx,
+        orientations=np.array([kps[i].angle for i in order]),
+        colors=colors,
+    )
+
+
+def save(path: Path, feats: list[Features]) -> None:
+    """Store features of several images in one ``.npz`` (atomic rename)."""
+    arrays: dict[str, np.ndarray] = {"names": np.array([f.name for f in feats]),
+                                     "sizes": np.array([[f.width, f.height] for f in feats]).reshape(-1, 2)}
+    for i, f in enumerate(feats):
+        arrays[f"kp{i}"] = f.keypoints
+        arrays[f"de{i}"] = f.descriptors.astype(np.float16)  # exact: extract() already rounded
+        arrays[f"sc{i}"] = f.scales
+        arrays[f"or{i}"] = f.orientations
+        arrays[f"co{i}"] = f.colors
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez(tmp, **arrays)
+    tmp.replace(path)
+
+
+def load(path: Path) -> list[Features]:
+    with np.load(path, allow_pickle=False) as z:
+        names, sizes = z["names"], z["sizes"]
+        return [Features(str(n), int(w), int(h), z[f"kp{i}"], z[f"de{i}"].astype(np.float32),
+                         z[f"sc{i}"], z[f"or{i}"], z[f"co{i}"])
+                for i, (n, (w, h)) in enumerate(zip(names, sizes))]

@@ -1,0 +1,157 @@
+"""Stage 7: the incremental loop (register, triangulate, local/global BA, filter, retriangulate)."""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from polarref.errors import PolarrefError
+from polarref.geometry import Rigid3
+from polarref.progress import track
+from polarref.sfm import bundle
+from polarref.sfm import rays as R_
+from polarref.sfm.initial_pair import InitConfig, choose_initial_pair
+from polarref.sfm.registration import RegisterConfig, estimate_pose
+from polarref.sfm.state import MapState
+from polarref.sfm.verification import TwoViewGeometry
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class MapperConfig:
+    """Incremental mapping settings."""
+
+    ba: str = "euclidean"              # bundle adjuster: euclidean | parallax | polar | angular | colmap
+    local_ba_images: int = 6           # new image + its most covisible registered images are variable
+    local_ba_iterations: int = 25      # LM iteration cap of a local BA
+    local_ba_loss: str = "cauchy"      # robust loss for local BA (outliers not yet filtered)
+    global_ba_growth: float = 1.25     # global BA when the registered count grew by this factor
+    global_ba_iterations: int = 50     # LM iteration cap of a global BA
+    global_ba_loss: str = "trivial"    # global BA runs after filtering: plain least squares
+    final_ba_rounds: int = 2           # rounds of (retriangulate, global BA, filter) at the end
+    max_registration_attempts: int = 3  # failed PnP attempts per image before giving up on it
+    init: InitConfig = field(default_factory=InitConfig)
+    register: RegisterConfig = field(default_factory=RegisterConfig)
+
+
+@dataclass
+class MapperLog:
+    initial_pair: tuple[int, int] = (-1, -1)
+    registration_order: list[int] = field(default_factory=list)
+    failed_registrations: dict[int, int] = field(default_factory=dict)
+    ba: list[dict] = field(default_factory=list)  # every BA summary, in order (kind: local|global)
+
+
+def _image_tracks(state: MapState, image: int) -> np.ndarray:
+    o = state.obs_of_kp[image]
+    return state.tracks.track[o[o >= 0]]
+
+
+def _global_ba(state: MapState, cfg: MapperConfig, log_: MapperLog, gauge: list[int]) -> None:
+    reg = [int(i) for i in np.flatnonzero(state.registered)]
+    var = [i for i in reg if i not in gauge]
+    info = bundle.adjust(state, var, list(gauge), cfg.ba, cfg.global_ba_iterations, cfg.global_ba_loss)
+    info.update(kind="global", num_registered=len(reg))
+    log_.ba.append(info)
+
+
+def _local_ba(state: MapState, image: int, cfg: MapperConfig, log_: MapperLog, gauge: list[int]) -> None:
+    cov = state.covisibility(image)
+    cov[image] = 0
+    cov[~state.registered] = 0
+    nbrs = [int(i) for i in np.argsort(-cov, kind="stable")[: cfg.local_ba_images - 1] if cov[i] > 0]
+    variable = [i for i in [image] + nbrs if i not in gauge]
+    tr = state.tracks
+    var_mask = np.zeros(len(state.keypoints), bool)
+    var_mask[variable] = True
+    pts = np.unique(tr.track[state.active & var_mask[tr.image]])
+    if not len(pts) or not variable:
+        return
+    obs_imgs = np.unique(tr.image[state.active & np.isin(tr.track, pts)])
+    fixed = [int(i) for i in obs_imgs if not var_mask[i]]
+    info = bundle.adjust(state, variable, fixed, cfg.ba, cfg.local_ba_iterations, cfg.local_ba_loss,
+                         track_ids=pts)
+    info.update(kind="local", image=image, num_variable=len(variable), num_fixed=len(fixed))
+    log_.ba.append(info)
+    state.filter(pts)
+
+
+def _retriangulate(state: MapState) -> tuple[int, int]:
+    """Extend existing points to consistent observations, then triangulate tracks without points."""
+    ext = state.extend()
+    new = state.triangulate(np.flatnonzero(~state.has_point))
+    return ext, new
+
+
+def run_mapper(state: MapState, geoms: dict[tuple[int, int], TwoViewGeometry],
+               cfg: MapperConfig) -> MapperLog:
+    """Incremental reconstruction into ``state``; returns what happened.
+
+    Raises:
+        PolarrefError: no initial pair, or fewer than two images registered.
+    """
+    out = MapperLog()
+    n = len(state.keypoints)
+    rays = [np.zeros((len(k), 3)) for k in state.keypoints]
+    for i in range(n):
+        o = state.obs_of_kp[i]
+        rays[i][o >= 0] = state.ray[o[o >= 0]]
+        if (o < 0).any():
+            rays[i][o < 0] = R_.bearings(state.cameras[state.camera_of_image[i]], state.keypoints[i][o < 0])
+    init = choose_initial_pair(geoms, rays, cfg.init)
+    i0, i1 = init.pair
+    out.initial_pair = (i0, i1)
+    log.info("initial pair %s: %d points above %.1f deg", init.pair, init.num_points, init.min_angle_deg)
+    state.set_pose(i0, Rigid3.identity())
+    state.set_pose(i1, geoms[(i0, i1)].cam2_from_cam1)
+    # Gauge (7 DoF): the pose of i0 is held fixed (6); the scale (1) is fixed by the adjuster itself
+    # (pycolmap: TWO_CAMS_FROM_WORLD; polarref.ba: one centre coordinate of another camera).
+    state.triangulate(np.union1d(_image_tracks(state, i0), _image_tracks(state, i1)))
+    _global_ba(state, cfg, out, gauge=[i0])
+    state.filter()
+    if state.has_point.sum() < 15:
+        raise PolarrefError(f"initial pair {init.pair} produced only {int(state.has_point.sum())} points")
+    out.registration_order += [i0, i1]
+    gauge = [i0]
+    n_at_global = 2
+    fails: dict[int, int] = {}
+    for _ in track(range(n - 2), desc="registration", total=n - 2):
+        vis = state.num_visible()
+        vis[state.registered] = -1
+        cands = [int(i) for i in np.argsort(-vis, kind="stable")
+                 if vis[i] > 0 and fails.get(int(i), 0) < cfg.max_registration_attempts]
+        done = False
+        for c in cands:
+            obs, X = state.correspondences_2d3d(c)
+            f = R_.mean_focal(state.cameras[state.camera_of_image[c]])
+            est = estimate_pose(R_.normalized(state.ray[obs]), X, f, cfg.register, cfg.register.seed + c)
+            if est is None:
+                fails[c] = fails.get(c, 0) + 1
+                continue
+            state.set_pose(c, est.cam_from_world)
+            state.active[obs[est.inliers]] = True
+            out.registration_order.append(c)
+            state.triangulate(_image_tracks(state, c))
+            state.extend(_image_tracks(state, c))
+            _local_ba(state, c, cfg, out, gauge)
+            state.triangulate(_image_tracks(state, c))
+            done = True
+            break
+        if not done:
+            break
+        if state.registered.sum() >= cfg.global_ba_growth * n_at_global:
+            _global_ba(state, cfg, out, gauge)
+            state.filter()
+            _retriangulate(state)
+            n_at_global = int(state.registered.sum())
+    out.failed_registrations = {k: v for k, v in fails.items() if not state.registered[k]}
+    for _ in range(cfg.final_ba_rounds):
+        _retriangulate(state)
+        _global_ba(state, cfg, out, gauge)
+        state.filter()
+    if state.registered.sum() < 2:
+        raise PolarrefError("fewer than two images could be registered")
+    return out

@@ -1,0 +1,318 @@
+"""The SfM pipeline: configuration presets, cached stages, timings, outputs.
+
+Entry point: :func:`run_sfm`. Features and verified matches are cached on disk, keyed by the
+image contents and every setting that affects them, and reused on the next run.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from polarref.data import cache_root
+from polarref.errors import PolarrefError
+from polarref.geometry import Rigid3
+from polarref.progress import track
+from polarref.reconstruction import Reconstruction
+from polarref.sfm import features as F
+from polarref.sfm import rays as R_
+from polarref.sfm.bundle import to_reconstruction
+from polarref.sfm.mapper import MapperConfig, run_mapper
+from polarref.sfm.matching import MatchConfig, match_pairs, select_pairs
+from polarref.sfm.state import MapState, TriangulationConfig
+from polarref.sfm.tracks import build_tracks
+from polarref.sfm.verification import TwoViewGeometry, VerifyConfig, verify_pairs
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SfMConfig:
+    """Every setting of the pipeline; change with ``dataclasses.replace``."""
+
+    features: F.FeatureConfig = field(default_factory=F.FeatureConfig)
+    matching: MatchConfig = field(default_factory=MatchConfig)
+    verification: VerifyConfig = field(default_factory=VerifyConfig)
+    triangulation: TriangulationConfig = field(default_factory=TriangulationConfig)
+    mapper: MapperConfig = field(default_factory=MapperConfig)
+    track_conflicts: str = "drop"   # track with 2 keypoints of one image: "drop" it or "split" it (tracks.py);
+    #                                 split: more points, rotations within +-0.005 deg of drop on our scenes
+    use_cache: bool = True          # reuse features/matches from cache_dir
+    cache_dir: str = ""             # "" = polarref.data.cache_root() / "sfm"
+
+
+PRESETS: dict[str, SfMConfig] = {
+    "default": SfMConfig(),
+    # 12-view 320x240 test scenes: fewer features is plenty.
+    "small": SfMConfig(features=F.FeatureConfig(max_num_features=2048)),
+    # Strecha fountain (3072x2048): detect at 1024 px (keypoints rescaled to full resolution).
+    "fountain": SfMConfig(features=F.FeatureConfig(max_num_features=8192, contrast_threshold=0.02,
+                                                   max_image_size=1024)),
+}
+
+
+def with_ba(config: SfMConfig, ba: str) -> SfMConfig:
+    return dataclasses.replace(config, mapper=dataclasses.replace(config.mapper, ba=ba))
+
+
+@dataclass
+class SfMResult:
+    reconstruction: Reconstruction
+    metrics: dict          # the content of OUT/metrics.json
+    out_dir: Path | None
+
+
+@dataclass
+class Matches:
+    """Verified matches of an image set (what the pycolmap comparison imports)."""
+
+    names: list[str]
+    features: list[F.Features]
+    putative: dict[tuple[int, int], np.ndarray]   # (i, j) -> (M, 2) int32
+    geometries: dict[tuple[int, int], TwoViewGeometry]
+
+
+# ---- camera -----------------------------------------------------------------------------------
+def parse_camera(spec: str, width: int, height: int):
+    """``MODEL:p1,p2,...`` (COLMAP parameter order) -> :class:`polarref.camera.Camera`."""
+    from polarref.camera import Camera
+
+    try:
+        model, params = spec.split(":", 1)
+        values = np.array([float(v) for v in params.replace(" ", "").split(",") if v])
+        return Camera(model.strip().upper(), int(width), int(height), values)
+    except (ValueError, TypeError) as exc:
+        raise PolarrefError(f"--camera {spec!r}: expected MODEL:p1,p2,... ({exc})") from exc
+
+
+def cameras_for_images(names: list[str], sizes: list[tuple[int, int]], camera=None,
+                       gt: Reconstruction | None = None) -> tuple[list, np.ndarray]:
+    """(unique cameras, camera index per image): from ``camera`` if given, else from GT by name."""
+    if camera is not None:
+        for n, (w, h) in zip(names, sizes):
+            if (w, h) != (camera.width, camera.height):
+                raise PolarrefError(f"image {n} is {w}x{h} but the camera is {camera.width}x{camera.height}")
+        return [camera], np.zeros(len(names), np.int64)
+    if gt is None:
+        raise PolarrefError("intrinsics unknown: give --camera MODEL:params or a gt/ model beside images/")
+    by_name = {im.name: im.camera_id for im in gt.images.values()}
+    ids = sorted(gt.cameras)
+    default = ids[0] if len(ids) == 1 else None
+    idx = []
+    for n in names:
+        cid = by_name.get(n, default)
+        if cid is None:
+            raise PolarrefError(f"image {n} is not in the ground truth and GT has several cameras")
+        idx.append(ids.index(cid))
+    return [gt.cameras[i] for i in ids], np.array(idx, np.int64)
+
+
+# ---- cache ------------------------------------------------------------------------------------
+def _hash(*parts) -> str:
+    h = hashlib.sha256()
+    for p in parts:
+        h.update(p if isinstance(p, bytes) else repr(p).encode())
+    return h.hexdigest()[:24]
+
+
+def _code_digest(*modules) -> str:
+    """Hash of the source of the stage modules, so a code change invalidates cached results."""
+    return _hash(*[Path(m.__file__).read_bytes() for m in modules])
+
+
+def _cache_dir(config: SfMConfig) -> Path:
+    d = Path(config.cache_dir) if config.cache_dir else cache_root() / "sfm"
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
+def _save_matches(path: Path, m: dict[tuple[int, int], np.ndarray], g: dict[tuple[int, int], TwoViewGeometry]) -> None:
+    arrays = {}
+    for (i, j), v in m.items():
+        arrays[f"m_{i}_{j}"] = v
+    for (i, j), v in g.items():
+        arrays[f"g_{i}_{j}"] = v.inliers
+        arrays[f"p_{i}_{j}"] = np.concatenate([v.cam2_from_cam1.R.ravel(), v.cam2_from_cam1.t, [v.num_matches]])
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez(tmp, **arrays)
+    tmp.replace(path)
+
+
+def _load_matches(path: Path):
+    m, g = {}, {}
+    with np.load(path) as z:
+        for k in z.files:
+            kind, i, j = k.split("_")
+            key = (int(i), int(j))
+            if kind == "m":
+                m[key] = z[k]
+            elif kind == "g":
+                p = z[f"p_{i}_{j}"]
+                g[key] = TwoViewGeometry(key, z[k], Rigid3(p[:9].reshape(3, 3), p[9:12]), int(p[12]))
+    return m, g
+
+
+# ---- stages -----------------------------------------------------------------------------------
+def load_images_and_features(image_dir: Path, config: SfMConfig, timings: dict) -> tuple[list[F.Features], list[dict], str]:
+    """Features of every readable image (cached); (features, skipped [{name, reason}], cache key)."""
+    t0 = time.perf_counter()
+    paths = F.list_images(image_dir) if Path(image_dir).is_dir() else []
+    if not paths:
+        raise PolarrefError(f"no images found in {image_dir} (suffixes {', '.join(F.IMAGE_SUFFIXES)})")
+    digests = [hashlib.sha256(p.read_bytes()).hexdigest() for p in paths]
+    key = _hash("features", _code_digest(F), [p.name for p in paths], digests, config.features)
+    cache = _cache_dir(config) / f"features-{key}.npz"
+    skipped_file = cache.with_suffix(".skipped.json")
+    if config.use_cache and cache.exists() and skipped_file.exists():
+        feats = F.load(cache)
+        skipped = json.loads(skipped_file.read_text())
+        timings["features_cached"] = True
+    else:
+        feats, skipped = [], []
+        for p in track(paths, desc="features", total=len(paths)):
+            img = F.read_image(p)
+            if img is None:
+                log.warning("skipping unreadable image %s", p)
+                skipped.append({"name": p.name, "reason": "unreadable (OpenCV could not decode it)"})
+                continue
+            feats.append(F.extract(img, p.name, config.features))
+        if config.use_cache:
+            F.save(cache, feats)
+            skipped_file.write_text(json.dumps(skipped))
+        timings["features_cached"] = False
+    for s in skipped:
+        log.warning("skipped image %s: %s", s["name"], s["reason"])
+    timings["features"] = time.perf_counter() - t0
+    return feats, skipped, key
+
+
+def match_and_verify(feats: list[F.Features], cameras: list, camera_of_image: np.ndarray, config: SfMConfig,
+                     feature_key: str, timings: dict, centers: np.ndarray | None = None) -> Matches:
+    """Putative and verified matches (cached)."""
+    t0 = time.perf_counter()
+    cam_key = [(c.model, c.width, c.height, np.asarray(c.params).tolist()) for c in cameras]
+    from polarref.sfm import matching, verification
+
+    key = _hash("matches", _code_digest(matching, verification), feature_key, config.matching, config.verification, cam_key,
+                camera_of_image.tolist(), None if centers is None else np.round(centers, 9).tolist())
+    cache = _cache_dir(config) / f"matches-{key}.npz"
+    if config.use_cache and cache.exists():
+        putative, geoms = _load_matches(cache)
+        timings["matching"] = time.perf_counter() - t0
+        timings["verification"] = 0.0
+        timings["matches_cached"] = True
+    else:
+        pairs = select_pairs(len(feats), config.matching, centers)
+        putative = match_pairs([f.descriptors for f in feats], pairs, config.matching)
+        timings["matching"] = time.perf_counter() - t0
+        t1 = time.perf_counter()
+        xy = [R_.normalized(R_.bearings(cameras[camera_of_image[i]], f.keypoints)) for i, f in enumerate(feats)]
+        focal = float(np.mean([R_.mean_focal(c) for c in cameras]))
+        geoms = verify_pairs(xy, putative, focal, config.verification)
+        timings["verification"] = time.perf_counter() - t1
+        if config.use_cache:
+            _save_matches(cache, putative, geoms)
+        timings["matches_cached"] = False
+    return Matches([f.name for f in feats], feats, putative, geoms)
+
+
+def _prepare_out(out_dir: Path, overwrite: bool) -> None:
+    if out_dir.exists() and any(out_dir.iterdir()) and not overwrite:
+        raise PolarrefError(f"output folder {out_dir} exists and is not empty; use --overwrite")
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+
+def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig = SfMConfig(),
+            camera=None, gt: Reconstruction | None = None,
+            mesh: tuple[np.ndarray, np.ndarray] | None = None, overwrite: bool = False) -> SfMResult:
+    """Run the whole pipeline on ``image_dir`` and write ``out_dir/model`` and ``out_dir/metrics.json``.
+
+    Args:
+        image_dir: folder of images.
+        out_dir: output folder (None: nothing written).
+        camera: known intrinsics (:class:`polarref.camera.Camera`) shared by all images; else from gt.
+        gt: ground-truth model (cameras, and poses for the aligned errors).
+        mesh: (vertices, faces) of the true surface in GT coordinates, for point-to-surface errors.
+        overwrite: allow writing into a non-empty ``out_dir`` (only our own files are replaced).
+    Raises:
+        PolarrefError: no images, unknown intrinsics, no initial pair, < 2 registered images.
+            metrics.json is still written with what was done.
+    """
+    from polarref import metrics as M
+
+    out = Path(out_dir) if out_dir is not None else None
+    if out is not None:
+        _prepare_out(out, overwrite)
+    t_start = time.perf_counter()
+    timings: dict = {}
+    result: dict = {"image_dir": str(image_dir), "config": dataclasses.asdict(config), "status": "running"}
+
+    def _write() -> None:
+        timings["total"] = time.perf_counter() - t_start
+        result["runtime_s"] = timings
+        if out is not None:
+            M.write_json(out / "metrics.json", result)
+
+    try:
+        feats, skipped, fkey = load_images_and_features(Path(image_dir), config, timings)
+        result["skipped_images"] = skipped
+        result["num_images"] = len(feats) + len(skipped)
+        if len(feats) < 2:
+            raise PolarrefError(f"{len(feats)} readable image(s) in {image_dir}; need at least 2")
+        cameras, cam_idx = cameras_for_images([f.name for f in feats], [(f.width, f.height) for f in feats],
+                                              camera, gt)
+        matches = match_and_verify(feats, cameras, cam_idx, config, fkey, timings)
+        result["num_verified_pairs"] = len(matches.geometries)
+        t0 = time.perf_counter()
+        tracks = build_tracks([len(f.keypoints) for f in feats],
+                              {k: g.inliers for k, g in matches.geometries.items()},
+                              conflicts=config.track_conflicts)
+        timings["tracks"] = time.perf_counter() - t0
+        result["num_tracks"] = tracks.num_tracks
+        result["num_conflicting_tracks_dropped"] = tracks.num_conflicting
+        t0 = time.perf_counter()
+        state = MapState([f.name for f in feats], cameras, cam_idx, [f.keypoints for f in feats],
+                         tracks, config.triangulation)
+        mlog = run_mapper(state, matches.geometries, config.mapper)
+        timings["mapping"] = time.perf_counter() - t0
+        timings["ba"] = float(sum(b.get("wall_s", 0.0) for b in mlog.ba))
+        result["initial_pair"] = [feats[i].name for i in mlog.initial_pair]
+        result["registration_order"] = [feats[i].name for i in mlog.registration_order]
+        result["unregistered_images"] = [f.name for i, f in enumerate(feats) if not state.registered[i]]
+        result["ba"] = mlog.ba
+        rec = to_reconstruction(state, colors=[f.colors for f in feats])
+        t0 = time.perf_counter()
+        met = M.evaluate(rec, gt=gt, mesh=mesh, num_images=result["num_images"])
+        timings["metrics"] = time.perf_counter() - t0
+        result.update({k: v for k, v in met.to_dict().items()})
+        result["status"] = "ok"
+        if out is not None:
+            t0 = time.perf_counter()
+            _update_point_errors(rec)
+            rec.write_text(out / "model")
+            timings["export"] = time.perf_counter() - t0
+        _write()
+        return SfMResult(rec, result, out)
+    except PolarrefError as exc:
+        result["status"] = "failed"
+        result["error"] = str(exc)
+        _write()
+        raise
+
+
+def _update_point_errors(rec: Reconstruction) -> None:
+    from polarref.metrics import observation_errors
+
+    errs, pidx = observation_errors(rec)
+    pids = sorted(rec.points3D)
+    mean = np.bincount(pidx, weights=np.where(np.isfinite(errs), errs, 0.0), minlength=len(pids)) / \
+        np.maximum(np.bincount(pidx, minlength=len(pids)), 1)
+    for pid, e in zip(pids, mean):
+        rec.points3D[pid].error = float(e)

@@ -1,0 +1,86 @@
+"""Stage 3: geometric verification by essential-matrix RANSAC with the known camera.
+
+Keypoints are turned into normalized coordinates with the (fixed) camera, the five-point
+solver runs inside OpenCV's USAC_ACCURATE (RANSAC with local optimization; plain RANSAC
+returns the best minimal-sample model, 2.5 deg off on a test where the optimum is 0.33 deg), and the cheirality test of
+``recoverPose`` removes inliers that triangulate behind either camera.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from polarref.geometry import Rigid3
+from polarref.progress import track
+
+
+@dataclass(frozen=True)
+class VerifyConfig:
+    """Essential-matrix RANSAC settings."""
+
+    max_error_px: float = 4.0     # RANSAC threshold on the epipolar error, in px (COLMAP default; 2 px gave
+    #                               shorter tracks and 0.084 vs 0.062 deg on the 28-view comet)
+    confidence: float = 0.9999    # RANSAC success probability
+    max_iterations: int = 10000   # RANSAC iteration cap
+    min_inliers: int = 15         # fewer verified matches: the pair is dropped (COLMAP's default)
+    min_inlier_ratio: float = 0.25  # fewer inliers / matches: dropped (COLMAP's default)
+    seed: int = 0                 # RANSAC seed; pair (i, j) uses seed + 7919 i + j
+
+
+@dataclass
+class TwoViewGeometry:
+    """A verified pair: inlier matches and the relative pose ``cam2_from_cam1`` (unit baseline)."""
+
+    pair: tuple[int, int]
+    inliers: np.ndarray            # (M, 2) int keypoint indices
+    cam2_from_cam1: Rigid3
+    num_matches: int
+
+
+def verify_pair(xy1: np.ndarray, xy2: np.ndarray, matches: np.ndarray, focal: float,
+                config: VerifyConfig, seed: int) -> TwoViewGeometry | None:
+    """Verify one pair.
+
+    Args:
+        xy1, xy2: (K1, 2), (K2, 2) normalized coordinates (x/z, y/z) of all keypoints.
+        matches: (M, 2) putative matches.
+        focal: mean focal length in px (converts the pixel threshold).
+    Returns:
+        The geometry, or None when the pair fails the inlier thresholds.
+    """
+    import cv2
+
+    if len(matches) < max(config.min_inliers, 5):
+        return None
+    p1 = np.ascontiguousarray(xy1[matches[:, 0]], dtype=np.float64)
+    p2 = np.ascontiguousarray(xy2[matches[:, 1]], dtype=np.float64)
+    cv2.setRNGSeed(int(seed))
+    E, mask = cv2.findEssentialMat(p1, p2, np.eye(3), cv2.USAC_ACCURATE, config.confidence,
+                                   config.max_error_px / focal, config.max_iterations)
+    if E is None or mask is None or E.shape != (3, 3):  # several solutions come stacked (3k, 3)
+        if E is None or mask is None:
+            return None
+        E = E[:3]
+    mask = mask.ravel().astype(bool)
+    if mask.sum() < config.min_inliers:
+        return None
+    _, R, t, pose_mask = cv2.recoverPose(E, p1, p2, np.eye(3), mask=mask.astype(np.uint8).copy())
+    inl = pose_mask.ravel() > 0
+    n = int(inl.sum())
+    if n < config.min_inliers or n < config.min_inlier_ratio * len(matches):
+        return None
+    return TwoViewGeometry((0, 0), matches[inl], Rigid3(R, t.ravel()), len(matches))
+
+
+def verify_pairs(xy: list[np.ndarray], matches: dict[tuple[int, int], np.ndarray], focal: float,
+                 config: VerifyConfig) -> dict[tuple[int, int], TwoViewGeometry]:
+    """Verify every matched pair; {(i, j): TwoViewGeometry} for the ones that pass."""
+    out: dict[tuple[int, int], TwoViewGeometry] = {}
+    for (i, j), m in track(list(matches.items()), desc="verification"):
+        g = verify_pair(xy[i], xy[j], m, focal, config, config.seed + 7919 * i + j)
+        if g is not None:
+            g.pair = (i, j)
+            out[(i, j)] = g
+    return out
