@@ -4,6 +4,7 @@ import pytest
 
 from polarref import metrics as M
 from polarref.errors import PolarrefError
+from polarref.peers.colmap_sfm import run_mapper
 from polarref.reconstruction import Reconstruction
 from polarref.sfm.export import compute_matches, write_colmap_database
 from polarref.sfm.pipeline import PRESETS
@@ -25,12 +26,13 @@ def test_pycolmap_maps_our_matches_with_fixed_intrinsics(request, tmp_path, monk
     assert sorted(ids) == sorted(matches.names)
     with pytest.raises(PolarrefError, match="already exists"):
         write_colmap_database(tmp_path / "db.db", matches, cams, idx)
-    opts = pycolmap.IncrementalPipelineOptions()
-    opts.ba_refine_focal_length = opts.ba_refine_principal_point = opts.ba_refine_extra_params = False
-    opts.mapper.abs_pose_refine_focal_length = opts.mapper.abs_pose_refine_extra_params = False
-    opts.num_threads = 1
-    recs = pycolmap.incremental_mapping(tmp_path / "db.db", scene / "images", tmp_path / "sparse", options=opts)
-    rec = Reconstruction.from_pycolmap(max(recs.values(), key=lambda r: r.num_reg_images()))
+    pdb = pycolmap.Database.open(str(tmp_path / "db.db"))
+    try:  # without the prior flag the incremental mapper re-estimates the focal length
+        assert all(c.has_prior_focal_length for c in pdb.read_all_cameras())
+    finally:
+        pdb.close()
+    run = run_mapper(tmp_path / "db.db", scene / "images", tmp_path / "sparse", "incremental")
+    rec = Reconstruction.from_pycolmap(run.reconstruction)
     m = M.evaluate(rec, gt)
     # measured: 12/12, 1076 points, 0.19 px, 0.18 deg (focal held at GT 386.27; 369 and 0.74 deg
     # when the database camera lacks has_prior_focal_length)

@@ -11,10 +11,9 @@ import numpy as np
 import pytest
 
 from polarref import metrics as M
+from polarref.peers.colmap_sfm import ColmapSfMOptions, run_sift_sfm
 from polarref.reconstruction import Image, Reconstruction
 from polarref.sfm.pipeline import PRESETS, run_sfm, with_ba
-
-from sfm_reference import run_pycolmap
 
 
 def _fountain_gt(root):
@@ -35,8 +34,9 @@ def test_fountain_all_registered_and_accurate(shared_data, tmp_path):
     gt = _fountain_gt(root)
     cfg = dataclasses.replace(with_ba(PRESETS["fountain"], "euclidean"), cache_dir=str(tmp_path / "cache"))
     ours = run_sfm(root / "images", tmp_path / "ours", cfg, gt=gt).metrics
-    ref = run_pycolmap(root / "images", gt.cameras[1], tmp_path / "colmap", max_num_features=8192,
-                       max_image_size=1024)
+    run = run_sift_sfm(root / "images", gt.cameras[1], tmp_path / "colmap",
+                       ColmapSfMOptions(max_num_features=8192, max_image_size=1024))
+    ref = Reconstruction.from_pycolmap(run.reconstruction)
     ref_m = M.evaluate(ref, gt, num_images=11)
     print("ours", ours["registered_images"], ours["tie_points"], ours["reprojected_px"],
           ours["mean_reprojection_error_px"], ours["gt"]["rotation_error_deg_mean"],

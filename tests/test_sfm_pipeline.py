@@ -1,6 +1,6 @@
 """End-to-end SfM on the small synthetic scenes, scored against GT and against pycolmap.
 
-pycolmap runs on the same images with the same fixed intrinsics (tests/sfm_reference.py).
+pycolmap runs on the same images with the same fixed intrinsics (polarref.peers.colmap_sfm).
 Bounds are two-sided: the measured values are stated beside each assertion.
 """
 
@@ -9,10 +9,9 @@ import dataclasses
 import pytest
 
 from polarref import metrics as M
+from polarref.peers.colmap_sfm import ColmapSfMOptions, run_sift_sfm
 from polarref.reconstruction import Reconstruction
 from polarref.sfm.pipeline import PRESETS, run_sfm, with_ba
-
-from sfm_reference import run_pycolmap
 
 
 def _scene(request, name):
@@ -30,8 +29,10 @@ def _run_both(scene_dir, tmp_path):
     mesh = scene.mesh()
     cfg = dataclasses.replace(with_ba(PRESETS["small"], "euclidean"), cache_dir=str(tmp_path / "cache"))
     ours = run_sfm(scene_dir / "images", tmp_path / "ours", cfg, gt=gt, mesh=mesh)
-    ref = run_pycolmap(scene_dir / "images", scene.polarref_camera(), tmp_path / "colmap", max_num_features=2048)
-    assert ref is not None
+    run = run_sift_sfm(scene_dir / "images", scene.polarref_camera(), tmp_path / "colmap",
+                       ColmapSfMOptions(max_num_features=2048))
+    assert run.reconstruction is not None
+    ref = Reconstruction.from_pycolmap(run.reconstruction)
     ref_m = M.evaluate(ref, gt, mesh, num_images=len(scene.views))
     return ours, ref_m, len(scene.views)
 

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from polarref.cli import main
-from polarref.geometry import rotation_angle_deg
+from polarref.geometry import Rigid3, rotation_angle_deg, umeyama
+from polarref.peers.colmap_sfm import ColmapSfMOptions, run_sift_sfm
 from synth.config import preset
 from synth.conventions import cam_from_world_from_mitsuba, look_at, mitsuba_to_world, project
 from synth.render import render_scene
@@ -19,7 +20,6 @@ from synth.scene import load_scene
 
 sys.path.insert(0, str(Path(__file__).parent))
 from _synth_reproj import depth_reprojection  # noqa: E402
-from _synth_sfm import run_pycolmap  # noqa: E402
 
 TINY = dict(views=3, width=96, height=72, spp=4)  # seconds to render; for file-level tests
 
@@ -81,6 +81,34 @@ def test_gt_model_loads_in_pycolmap(comet_small_scene):
 
 
 # ---- SfM recovers the ground truth -------------------------------------------------------------
+def run_pycolmap(scene, work: Path, max_features: int = 4000) -> dict:
+    """pycolmap SIFT + incremental mapping with the GT intrinsics fixed, scored against the GT.
+
+    Returns {"registered", "total", "rot_err_deg" (per registered image, after a similarity
+    alignment of the camera centres), "center_err_rel" (mean centre error / scene radius)}.
+    """
+    run = run_sift_sfm(scene.root / "images", scene.polarref_camera(), work,
+                       ColmapSfMOptions(max_num_features=max_features),
+                       image_names=[v.name for v in scene.views])
+    rec = run.reconstruction
+    if rec is None:
+        return {"registered": 0, "total": len(scene.views), "rot_err_deg": np.array([np.inf]),
+                "center_err_rel": np.inf}
+    gt = {v.name: v.cam_from_world for v in scene.views}
+    names, est = [], []
+    for image in rec.images.values():
+        if image.has_pose:
+            m = image.cam_from_world().matrix()
+            names.append(image.name)
+            est.append(Rigid3(m[:, :3], m[:, 3]))
+    sim = umeyama(np.array([e.center for e in est]), np.array([gt[n].center for n in names]))
+    aligned = [sim.transform_pose(e) for e in est]
+    rot = np.array([rotation_angle_deg(a.R, gt[n].R) for a, n in zip(aligned, names)])
+    cerr = np.array([np.linalg.norm(a.center - gt[n].center) for a, n in zip(aligned, names)])
+    return {"registered": len(names), "total": len(scene.views), "rot_err_deg": rot,
+            "center_err_rel": float(cerr.mean() / scene.radius)}
+
+
 def test_pycolmap_recovers_small_comet(comet_small_scene, tmp_path):
     res = run_pycolmap(load_scene(comet_small_scene), tmp_path / "sfm")
     assert res["registered"] == res["total"] == 12

@@ -9,20 +9,22 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from polarref.compare.pycolmap_runs import (FixedCamera, PycolmapOptions, copy_database,
-                                            count_verified_pairs, extract_and_match_sift, run_mapper)
+from polarref.camera import Camera
+from polarref.peers.colmap_sfm import (ColmapSfMOptions, copy_database, count_verified_pairs,
+                                       extract_and_match_sift, run_mapper)
 
 
-def _camera(camera: dict) -> FixedCamera:
-    return FixedCamera(camera["model"], int(camera["width"]), int(camera["height"]),
-                       tuple(float(p) for p in camera["params"]))
+def _camera(camera: dict) -> Camera:
+    return Camera(camera["model"], int(camera["width"]), int(camera["height"]),
+                  [float(p) for p in camera["params"]])
 
 
 def pycolmap_sift_db(image_dir: str, image_names: list[str], camera: dict, db_path: str,
                      seed: int, num_threads: int = 2) -> dict:
     """pycolmap SIFT + exhaustive matching + verification into ``db_path``."""
-    opts = PycolmapOptions(seed=seed, num_threads=num_threads)
-    stages = extract_and_match_sift(Path(image_dir), image_names, _camera(camera), Path(db_path), opts)
+    opts = ColmapSfMOptions(seed=seed, num_threads=num_threads)
+    stages = extract_and_match_sift(Path(image_dir), _camera(camera), Path(db_path), opts,
+                                    image_names=image_names, overwrite=True)
     return {"stage_runtime_s": stages, "verified_pairs": count_verified_pairs(Path(db_path))}
 
 
@@ -46,7 +48,7 @@ def pycolmap_map(db_path: str, image_dir: str, work_dir: str, mapper: str, seed:
     work = Path(work_dir)
     db = copy_database(Path(db_path), work / "database.db")
     run = run_mapper(db, Path(image_dir), work / "sparse", mapper,
-                     PycolmapOptions(seed=seed, num_threads=num_threads))
+                     ColmapSfMOptions(seed=seed, num_threads=num_threads))
     rec = run.reconstruction
     if rec is None or rec.num_reg_images() == 0:
         raise RuntimeError(f"pycolmap {mapper} mapping registered no images "

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref.compare.pycolmap_runs import FixedCamera, count_verified_pairs, import_features
+from polarref.camera import Camera
+from polarref.peers.colmap_sfm import count_verified_pairs
 
 # Timing keys of polarref.sfm that are not part of reconstructing (or double count).
 _NOT_STAGES = {"total", "metrics", "export", "features_cached", "matches_cached"}
@@ -27,23 +28,17 @@ def sfm_config(preset: str, cache_dir: Path):
     return dataclasses.replace(base, use_cache=True, cache_dir=str(cache_dir))
 
 
-def _camera(cam: FixedCamera):
-    from polarref.camera import Camera
-
-    return Camera(model=cam.model, width=cam.width, height=cam.height, params=np.asarray(cam.params))
-
-
-def _features_and_matches(image_dir: Path, cam: FixedCamera, preset: str, cache_dir: Path):
+def _features_and_matches(image_dir: Path, cam: Camera, preset: str, cache_dir: Path):
     from polarref.sfm.pipeline import load_images_and_features, match_and_verify
 
     config = sfm_config(preset, cache_dir)
     timings: dict = {}
     feats, skipped, key = load_images_and_features(image_dir, config, timings)
-    matches = match_and_verify(feats, [_camera(cam)], np.zeros(len(feats), np.int64), config, key, timings)
+    matches = match_and_verify(feats, [cam], np.zeros(len(feats), np.int64), config, key, timings)
     return matches, skipped, timings
 
 
-def prepare_features(image_dir: Path, cam: FixedCamera, preset: str, cache_dir: Path) -> dict:
+def prepare_features(image_dir: Path, cam: Camera, preset: str, cache_dir: Path) -> dict:
     """Compute (and cache) features and verified matches; returns the timed stages."""
     matches, skipped, timings = _features_and_matches(image_dir, cam, preset, cache_dir)
     return {"stage_runtime_s": {k: float(timings[k]) for k in ("features", "matching", "verification")
@@ -51,23 +46,23 @@ def prepare_features(image_dir: Path, cam: FixedCamera, preset: str, cache_dir: 
             "verified_pairs": len(matches.geometries), "skipped_images": skipped}
 
 
-def import_into_database(image_dir: Path, cam: FixedCamera, preset: str, cache_dir: Path, db_path: Path) -> dict:
-    """Our keypoints and verified inlier matches as a pycolmap database (no re-verification)."""
+def import_into_database(image_dir: Path, cam: Camera, preset: str, cache_dir: Path, db_path: Path) -> dict:
+    """Our keypoints, putative matches and verified geometries as a pycolmap database (no re-verification)."""
+    from polarref.sfm.export import write_colmap_database
+
     matches, _, _ = _features_and_matches(image_dir, cam, preset, cache_dir)
-    inliers = {k: g.inliers for k, g in matches.geometries.items()}
-    poses = {k: g.cam2_from_cam1 for k, g in matches.geometries.items()}
-    stages = import_features(db_path, cam, matches.names, [f.keypoints for f in matches.features],
-                             inliers, verified=True, poses=poses)
-    return {"stage_runtime_s": stages, "verified_pairs": count_verified_pairs(db_path)}
+    t0 = time.perf_counter()
+    write_colmap_database(db_path, matches, [cam], np.zeros(len(matches.names), np.int64), overwrite=True)
+    return {"stage_runtime_s": {"import": time.perf_counter() - t0}, "verified_pairs": count_verified_pairs(db_path)}
 
 
-def run(image_dir: Path, cam: FixedCamera, ba: str, work_dir: Path, preset: str, cache_dir: Path) -> dict:
+def run(image_dir: Path, cam: Camera, ba: str, work_dir: Path, preset: str, cache_dir: Path) -> dict:
     """``polarref.sfm.run_sfm`` with BA ``ba``; model in ``work_dir/sfm/model``."""
     from polarref.sfm.pipeline import run_sfm, with_ba
 
     config = with_ba(sfm_config(preset, cache_dir), ba)
     t0 = time.perf_counter()
-    result = run_sfm(image_dir, work_dir / "sfm", config, camera=_camera(cam), overwrite=True)
+    result = run_sfm(image_dir, work_dir / "sfm", config, camera=cam, overwrite=True)
     wall = time.perf_counter() - t0
     t = result.metrics.get("runtime_s", {})
     stages = {k: float(v) for k, v in t.items() if k not in _NOT_STAGES and isinstance(v, (int, float))}

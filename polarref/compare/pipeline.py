@@ -205,7 +205,7 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
     timeout = float(cfg.method_timeout_s or METHOD_TIMEOUT_S[cfg.preset])
     ctx = _Context(scene, out / "runs", timeout, cfg.seed, cfg.preset, out / "runs" / "ours-features" / "cache",
                    camera={"model": scene.camera.model, "width": scene.camera.width,
-                           "height": scene.camera.height, "params": list(scene.camera.params)})
+                           "height": scene.camera.height, "params": scene.camera.params.tolist()})
     from polarref.compare.scoring import load_mesh
     from polarref.metrics import scene_size
 

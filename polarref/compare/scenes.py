@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref.compare.pycolmap_runs import FixedCamera
+from polarref.camera import Camera
 from polarref.data import cache_root
 from polarref.errors import PolarrefError
 
@@ -39,7 +39,7 @@ class PreparedScene:
     root: Path                      # scene folder (for synth: the rendered folder)
     image_dir: Path                 # images actually used (maybe downscaled copies)
     image_names: list[str]
-    camera: FixedCamera
+    camera: Camera                  # fixed intrinsics every method uses
     gt: object | None               # polarref.reconstruction.Reconstruction or None
     mesh_path: Path | None
     preset: str
@@ -79,7 +79,7 @@ def _from_rendered(loaded, name: str, source: str, preset: str, seed: int, rende
     return PreparedScene(
         name=name, kind="synthetic", source=source, root=loaded.root, image_dir=loaded.root / "images",
         image_names=[v.name for v in loaded.views],
-        camera=FixedCamera(cam.model, int(cam.width), int(cam.height), tuple(float(p) for p in cam.params)),
+        camera=Camera(cam.model, int(cam.width), int(cam.height), np.asarray(cam.params, np.float64)),
         gt=gt, mesh_path=loaded.mesh_path if loaded.mesh_path.is_file() else None,
         preset=preset, seed=seed, render_s=render_s,
         mitsuba_variant=str(loaded.meta.get("mitsuba_variant", "")))
@@ -141,8 +141,8 @@ def _real(folder: Path, source: str, preset: str) -> PreparedScene:
         used_dir = cache_root() / "compare-inputs" / f"{folder.name}-x{factor}"
         _downscale(image_dir, names, factor, used_dir)
         used_names = [Path(n).stem + ".png" for n in names]
-    params = tuple(float(p) / factor for p in np.asarray(cam.params))  # exact with corner origin
-    fixed = FixedCamera(cam.model, int(cam.width) // factor, int(cam.height) // factor, params)
+    params = np.asarray(cam.params, np.float64) / factor  # exact with corner origin
+    fixed = Camera(cam.model, int(cam.width) // factor, int(cam.height) // factor, params)
     # Ground truth keyed by the names the methods will see; poses do not change with scale.
     gt_used = Reconstruction(cameras=dict(gt.cameras))
     for (image_id, im), new_name in zip(sorted(gt.images.items()), used_names if factor > 1 else names):

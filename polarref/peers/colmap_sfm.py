@@ -1,0 +1,323 @@
+"""pycolmap (COLMAP 4.x / GLOMAP) structure from motion with the intrinsics held fixed.
+
+The one place in polarref that drives pycolmap's SfM: used by ``polarref compare`` (as the
+reference methods), by ``polarref.sfm.export`` (our matches into a COLMAP database) and by the
+tests (pycolmap as an independent implementation). Stages, each usable on its own:
+
+* :func:`extract_and_match_sift`: pycolmap's SIFT, exhaustive matching and verification;
+* :func:`import_features`: OUR keypoints / matches / verified two-view geometries into a new
+  database, so pycolmap's mapper sees exactly our correspondences;
+* :func:`run_mapper`: ``incremental`` (COLMAP) or ``global`` (GLOMAP) mapping of a database;
+* :func:`run_sift_sfm`: the first and third chained (what the tests use).
+
+Two pycolmap 4.2.1 traps make the intrinsics drift although they are known (both measured
+here, see ``shared/notes/pycolmap-4.2.1.md``):
+
+1. the mappers refine focal length and principal point by default (fx 840 / fy 1660 seen on a
+   PINHOLE prior): every refine flag is switched off, once, in :func:`incremental_options` and
+   :func:`global_options`;
+2. a database camera without ``has_prior_focal_length`` gets its focal length re-estimated by
+   the incremental mapper even with those flags off (small comet: 386.3 -> 310.5 px and 3.4 deg
+   mean rotation error, vs 0.2 deg with the flag): :func:`import_features` sets it on every
+   camera. (pycolmap's own feature extraction sets it when given the camera parameters.)
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from polarref.errors import PolarrefError
+
+log = logging.getLogger(__name__)
+
+MAPPERS = ("incremental", "global")
+
+Pair = tuple[int, int]
+
+
+@dataclass(frozen=True)
+class ColmapSfMOptions:
+    """Settings of one pycolmap SfM run (extraction, matching, mapping)."""
+
+    seed: int = 0                  # random seed of the mappers (RANSAC, initial pair); >= 0
+    num_threads: int = 1           # threads for every stage; 1 = reproducible reference runs
+    max_num_features: int = 8192   # SIFT features per image (COLMAP's default)
+    max_image_size: int = 3200     # SIFT downscales larger images to this side (COLMAP's default)
+    multiple_models: bool = False  # incremental: keep mapping the leftovers into further models
+
+    def __post_init__(self) -> None:
+        if self.seed < 0:
+            raise ValueError(f"seed must be >= 0 (pycolmap treats < 0 as 'seed from the clock'), got {self.seed}")
+        if self.num_threads == 0 or self.num_threads < -1:
+            raise ValueError(f"num_threads must be >= 1 or -1 (all cores), got {self.num_threads}")
+        if self.max_num_features <= 0 or self.max_image_size <= 0:
+            raise ValueError("max_num_features and max_image_size must be > 0, got "
+                             f"{self.max_num_features}, {self.max_image_size}")
+
+
+@dataclass
+class ColmapSfMRun:
+    """The largest reconstruction of one mapping run, with timings."""
+
+    reconstruction: object | None      # pycolmap.Reconstruction; None when nothing registered
+    stage_runtime_s: dict[str, float] = field(default_factory=dict)
+    num_models: int = 0                # reconstructions the mapper returned
+    verified_pairs: int = 0            # image pairs with >= 1 verified inlier in the database
+
+
+def _pycolmap():
+    import pycolmap
+
+    return pycolmap
+
+
+def _fresh_database(db_path: Path, overwrite: bool) -> Path:
+    db_path = Path(db_path)
+    if db_path.exists():
+        if not overwrite:
+            raise PolarrefError(f"database {db_path} already exists; not touching it (pass overwrite=True)")
+        db_path.unlink()
+    db_path.parent.mkdir(parents=True, exist_ok=True)
+    return db_path
+
+
+# ---- options: the only place the fixed-intrinsics flags are set ----------------------------------
+def incremental_options(opts: ColmapSfMOptions):
+    """``pycolmap.IncrementalPipelineOptions`` with intrinsics held fixed everywhere."""
+    pycolmap = _pycolmap()
+    o = pycolmap.IncrementalPipelineOptions()
+    o.num_threads = opts.num_threads
+    o.random_seed = opts.seed
+    o.mapper.random_seed = opts.seed
+    o.multiple_models = opts.multiple_models
+    # Intrinsics are known: hold them fixed in every BA and in absolute pose estimation.
+    o.ba_refine_focal_length = False
+    o.ba_refine_principal_point = False
+    o.ba_refine_extra_params = False
+    o.mapper.abs_pose_refine_focal_length = False
+    o.mapper.abs_pose_refine_extra_params = False
+    return o
+
+
+def global_options(opts: ColmapSfMOptions):
+    """``pycolmap.GlobalPipelineOptions`` with intrinsics held fixed, CPU only."""
+    pycolmap = _pycolmap()
+    o = pycolmap.GlobalPipelineOptions()
+    o.num_threads = opts.num_threads
+    o.random_seed = opts.seed
+    o.mapper.random_seed = opts.seed
+    ba = o.mapper.bundle_adjustment
+    ba.refine_focal_length = False
+    ba.refine_principal_point = False
+    ba.refine_extra_params = False
+    # Default True; on this CPU build they only warn. Say what we mean.
+    ba.ceres.use_gpu = False
+    o.mapper.global_positioning.use_gpu = False
+    return o
+
+
+# ---- databases ---------------------------------------------------------------------------------
+def count_verified_pairs(db_path: Path) -> int:
+    """Image pairs with a verified two-view geometry of >= 1 inlier.
+
+    ``Database.num_verified_image_pairs()`` disagrees with the stored geometries on 4.2.1,
+    so this counts from ``read_two_view_geometries()``.
+    """
+    pycolmap = _pycolmap()
+    db = pycolmap.Database.open(str(db_path))
+    try:
+        _, geoms = db.read_two_view_geometries()
+        return int(sum(1 for g in geoms if len(g.inlier_matches) > 0))
+    finally:
+        db.close()
+
+
+def extract_and_match_sift(image_dir: Path, camera, db_path: Path, opts: ColmapSfMOptions = ColmapSfMOptions(),
+                           image_names: Sequence[str] | None = None, overwrite: bool = False) -> dict[str, float]:
+    """pycolmap SIFT, exhaustive matching and verification into a new database.
+
+    Args:
+        image_dir: folder of the images.
+        camera: :class:`polarref.camera.Camera` shared by all images (fixed intrinsics).
+        db_path: database to create.
+        image_names: the images to use (default: every image in ``image_dir``).
+        overwrite: replace an existing ``db_path`` (otherwise PolarrefError).
+
+    Returns:
+        {"features": s, "matching": s} (matching includes verification).
+    """
+    pycolmap = _pycolmap()
+    db_path = _fresh_database(db_path, overwrite)
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = camera.to_pycolmap().model.name
+    # Given the parameters, the reader also sets has_prior_focal_length (trap 2 above).
+    reader.camera_params = ",".join(repr(float(p)) for p in np.asarray(camera.params))
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = opts.num_threads
+    extraction.max_image_size = opts.max_image_size
+    extraction.sift.max_num_features = opts.max_num_features
+    kwargs = {} if image_names is None else {"image_names": list(image_names)}
+    t0 = time.perf_counter()
+    pycolmap.extract_features(str(db_path), str(image_dir), camera_mode=pycolmap.CameraMode.SINGLE,
+                              reader_options=reader, extraction_options=extraction,
+                              device=pycolmap.Device.cpu, **kwargs)
+    t1 = time.perf_counter()
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = opts.num_threads
+    pycolmap.match_exhaustive(str(db_path), matching_options=matching, device=pycolmap.Device.cpu)
+    return {"features": t1 - t0, "matching": time.perf_counter() - t1}
+
+
+def _two_view_geometry(inliers: np.ndarray, cam2_from_cam1):
+    from polarref.geometry import skew
+
+    pycolmap = _pycolmap()
+    g = pycolmap.TwoViewGeometry()
+    g.config = pycolmap.TwoViewGeometryConfiguration.CALIBRATED
+    g.inlier_matches = inliers
+    if cam2_from_cam1 is not None:
+        # pycolmap's initial-pair choice and triangulation-angle checks read the relative pose.
+        R, t = np.asarray(cam2_from_cam1.R, float), np.asarray(cam2_from_cam1.t, float)
+        g.cam2_from_cam1 = pycolmap.Rigid3d(pycolmap.Rotation3d(R), t)
+        g.E = skew(t) @ R
+    return g
+
+
+def _match_array(m, i: int, j: int) -> tuple[int, int, np.ndarray]:
+    m = np.asarray(m).reshape(-1, 2)
+    if m.size and m.min() < 0:
+        raise PolarrefError(f"import_features: negative keypoint index in the matches of pair {(i, j)}")
+    if i > j:
+        i, j, m = j, i, m[:, ::-1]
+    return i, j, np.ascontiguousarray(m, dtype=np.uint32)
+
+
+def import_features(db_path: Path, cameras, image_names: Sequence[str], keypoints: Sequence[np.ndarray],
+                    matches: Mapping[Pair, np.ndarray], *, camera_of_image: Sequence[int] | None = None,
+                    verified: Mapping[Pair, object] | None = None, descriptors: Sequence[np.ndarray] | None = None,
+                    overwrite: bool = False) -> tuple[dict[str, int], dict[str, float]]:
+    """Write our features into a new pycolmap database.
+
+    Image ``i`` is written in list order (COLMAP assigns the ids); every camera gets
+    ``has_prior_focal_length = True`` so that the mapper keeps its focal length.
+
+    Args:
+        db_path: database to create.
+        cameras: one :class:`polarref.camera.Camera` or a sequence of them.
+        image_names: N names.
+        keypoints: N arrays (K_i, 2+), COLMAP pixel convention (corner origin); columns beyond
+            2 are ignored.
+        matches: {(i, j): (M, 2) keypoint indices} putative matches, 0-based image indices;
+            (j, i) keys are flipped.
+        camera_of_image: (N,) index into ``cameras`` (default: all 0).
+        verified: {(i, j): geometry with ``.inliers`` (M', 2) and ``.cam2_from_cam1`` (Rigid3
+            or None, unit baseline)}: written as CALIBRATED two-view geometries. None runs
+            pycolmap's own verification on ``matches`` instead.
+        descriptors: optional N arrays (K_i, 128) float (unit-norm SIFT, scaled by 512 to uint8).
+        overwrite: replace an existing ``db_path`` (otherwise PolarrefError).
+
+    Returns:
+        ({image name: COLMAP image_id}, {"import": s[, "verification": s]}).
+    """
+    pycolmap = _pycolmap()
+    cams = list(cameras) if isinstance(cameras, (list, tuple)) else [cameras]
+    n = len(image_names)
+    if len(keypoints) != n:
+        raise PolarrefError(f"import_features: {n} image names but {len(keypoints)} keypoint arrays")
+    cam_idx = np.zeros(n, np.int64) if camera_of_image is None else np.asarray(camera_of_image, np.int64)
+    if cam_idx.shape != (n,) or (n and (cam_idx.min() < 0 or cam_idx.max() >= len(cams))):
+        raise PolarrefError(f"import_features: camera_of_image must be ({n},) indices into {len(cams)} camera(s)")
+    # Checked before the database exists, so bad input leaves no partial file behind.
+    pairs = [_match_array(m, i, j) for (i, j), m in sorted(matches.items())]
+    geoms = []
+    for (i, j), g in sorted((verified or {}).items()):
+        pose = getattr(g, "cam2_from_cam1", None)
+        if i > j and pose is not None:
+            pose = pose.inverse()
+        geoms.append((*_match_array(g.inliers, i, j), pose))
+    db_path = _fresh_database(db_path, overwrite)
+    t0 = time.perf_counter()
+    db = pycolmap.Database.open(str(db_path))
+    try:
+        cam_ids = []
+        for cam in cams:
+            pc = cam.to_pycolmap()
+            pc.has_prior_focal_length = True  # trap 2 in the module docstring
+            cam_ids.append(db.write_camera(pc))
+        ids: list[int] = []
+        for k, (name, kps) in enumerate(zip(image_names, keypoints)):
+            image_id = db.write_image(pycolmap.Image(name=name, camera_id=int(cam_ids[cam_idx[k]])))
+            ids.append(image_id)
+            db.write_keypoints(image_id, np.ascontiguousarray(np.asarray(kps)[:, :2], dtype=np.float32))
+            if descriptors is not None:
+                d = np.clip(np.round(np.asarray(descriptors[k]) * 512.0), 0, 255).astype(np.uint8)
+                db.write_descriptors(image_id, d)
+        for i, j, m in pairs:
+            db.write_matches(ids[i], ids[j], m)
+        for i, j, inl, pose in geoms:
+            db.write_two_view_geometry(ids[i], ids[j], _two_view_geometry(inl, pose))
+    finally:
+        db.close()
+    t1 = time.perf_counter()
+    timings = {"import": t1 - t0}
+    if verified is None:
+        pairs_txt = db_path.with_suffix(".pairs.txt")
+        pairs = sorted({(min(i, j), max(i, j)) for i, j in matches})
+        pairs_txt.write_text("".join(f"{image_names[i]} {image_names[j]}\n" for i, j in pairs))
+        pycolmap.verify_matches(str(db_path), str(pairs_txt), pycolmap.TwoViewGeometryOptions())
+        timings["verification"] = time.perf_counter() - t1
+    return dict(zip(image_names, ids)), timings
+
+
+def copy_database(src: Path, dst: Path) -> Path:
+    """A private copy for one mapper (mapping writes to the database)."""
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(src, dst)
+    return dst
+
+
+# ---- mapping ------------------------------------------------------------------------------------
+def run_mapper(db_path: Path, image_dir: Path, out_dir: Path, mapper: str = "incremental",
+               opts: ColmapSfMOptions = ColmapSfMOptions()) -> ColmapSfMRun:
+    """Map a prepared database; keeps the reconstruction with most registered images.
+
+    pycolmap also writes every model to ``out_dir/0``, ``out_dir/1``, ...
+    """
+    pycolmap = _pycolmap()
+    if mapper not in MAPPERS:
+        raise PolarrefError(f"unknown pycolmap mapper {mapper!r} (choose from {', '.join(MAPPERS)})")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    if mapper == "incremental":
+        recs = pycolmap.incremental_mapping(str(db_path), str(image_dir), str(out_dir),
+                                            options=incremental_options(opts))
+    else:
+        recs = pycolmap.global_mapping(str(db_path), str(image_dir), str(out_dir), options=global_options(opts))
+    elapsed = time.perf_counter() - t0
+    recs = recs or {}
+    best = max(recs.values(), key=lambda r: r.num_reg_images(), default=None)
+    if best is not None:
+        best.update_point_3d_errors()  # the mean error reads cached per-point errors
+    return ColmapSfMRun(best, {"mapping": elapsed}, num_models=len(recs),
+                        verified_pairs=count_verified_pairs(db_path))
+
+
+def run_sift_sfm(image_dir: Path, camera, work_dir: Path, opts: ColmapSfMOptions = ColmapSfMOptions(),
+                 mapper: str = "incremental", image_names: Sequence[str] | None = None,
+                 overwrite: bool = False) -> ColmapSfMRun:
+    """pycolmap SIFT + exhaustive matching + mapping; database ``work_dir/database.db``, models in
+    ``work_dir/sparse``. Timings of all stages are in the result."""
+    work_dir = Path(work_dir)
+    db = work_dir / "database.db"
+    stages = extract_and_match_sift(image_dir, camera, db, opts, image_names=image_names, overwrite=overwrite)
+    run = run_mapper(db, image_dir, work_dir / "sparse", mapper, opts)
+    run.stage_runtime_s = {**stages, **run.stage_runtime_s}
+    return run
