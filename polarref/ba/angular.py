@@ -5,16 +5,22 @@ the observed pixel, i.e. whitened by the covariance ``sigma^2 A A^T`` that isotr
 noise propagates into, expressed in px-equivalent units (sigma cancels against the pixel
 residuals' unit weight). Near the optical axis phi carries no information and its
 linearization fails: where ``Camera``'s first-order sigma_phi exceeds ``max_sigma_phi`` (for
-``sigma_px`` pixel noise) phi is gated off and the residual is ``((theta - theta_obs) /
-|d theta / d uv|, 0)``. With ``staged`` the solver first runs theta only (all phi gated),
-then theta and phi jointly. Landmarks are parallax-angle landmarks (see parallax.py).
+``sigma_px`` pixel noise) phi is gated off. A gated observation then uses, by default
+(``axis_residual="chart"``), the azimuthal-equidistant chart ``theta (cos phi, sin phi)``,
+whitened the same way: the same angular information, but smooth through the axis. The
+alternative ``axis_residual="theta"`` keeps only ``(theta - theta_obs) / |d theta / d uv|``,
+a cone at the axis; on the ParallaxBA fake pile its 85 gated observations (of 26,050) stall
+LM at 160x the optimal cost, the chart converges to it. With ``staged`` the solver first runs
+theta only (every observation), then the residuals above jointly. Landmarks are
+parallax-angle landmarks (see parallax.py).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from polarref.ba.angular_obs import observed_angles, phi_rows, theta_rows, wrap
+from polarref.ba.angular_obs import (axis_chart_rows, observed_angles, observed_axis_chart,
+                                     phi_rows, theta_rows, wrap)
 from polarref.ba.parallax import Parallax
 from polarref.camera.noise import phi_sigma
 from polarref.errors import PolarrefError
@@ -43,10 +49,20 @@ class Angular(Parallax):
         self.whiten = np.linalg.inv(Aok)  # (M, 2, 2): A^-1
         self.w_theta = 1.0 / np.linalg.norm(np.nan_to_num(A[:, 0, :]), axis=1).clip(1e-300)
         self.num_phi_gated = int((~self.phi_ok).sum())
-        self.use_phi = self.phi_ok.copy()
+        self.chart_idx = np.zeros(0, np.int64)
+        if getattr(options, "axis_residual", "chart") == "chart" and self.num_phi_gated:
+            idx = np.flatnonzero(~self.phi_ok)
+            e_obs, B = observed_axis_chart(problem, idx)
+            good = np.isfinite(e_obs).all(1) & np.isfinite(B).all((1, 2))
+            good[good] &= np.abs(np.linalg.det(B[good])) > 0
+            self.chart_idx = idx[good]
+            self.chart_obs = e_obs[good]
+            self.chart_whiten = np.linalg.inv(B[good])  # (n, 2, 2)
+        self.set_stage(theta_only=False)
 
     def set_stage(self, theta_only: bool) -> None:
         self.use_phi = np.zeros_like(self.phi_ok) if theta_only else self.phi_ok.copy()
+        self.use_chart = not theta_only and len(self.chart_idx) > 0
 
     def residual_rows(self, Xc, jac):
         theta, Jt = theta_rows(Xc, jac)
@@ -58,10 +74,16 @@ class Angular(Parallax):
         Wm = self.whiten
         res[:, 0] = np.where(use, Wm[:, 0, 0] * dt + Wm[:, 0, 1] * df, dt * self.w_theta)
         res[:, 1] = np.where(use, Wm[:, 1, 0] * dt + Wm[:, 1, 1] * df, 0.0)
+        if self.use_chart:
+            ci = self.chart_idx
+            e, Je = axis_chart_rows(Xc[ci], jac)
+            res[ci] = np.matmul(self.chart_whiten, (e - self.chart_obs)[:, :, None])[:, :, 0]
         if not jac:
             return res, None
         J = np.empty((len(Xc), 2, 3))
         u = use[:, None]
         J[:, 0] = np.where(u, Wm[:, 0, :1] * Jt + Wm[:, 0, 1:] * Jf, Jt * self.w_theta[:, None])
         J[:, 1] = np.where(u, Wm[:, 1, :1] * Jt + Wm[:, 1, 1:] * Jf, 0.0)
+        if self.use_chart:
+            J[ci] = np.matmul(self.chart_whiten, Je)
         return res, J

@@ -27,7 +27,14 @@ class BAOptions:
     staged: bool = False  # angular only: theta-only residuals first, then theta and phi jointly
     sigma_px: float = 1.0  # pixel noise used to weight angular residuals into px-equivalent units
     max_sigma_phi: float = 0.05  # angular: use phi only where its propagated sigma <= this [rad]
+    # angular, phi-gated observations: "chart" = theta (cos phi, sin phi), smooth at the axis;
+    # "theta" = theta only (a cone at the axis; stalls LM when rays cross it)
+    axis_residual: str = "chart"
     dense_max_cameras: int = 700  # reduced camera system solved densely up to this many cameras
+    # BLAS threads inside the solve (threadpoolctl); None leaves the process setting alone. One
+    # thread is fastest here: the BLAS calls are small and multi-threaded OpenBLAS on 2 busy
+    # cores spent 0.64 s instead of 0.014 s in the Ladybug-49 Cholesky solves.
+    blas_threads: int | None = 1
 
     def __post_init__(self) -> None:
         if self.param not in PARAMS:
@@ -36,6 +43,10 @@ class BAOptions:
             raise ValueError(f"unknown loss {self.loss!r}; choose trivial, huber or cauchy")
         if not self.loss_scale > 0:
             raise ValueError(f"loss_scale must be > 0, got {self.loss_scale}")
+        if self.axis_residual not in ("chart", "theta"):
+            raise ValueError(f"unknown axis_residual {self.axis_residual!r}; choose chart or theta")
+        if self.blas_threads is not None and self.blas_threads < 1:
+            raise ValueError(f"blas_threads must be >= 1 or None, got {self.blas_threads}")
         if self.max_iterations < 0:
             raise ValueError(f"max_iterations must be >= 0, got {self.max_iterations}")
 
@@ -78,4 +89,8 @@ class BASummary:
     linear_solver: str = ""
     trace: list[IterationRecord] = field(default_factory=list)
     time_in: dict = field(default_factory=dict)  # seconds per solver phase (profiling)
+    # seconds before the first LM iteration (validation, landmarks, index structures, first
+    # evaluation); (wall_s - setup_s) / iterations is the steady per-iteration cost
+    setup_s: float = 0.0
+    behind_camera: dict = field(default_factory=dict)  # observations with depth <= 0: initial/final
     points_state: object = field(default=None, repr=False)  # (P, 3) internal landmark params

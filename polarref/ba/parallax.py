@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from polarref.ba.anchor_terms import AnchorJacobian
 from polarref.angular import (azimuth_elevation_from_direction, direction_from_azimuth_elevation,
                               direction_jacobian)
 from polarref.ba.euclidean import rot_columns
@@ -25,9 +26,16 @@ FAR = 1e8  # points at infinity are written back this many baselines from the ma
 
 
 def choose_anchors(problem: BAProblem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Main anchor = first observation's camera; associate = the camera whose ray to the point
-    makes the largest angle with the main ray. Returns (main (P,), assoc (P,), omega (P,)).
-    Observations are sorted by point (see prepare)."""
+    """Main anchor = first observation's camera; associate = the observing camera whose ray to
+    the point makes the parallax angle closest to 90 degrees with the main ray (largest
+    ``sin(omega)``). Returns (main (P,), assoc (P,), omega (P,)).
+
+    ParallaxBA takes the largest parallax angle, which suits forward-moving sequences; with
+    cameras around the scene that picks omega near 180 degrees, where ``sin(omega) -> 0``: the
+    point sits almost on the anchors' baseline and its position becomes extremely nonlinear
+    in (direction, omega). On synth-20 (omega up to 179.3 degrees) LM then needed 81/62/76
+    iterations (parallax/polar/angular) instead of 4-5. Observations are sorted by point.
+    """
     p = problem
     starts = np.flatnonzero(np.r_[True, p.obs_pt[1:] != p.obs_pt[:-1]])
     main = p.obs_cam[starts]
@@ -41,7 +49,8 @@ def choose_anchors(problem: BAProblem) -> tuple[np.ndarray, np.ndarray, np.ndarr
     ang = np.where(base > 0, ang, -1.0)  # same centre as the main anchor: unusable
     # arg-max per point over its sorted run of observations
     P = len(p.X)
-    order = np.lexsort((-ang, p.obs_pt))
+    score = np.where(ang >= 0, np.sin(ang), -1.0)
+    order = np.lexsort((-score, p.obs_pt))
     best = order[starts]
     assoc = p.obs_cam[best]
     omega = ang[best]
@@ -66,6 +75,9 @@ class Parallax:
         self.omega0 = omega0
         op = problem.obs_pt
         self.slot_cams = np.stack([problem.obs_cam, self.main[op], self.assoc[op]])
+        # observing camera: rotation and centre; anchors: centre only (columns 3:6)
+        self.slot_cols = ((0, 6), (3, 6), (3, 6))
+        self.anchor_cams = (self.main, self.assoc)  # Jc = [J_obs, AnchorJacobian]
 
     def init_points(self) -> np.ndarray:
         p = self.p
@@ -99,11 +111,8 @@ class Parallax:
         dh_de = sw[:, None] * d + (cw * inv_s)[:, None] * (e - c[:, None] * d)
         dv_dab = d[:, :, None] * np.einsum("pi,pij->pj", dh_dd, Dd)[:, None, :] + h[:, None, None] * Dd
         dh_dw = cw * c - sw * s
-        dv_dw_pt = dh_dw[:, None] * d  # plus cos(w) (C_m - C_i), per observation
-        dv_dpt = np.empty((len(op), 3, 3))
-        dv_dpt[:, :, :2] = dv_dab[op]
-        dv_dpt[:, :, 2] = dv_dw_pt[op] + cw[op][:, None] * base
-        return Xc, (Ri, sw_o, d, dh_de, dv_dpt)
+        dv_dw = (dh_dw[:, None] * d)[op] + cw[op][:, None] * base  # (M, 3)
+        return Xc, (Ri, sw_o, d, dh_de, dv_dab, dv_dw)
 
     def residual_rows(self, Xc: np.ndarray, jac: bool):
         """Residuals (M, k) and ``res_D_Xc`` (M, k, 3); pixel residuals here."""
@@ -112,28 +121,38 @@ class Parallax:
         uv, Juv = self.proj(Xc)
         return uv - self.p.obs_uv, Juv
 
-    def evaluate(self, R, C, pts, jac: bool = True):
+    def evaluate(self, R, C, pts, jac: bool = True, factored: bool = False):
+        """Residuals (M, k); with jac also ``res_D_point`` (M, k, 3) and the per-slot camera
+        Jacobians ``[res_D_obs (M, k, 6), res_D_main_centre (M, k, 3), res_D_assoc_centre
+        (M, k, 3)]`` (see ``slot_cams``/``slot_cols``), or with ``factored`` ``[res_D_obs,
+        AnchorJacobian]`` (the solver's form, see anchor_terms.py)."""
         Xc, parts = self.rays(R, C, pts, jac)
         res, Jx = self.residual_rows(Xc, jac)
         if not jac:
             return res, None, None
-        Ri, sw_o, d, dh_de, dv_dpt = parts
+        Ri, sw_o, d, dh_de, dv_dab, dv_dw = parts
         k = res.shape[1]
         A = Jx @ Ri  # res_D_v (M, k, 3)
-        Jp = A @ dv_dpt
         M = len(Xc)
         op = self.p.obs_pt
+        Jp = np.empty((M, k, 3))
+        Jp[:, :, :2] = A @ dv_dab[op]
+        Jp[:, :, 2] = np.einsum("mki,mi->mk", A, dv_dw)
         J_obs = np.empty((M, k, 6))
         J_obs[:, :, :3] = rot_columns(Xc, Jx)
         J_obs[:, :, 3:] = -sw_o[:, None, None] * A
-        # d v / d C_a = d dh_de^T ; d v / d C_m = sin(w) I - d dh_de^T
+        # anchors (factored, see anchor_terms.py): d v / d C_a = d dh_de^T, so
+        # res_D_C_a = (A d) dh_de^T and res_D_C_m = sin(w) A - res_D_C_a
         Ad = np.einsum("mki,mi->mk", A, d[op])  # (M, k)
-        outer = Ad[:, :, None] * dh_de[op][:, None, :]  # A d dh_de^T (M, k, 3)
-        J_m = np.zeros((M, k, 6))
-        J_m[:, :, 3:] = sw_o[:, None, None] * A - outer
-        J_a = np.zeros((M, k, 6))
-        J_a[:, :, 3:] = outer
-        return res, Jp, [J_obs, J_m, J_a]
+        anchors = AnchorJacobian(Ad, dh_de)
+        if factored:
+            return res, Jp, [J_obs, anchors]
+        return res, Jp, [J_obs, *anchors.dense(J_obs, op)]
+
+    def num_behind_camera(self, R, C, pts) -> int:
+        """Observations whose point has depth <= 0 in the observing camera."""
+        Xc, _ = self.rays(R, C, pts, False)
+        return int((Xc[:, 2] <= 0).sum())
 
     def pixel_residuals(self, R, C, pts) -> np.ndarray:
         Xc, _ = self.rays(R, C, pts, False)

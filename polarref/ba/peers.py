@@ -29,6 +29,7 @@ class PeerResult:
     wall_s: float
     termination: str
     reported_cost: float  # the peer's own final cost (COLMAP: behind-camera residuals zeroed)
+    behind_camera: int = -1  # observations whose point ends with depth <= 0 in its camera
 
 
 def _cost_of(problem: BAProblem, R, C, X, options: BAOptions):
@@ -36,30 +37,8 @@ def _cost_of(problem: BAProblem, R, C, X, options: BAOptions):
     return pixel_cost(e.pixel_residuals(R, C, X), options.loss, options.loss_scale)
 
 
-def _to_pycolmap(problem: BAProblem):
-    """pycolmap.Reconstruction of the problem (image/camera id = index + 1) and point ids."""
-    import pycolmap
-
-    rec = pycolmap.Reconstruction()
-    order = np.argsort(problem.obs_cam, kind="stable")
-    starts = np.searchsorted(problem.obs_cam[order], np.arange(problem.num_cameras + 1))
-    p2d = np.empty(problem.num_observations, np.int64)
-    for i, cam in enumerate(problem.cameras):
-        obs = order[starts[i]:starts[i + 1]]
-        p2d[obs] = np.arange(len(obs))
-        rec.add_camera_with_trivial_rig(cam.to_pycolmap(i + 1))
-        img = pycolmap.Image(name=f"img_{i:05d}", keypoints=problem.obs_uv[obs].astype(np.float64),
-                             camera_id=i + 1, image_id=i + 1)
-        R = problem.R[i]
-        rec.add_image_with_trivial_frame(img, pycolmap.Rigid3d(pycolmap.Rotation3d(R), -R @ problem.C[i]))
-    starts = np.searchsorted(problem.obs_pt, np.arange(problem.num_points + 1))
-    ids = []
-    for j in range(problem.num_points):
-        track = pycolmap.Track()
-        for o in range(starts[j], starts[j + 1]):
-            track.add_element(int(problem.obs_cam[o]) + 1, int(p2d[o]))
-        ids.append(rec.add_point3D(problem.X[j], track))
-    return rec, ids
+def _behind(problem: BAProblem, R, C, X) -> int:
+    return Euclidean(problem).num_behind_camera(R, C, X)
 
 
 def run_pycolmap(problem: BAProblem, options: BAOptions) -> PeerResult:
@@ -68,7 +47,10 @@ def run_pycolmap(problem: BAProblem, options: BAOptions) -> PeerResult:
     function_tolerance 0)."""
     import pycolmap
 
-    rec, point_ids = _to_pycolmap(problem)
+    from polarref.ba.loaders import problem_to_reconstruction
+
+    # image id = camera index + 1, point id = point index + 1 (kept by to_pycolmap)
+    rec = problem_to_reconstruction(problem).to_pycolmap()
     opts = pycolmap.BundleAdjustmentOptions()
     opts.refine_focal_length = opts.refine_principal_point = opts.refine_extra_params = False
     opts.refine_sensor_from_rig = False
@@ -95,10 +77,11 @@ def run_pycolmap(problem: BAProblem, options: BAOptions) -> PeerResult:
         pose = rec.images[i + 1].cam_from_world()
         R[i] = pose.rotation.matrix()
         C[i] = -R[i].T @ np.asarray(pose.translation)
-    X = np.array([rec.points3D[int(pid)].xyz for pid in point_ids])
+    X = np.array([rec.points3D[j + 1].xyz for j in range(problem.num_points)])
     c1, rms = _cost_of(problem, R, C, X, options)
     return PeerResult("pycolmap", c0, c1, rms, int(cs.num_successful_steps + cs.num_unsuccessful_steps),
-                      wall, str(cs.termination_type).split(".")[-1], float(cs.final_cost))
+                      wall, str(cs.termination_type).split(".")[-1], float(cs.final_cost),
+                      _behind(problem, R, C, X))
 
 
 def _left_jacobian(w: np.ndarray) -> np.ndarray:
@@ -111,6 +94,9 @@ def _left_jacobian(w: np.ndarray) -> np.ndarray:
     b = np.where(small, 1 / 6 - th**2 / 120, (t - np.sin(t)) / t**3)
     K = skew(w)
     return np.eye(3) + a * K + b * (K @ K)
+
+
+_SCIPY_STATUS = {0: "max_nfev", 1: "gtol", 2: "ftol", 3: "xtol", 4: "ftol+xtol", -1: "error"}
 
 
 def run_scipy(problem: BAProblem, options: BAOptions) -> PeerResult:
@@ -181,4 +167,6 @@ def run_scipy(problem: BAProblem, options: BAOptions) -> PeerResult:
     wall = time.perf_counter() - t
     R, C, X = unpack(res.x)
     c1, rms = _cost_of(problem, R, C, X, options)
-    return PeerResult("scipy", c0, c1, rms, int(res.nfev), wall, str(res.status), float(res.cost))
+    return PeerResult("scipy", c0, c1, rms, int(res.nfev), wall,
+                      _SCIPY_STATUS.get(int(res.status), str(res.status)), float(res.cost),
+                      _behind(problem, R, C, X))

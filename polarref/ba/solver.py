@@ -6,6 +6,13 @@ gradient of ``1/2 sum rho(s)`` and a Gauss-Newton Hessian that is positive semi-
 Damping follows Ceres' LM: ``(J^T J + mu D) dx = -g`` with ``D = diag(J^T J)`` clipped to
 [1e-6, 1e32] and ``mu = 1 / radius``; the radius grows by ``1 / max(1/3, 1 - (2 rho - 1)^3)``
 after a step with gain ratio ``rho > 1e-3`` and shrinks by a doubling factor otherwise.
+With ``D = diag(J^T J)`` the damping is Jacobi-scaled (Ceres' ``jacobi_scaling``), so the
+mixed units of angles, parallax angles and centres do not bias the step.
+
+The normal equations are built from per-slot camera Jacobians (schur.py); parallax forms
+hand over their anchors' Jacobians factored (anchor_terms.py). The whole solve runs with
+``options.blas_threads`` BLAS threads (threadpoolctl; 1 by default: the BLAS calls here
+are small and a multi-threaded BLAS on a busy machine was 45x slower in the Cholesky).
 """
 
 from __future__ import annotations
@@ -18,7 +25,7 @@ import numpy as np
 from polarref.ba.losses import rho as loss_rho
 from polarref.ba.options import BAOptions, BASummary, IterationRecord
 from polarref.ba.problem import BAProblem, prepare
-from polarref.ba.schur import SchurStructure
+from polarref.ba.schur import SchurStructure, gram
 from polarref.geometry import so3_exp
 
 log = logging.getLogger(__name__)
@@ -67,6 +74,14 @@ def pixel_cost(res_px: np.ndarray, loss: str, scale: float) -> tuple[float, floa
 def solve(problem: BAProblem, options: BAOptions, *, prepared: bool = False,
           param=None) -> BASummary:
     """Run LM on ``problem`` (updated in place: R, C, X). See module docstring."""
+    if options.blas_threads is None:
+        return _solve(problem, options, prepared, param)
+    from threadpoolctl import threadpool_limits
+    with threadpool_limits(limits=options.blas_threads, user_api="blas"):
+        return _solve(problem, options, prepared, param)
+
+
+def _solve(problem: BAProblem, options: BAOptions, prepared: bool, param) -> BASummary:
     t0 = time.perf_counter()
     if not prepared:
         prepare(problem)
@@ -91,6 +106,8 @@ def solve(problem: BAProblem, options: BAOptions, *, prepared: bool = False,
         second.accepted_iterations += first.accepted_iterations
         second.termination = f"theta-only: {first.termination}; joint: {second.termination}"
         second.wall_s = time.perf_counter() - t0
+        second.setup_s = first.setup_s
+        second.behind_camera["initial"] = first.behind_camera["initial"]
         return second
     return _lm(problem, options, param, t0)
 
@@ -101,20 +118,22 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
              "structure": 0.0, "update": 0.0}
     tic = time.perf_counter()
     cam_var = problem.cam_mask.any(1)
-    st = SchurStructure(param.slot_cams, problem.obs_pt, cam_var, problem.num_points,
-                        options.dense_max_cameras)
-    st.set_slot_cams(param.slot_cams)
+    st = SchurStructure(param.slot_cams, param.slot_cols, problem.obs_pt, cam_var,
+                        problem.num_points, options.dense_max_cameras)
+    builder = st
+    if getattr(param, "anchor_cams", None) is not None:
+        from polarref.ba.anchor_terms import AnchorTerms
+        builder = AnchorTerms(st, problem.obs_pt, *param.anchor_cams)
     mask_v = problem.cam_mask[st.var_cams].astype(np.float64)  # (Nv, 6)
-    slot_mask = [problem.cam_mask[param.slot_cams[s]][:, None, :].astype(np.float64)
-                 for s in range(st.S)]
     pt_free = (~problem.pt_fixed).astype(np.float64)[:, None]
+    any_pt_fixed = bool(problem.pt_fixed.any())
     times["structure"] = time.perf_counter() - tic
     R, C = problem.R.copy(), problem.C.copy()
     pts = param.init_points() if pts0 is None else pts0.copy()
     loss, scale = options.loss, options.loss_scale
 
     tic = time.perf_counter()
-    r, Jp, Jc = param.evaluate(R, C, pts, jac=True)
+    r, Jp, Jc = param.evaluate(R, C, pts, jac=True, factored=True)
     times["evaluate"] += time.perf_counter() - tic
     if not np.isfinite(r).all():
         from polarref.errors import PolarrefError
@@ -123,6 +142,8 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     cost, w = _robust(r, param.groups, loss, scale)
     initial_cost = cost
     init_px_cost, init_rms = pixel_cost(param.pixel_residuals(R, C, pts), loss, scale)
+    behind0 = param.num_behind_camera(R, C, pts)
+    setup_s = time.perf_counter() - t0
     radius, decrease_factor = options.initial_trust_radius, 2.0
     trace: list[IterationRecord] = []
     termination = "max_iterations"
@@ -133,18 +154,18 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         if need_build:
             tic = time.perf_counter()
             if w is not None:
-                r_w = r * w
-                Jp_w = Jp * w[:, :, None]
-                Jc_w = [J * w[:, :, None] * m for J, m in zip(Jc, slot_mask)]
+                r_w, Jp_w = r * w, Jp * w[:, :, None]
+                Jc_w = [J * w[:, :, None] if isinstance(J, np.ndarray) else J.scaled(w)
+                        for J in Jc]
             else:
-                r_w, Jp_w = r, Jp
-                Jc_w = [J * m for J, m in zip(Jc, slot_mask)]
-            Jp_w = Jp_w * pt_free[problem.obs_pt][:, :, None]
+                r_w, Jp_w, Jc_w = r, Jp, Jc
+            if any_pt_fixed:
+                Jp_w = Jp_w * pt_free[problem.obs_pt][:, :, None]
             g_p = st.reduce_points(np.einsum("mki,mk->mi", Jp_w, r_w))
-            V = st.reduce_points(np.matmul(Jp_w.transpose(0, 2, 1), Jp_w))
-            g_c = st.camera_vector(Jc_w, r_w) * mask_v
-            W = st.entries_W(Jc_w, Jp_w)
-            U = st.camera_U(Jc_w)
+            V = st.reduce_points(gram(Jp_w))
+            # gauge-fixed columns and fixed cameras are masked on the assembled blocks
+            g_c, W, U = builder.build(Jc_w, Jp_w, r_w)
+            g_c, W, U = st.apply_mask(mask_v, g_c, W, U)
             diag_u = np.zeros((st.Nv, 6))
             diag_u[st.u_ca[st.u_ca == st.u_cb]] = np.diagonal(
                 U[st.u_ca == st.u_cb], axis1=1, axis2=2)
@@ -162,12 +183,14 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         Vd = V.copy()
         Vd[:, [0, 1, 2], [0, 1, 2]] += mu * D_p
         Vd[problem.pt_fixed] = np.eye(3)
-        Vinv = np.linalg.inv(Vd)
         diag_c = np.where(mask_v > 0, mu * D_c, 1.0)
-        S, b, _ = st.reduced_system(U, W, Vinv, g_c, g_p, diag_c)
+        system = st.reduced_system(U, W, Vd, g_c, g_p, diag_c)
         times["schur"] += time.perf_counter() - tic
         tic = time.perf_counter()
-        x = st.solve(S, b)
+        x = None
+        if system is not None:
+            S, b, Li = system
+            x = st.solve(S, b)
         times["solve"] += time.perf_counter() - tic
         if x is None:
             trace.append(IterationRecord(it, cost, False, radius, 0.0, gmax,
@@ -180,7 +203,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             continue
         tic = time.perf_counter()
         dc = x.reshape(st.Nv, 6) * mask_v
-        dp = st.back_substitute(W, Vinv, g_p, dc) * pt_free
+        dp = st.back_substitute(W, Li, g_p, dc) * pt_free
         step_norm = float(np.sqrt((dc**2).sum() + (dp**2).sum()))
         x_norm = float(np.sqrt((C**2).sum() + (pts**2).sum()))
         if step_norm <= options.parameter_tolerance * (x_norm + options.parameter_tolerance):
@@ -199,7 +222,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         pts_new = param.retract_points(pts, dp)
         times["update"] += time.perf_counter() - tic
         tic = time.perf_counter()
-        r_new, Jp_new, Jc_new = param.evaluate(R_new, C_new, pts_new, jac=True)
+        r_new, Jp_new, Jc_new = param.evaluate(R_new, C_new, pts_new, jac=True, factored=True)
         times["evaluate"] += time.perf_counter() - tic
         new_cost, w_new = _robust(r_new, param.groups, loss, scale)
         gain = (cost - new_cost) / model if model > 0 else -1.0
@@ -236,7 +259,8 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         num_points=problem.num_points, num_observations=problem.num_observations,
         num_variable_cameras=st.Nv, gauge=problem.gauge,
         exclusions={k: v for k, v in problem.exclusions.items() if v},
-        linear_solver=st.linear_solver_name(), trace=trace, time_in=times)
+        linear_solver=st.linear_solver_name(), trace=trace, time_in=times, setup_s=setup_s,
+        behind_camera={"initial": behind0, "final": param.num_behind_camera(R, C, pts)})
     summary.points_state = pts
     log.debug("BA %s: cost %.6g -> %.6g in %d iterations (%s)", options.param, initial_cost,
               cost, it, termination)

@@ -17,8 +17,12 @@ def add_arguments(parser) -> None:
     parser.add_argument("--quick", action="store_true", help="only the small problems")
     parser.add_argument("--loss", choices=("trivial", "huber", "cauchy"), default="trivial")
     parser.add_argument("--max-iterations", type=int, default=100)
-    parser.add_argument("--scipy-max-obs", type=int, default=70_000,
+    parser.add_argument("--scipy-max-obs", type=int, default=400_000,
                         help="skip scipy on problems with more observations")
+    parser.add_argument("--repeat", type=int, default=1,
+                        help="runs per solver (ours and pycolmap interleaved); best wall time")
+    parser.add_argument("--merge", action="store_true",
+                        help="add/replace these problems in an existing OUT/bench.json")
     parser.add_argument("--out", required=True, help="output folder (bench.json, bench.md)")
     parser.add_argument("--overwrite", action="store_true")
 
@@ -28,11 +32,14 @@ def run(args) -> int:
     from polarref.ba.bench import FULL, QUICK, run_bench
 
     out = Path(args.out)
-    if (out / "bench.json").exists() and not args.overwrite:
-        raise PolarrefError(f"{out / 'bench.json'} exists; pass --overwrite to replace it")
+    if (out / "bench.json").exists() and not (args.overwrite or args.merge):
+        raise PolarrefError(f"{out / 'bench.json'} exists; pass --overwrite to replace it "
+                            "or --merge to add problems to it")
+    if args.repeat < 1:
+        raise PolarrefError(f"--repeat must be >= 1, got {args.repeat}")
     problems = args.problem or (QUICK if args.quick else FULL)
     results = run_bench(problems, out, BAOptions(loss=args.loss,
                                                  max_iterations=args.max_iterations),
-                        args.scipy_max_obs)
+                        args.scipy_max_obs, repeat=args.repeat, merge=args.merge)
     print((out / "bench.md").read_text())
     return 0 if results else 1
