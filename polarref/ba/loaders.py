@@ -14,7 +14,9 @@ def load_problem(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]
     """(problem, truth Reconstruction or None) for a path or ``synth-20``/``synth-60``/``synth-200``.
 
     BAL: a ``.txt`` file (RADIAL cameras via ``polarref.io.bal``); ParallaxBA: a folder with
-    ``Cam.txt`` and ``Feature.pmba`` (points by DLT triangulation, PINHOLE); COLMAP: a model folder.
+    ``Cam.txt`` and ``Feature.pmba`` (points by DLT triangulation, PINHOLE); PVL-BA: a folder with
+    ``cal.txt`` + ``XYZ.txt`` + ``Feature.txt``, or a ContextCapture BlocksExchange ``.xml``
+    (observations undistorted by ``polarref.io.pvlba``); COLMAP: a model folder.
     """
     from polarref.ba.adapter import problem_from_reconstruction
 
@@ -37,6 +39,10 @@ def load_problem(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]
         return BAProblem(cameras=[cam] * N, R=pb.R.copy(), C=pb.centers.copy(), X=X,
                          obs_cam=pb.obs_camera.copy(), obs_pt=pb.obs_point.copy(),
                          obs_uv=pb.obs_uv.copy()), None
+    if (path.is_dir() and (path / "cal.txt").exists()) or path.suffix.lower() == ".xml":
+        from polarref.io.pvlba import read_blocks_exchange, read_pvlba
+        pvl = read_pvlba(path) if path.is_dir() else read_blocks_exchange(path)
+        return problem_from_reconstruction(pvl.to_reconstruction()), None
     if path.is_dir():
         from polarref.reconstruction import Reconstruction
         return problem_from_reconstruction(Reconstruction.read(path)), None

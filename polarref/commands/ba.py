@@ -9,12 +9,12 @@ from pathlib import Path
 from polarref.errors import PolarrefError
 
 NAME = "ba"
-HELP = "bundle-adjust a BAL / ParallaxBA / COLMAP problem with one parameterization"
+HELP = "bundle-adjust a BAL / ParallaxBA / PVL-BA / COLMAP problem with one parameterization"
 
 
 def add_arguments(parser) -> None:
     from polarref.ba.options import PARAMS
-    parser.add_argument("problem", help="BAL .txt, ParallaxBA folder, COLMAP model folder, "
+    parser.add_argument("problem", help="BAL .txt, ParallaxBA folder, PVL-BA folder or BlocksExchange .xml, COLMAP model folder, "
                         "or synth-20 / synth-60 / synth-200")
     parser.add_argument("--param", choices=PARAMS, default="euclidean")
     parser.add_argument("--loss", choices=("trivial", "huber", "cauchy"), default="trivial")
