@@ -5,7 +5,9 @@ import copy
 import pytest
 from test_report_build import synthetic_metrics
 
-from polarref.compare import claims, schema
+import numpy as np
+
+from polarref.compare import claims, claims_experiments, schema
 
 
 def _metrics(euclid_runtime, polar_runtime, euclid_tp=1000, polar_tp=1000, euclid_rp=5000, polar_rp=5000,
@@ -85,26 +87,125 @@ def test_equation_verdicts():
     assert c1.verdict == c2.verdict == "not tested" and "derivations crashed" in c1.rationale
 
 
-def _exp(cond_eu, cond_pa, corr_eu, corr_pa, rob_eu, rob_pa):
-    row = lambda cond, corr: {"cond_JtJ": cond, "cond_JtJ_scaled": cond, "cond_schur": 1.0,
-                              "cond_schur_scaled": 1.0, "mean_abs_point_corr": corr,
-                              "max_abs_point_corr": corr, "error": ""}
-    rob = lambda eu, pa: {"euclidean": {"rotation_error_deg": eu, "errors": []},
-                          "parallax": {"rotation_error_deg": pa, "errors": []}}
-    return {"conditioning": {"problem": "p", "params": {"euclidean": row(cond_eu, corr_eu),
-                                                        "parallax": row(cond_pa, corr_pa)}},
-            "robustness": {"problem": "p", "seeds_run": 1, "outliers": rob(*rob_eu),
-                           "low_parallax": rob(*rob_pa)}}
+def _cond(eu, pa, corr_eu, corr_pa):
+    row = lambda c, r: {"cond_JtJ": c, "cond_JtJ_scaled": c, "cond_schur": 1.0, "cond_schur_scaled": 1.0,
+                        "mean_abs_point_corr": r, "max_abs_point_corr": r, "error": ""}
+    return {"problem": "p", "seeds": list(range(len(eu))), "gauge": "g",
+            "params": {"euclidean": {"per_seed": [row(c, r) for c, r in zip(eu, corr_eu)], "error": ""},
+                       "parallax": {"per_seed": [row(c, r) for c, r in zip(pa, corr_pa)], "error": ""}}}
 
 
-def test_experiment_verdicts():
-    bad, good = [5.0, 0.1, 9.0], [0.1, 0.2, 0.3]                     # success rates 1/3 and 3/3
-    c6, c7, c8 = claims.experiment_claims(_exp(100, 50, 0.5, 0.2, (bad, good), (bad, good)), "")
-    assert (c6.verdict, c7.verdict, c8.verdict) == ("supported", "supported", "supported")
-    c6, c7, c8 = claims.experiment_claims(_exp(100, 95, 0.5, 0.6, (good, good), (good, bad)), "")
-    assert (c6.verdict, c7.verdict, c8.verdict) == ("not supported", "not supported", "not supported")
-    _, _, c8 = claims.experiment_claims(_exp(1, 1, 1, 1, (bad, good), (good, good)), "")
-    assert c8.verdict == "inconclusive"                                      # mixed outcomes
-    rate = next(f for f in c8.figures if f.key == "outliers_parallax").value
-    assert rate == pytest.approx(1.0)
-    assert all(c.verdict == "not tested" for c in claims.experiment_claims(None, "timed out"))
+def _runs(successes, rot=0.03, flip=0.0):
+    return {"runs": [{"success": bool(s), "rotation_error_deg": rot, "flipped_fraction": flip} for s in successes],
+            "errors": []}
+
+
+def _rob(out_eu, out_pa, levels):
+    """levels: list of (euclidean successes, parallax successes) per parallax level."""
+    return {"seeds_run": len(out_eu), "success_rule": "r", "outlier_problem": "o", "parallax_problem": "l",
+            "outliers": {"0.1": {"euclidean": _runs(out_eu), "parallax": _runs(out_pa)}},
+            "low_parallax": {f"{0.3 / 10 ** i:g}": {"euclidean": _runs(e), "parallax": _runs(p)}
+                             for i, (e, p) in enumerate(levels)}}
+
+
+ALL, NONE, SOME = [1] * 5, [0] * 5, [1, 1, 0, 1, 0]
+
+
+@pytest.mark.parametrize("eu, pa, verdict", [
+    ([100, 120, 90], [50, 60, 40], "supported"),            # better on every seed
+    ([100, 120, 90], [95, 130, 200], "not supported"),       # no seed better by > 10 %
+    ([100, 120, 90], [50, 130, 85], "inconclusive"),         # seeds disagree
+])
+def test_conditioning_verdict_two_sided(eu, pa, verdict):
+    c6, _ = claims_experiments.conditioning_claims(_cond(eu, pa, [0.5] * 3, [0.5] * 3), "")
+    assert c6.verdict == verdict
+    ratio = next(f for f in c6.figures if f.key == "ratio6").value
+    assert ratio == pytest.approx(np.mean(np.array(pa) / np.array(eu)))
+    assert f"{len(eu)} seeds" in c6.sample_size
+
+
+@pytest.mark.parametrize("corr_pa, verdict", [
+    ([0.2, 0.3, 0.1], "supported"), ([0.5, 0.6, 0.45], "not supported"), ([0.2, 0.6, 0.1], "inconclusive")])
+def test_correlation_verdict_two_sided(corr_pa, verdict):
+    _, c7 = claims_experiments.conditioning_claims(_cond([1, 1, 1], [1, 1, 1], [0.5, 0.5, 0.5], corr_pa), "")
+    assert c7.verdict == verdict
+    lo, hi = (next(f for f in c7.figures if f.key == k).value for k in ("corr_pa_lo", "corr_pa_hi"))
+    assert (lo, hi) == (min(corr_pa), max(corr_pa))
+
+
+@pytest.mark.parametrize("rob, verdict", [
+    (_rob(SOME, ALL, [(ALL, ALL), (SOME, ALL)]), "supported"),          # better in both halves
+    (_rob(ALL, ALL, [(ALL, ALL), (ALL, ALL)]), "not supported"),        # never better
+    (_rob(ALL, ALL, [(ALL, ALL), (ALL, NONE)]), "not supported"),       # worse at low parallax
+    (_rob(SOME, ALL, [(ALL, ALL), (ALL, ALL)]), "inconclusive"),        # outliers yes, parallax no
+    (_rob(ALL, ALL, [(SOME, ALL), (ALL, SOME)]), "not supported"),      # better at one level, worse at another
+])
+def test_robustness_verdict(rob, verdict):
+    c8 = claims_experiments.robustness_claim(rob, "")
+    assert c8.verdict == verdict
+    rate = next(f for f in c8.figures if f.key == "out0_parallax").value
+    assert rate == pytest.approx(np.mean([r["success"] for r in rob["outliers"]["0.1"]["parallax"]["runs"]]))
+    assert c8.sample_size.startswith("5 seeds x (1 outlier levels + 2 parallax levels) x 2 forms")
+
+
+def test_broken_experiments_are_not_tested_with_reason():
+    assert all(c.verdict == "not tested" and "timed out" in c.rationale
+               for c in claims.experiment_claims(None, "timed out"))
+    exp = {"conditioning": {"error": "LinAlgError: singular"}, "robustness": {"error": "ValueError: boom"}}
+    c6, c7, c8 = claims.experiment_claims(exp, "")
+    assert (c6.verdict, c7.verdict, c8.verdict) == ("not tested",) * 3
+    assert "singular" in c6.rationale and "boom" in c8.rationale
+    # every form of a seed failed: nothing to compare -> not tested, never "not supported"
+    cond = _cond([], [], [], [])
+    cond["params"]["parallax"]["error"] = "ValueError: x"
+    assert {c.verdict for c in claims_experiments.conditioning_claims(cond, "")} == {"not tested"}
+    # a robustness run with no completed runs is inconclusive, not a verdict
+    rob = _rob([], [], [([], [])])
+    assert claims_experiments.robustness_claim(rob, "").verdict == "inconclusive"
+
+
+def _timing(rms_eu, rms_po, rot_eu, rot_po, wall_eu, wall_po):
+    def rows(rms, rot, wall):
+        return [{"seed": s, "final_rms_px": a, "rotation_error_deg": b, "wall_s": c, "iterations": 5}
+                for s, (a, b, c) in enumerate(zip(rms, rot, wall))]
+    return {"timing": {"problem": "p", "params": {
+        "euclidean": {"per_seed": rows(rms_eu, rot_eu, wall_eu), "runs": [], "trace": [], "error": ""},
+        "polar": {"per_seed": rows(rms_po, rot_po, wall_po), "runs": [], "trace": [], "error": ""}}}}
+
+
+RMS = [0.46, 0.47, 0.45, 0.48, 0.46]
+ROT = [0.020, 0.030, 0.025, 0.022, 0.028]
+WALL = [1.0, 1.1, 0.9, 1.0, 1.05]
+
+
+@pytest.mark.parametrize("rms_po, rot_po, verdict", [
+    ([r + 0.002 for r in RMS], ROT, "supported"),                        # within the 0.01 px floor
+    ([r - 0.004 for r in RMS], [r + 0.002 for r in ROT], "supported"),   # within the seed spread
+    ([r + 0.05 for r in RMS], ROT, "not supported"),                      # clearly worse
+    ([r - 0.05 for r in RMS], ROT, "not supported"),                      # clearly better: not "equal"
+    (RMS, [r + 0.02 for r in ROT], "not supported"),                      # rotation clearly worse
+    ([0.46, 0.51, 0.45, 0.52, 0.45], ROT, "inconclusive"),               # mean +0.014 > tol, but noisy
+])
+def test_controlled_equal_accuracy_two_sided(rms_po, rot_po, verdict):
+    exp = _timing(RMS, rms_po, ROT, rot_po, WALL, WALL)
+    c3 = _verdict(claims.scene_claims(_metrics(10, 10, polar_rot=0.5), exp), "C3")   # scene run says worse
+    assert c3.verdict == verdict
+    assert "5 seeds" in c3.sample_size and "1 run per method" in c3.sample_size
+    assert "single-run rule alone gives: not supported" in c3.rationale
+    d = next(f for f in c3.figures if f.key == "c_final_d").value
+    assert d == pytest.approx(np.mean(np.array(rms_po) - RMS))
+
+
+@pytest.mark.parametrize("factor, verdict", [(1 / 1.5, "supported"), (1 / 1.2, "inconclusive"),
+                                             (1.0, "not supported"), (2.0, "not supported")])
+def test_controlled_speedup(factor, verdict):
+    exp = _timing(RMS, RMS, ROT, ROT, WALL, [w * factor for w in WALL])
+    c4 = _verdict(claims.scene_claims(_metrics(10, 7), exp), "C4")       # the scene run alone says supported
+    assert c4.verdict == verdict
+    assert next(f for f in c4.figures if f.key == "c_ratio").value == pytest.approx(1 / factor)
+
+
+def test_controlled_missing_falls_back_to_scene_rule():
+    exp = {"timing": {"error": "RuntimeError: x"}}
+    c4 = _verdict(claims.scene_claims(_metrics(10, 7), exp), "C4")
+    assert c4.verdict == "supported" and "not run" in c4.rationale

@@ -4,16 +4,18 @@ Verdict rules are written here once, with their thresholds, so a reader can chec
 
 * equation claims: "supported" when the max error over every sampled case is below
   ``EXACT_RAD``; otherwise "not supported" (the figures say by how much).
-* equal accuracy: "supported" when the paper's method is not worse than each baseline by more
-  than ``report.EQUIVALENT_PX`` or ``report.EQUIVALENT_REL`` in mean reprojection error and by
-  more than ``ROT_EQUIV_DEG`` or ``ROT_EQUIV_REL`` in GT rotation error.
-* 1.4x faster: "supported" when the runtime ratio baseline/polar is >= ``SPEEDUP_CLAIM`` x
-  (1 - ``TIMING_SLACK``); "not supported" when < 1 + ``TIMING_SLACK``; else "inconclusive".
-* more tie points: "supported" when the polar run has more tie points AND more reprojected
-  pixels than the Euclidean baseline; "not supported" otherwise.
-* conditioning / correlation / robustness: "supported" when the angular forms beat the
-  Euclidean form by more than ``MARGIN`` (relative), "not supported" when they are worse or
-  within the margin; the controlled experiments say what "beat" means per claim.
+* equal accuracy (C3) and 1.4x faster (C4): decided by the controlled multi-seed BA experiment
+  when it ran (rules in :mod:`polarref.compare.claims_experiments`); the scene's single run is
+  reported beside it with what the single-run rule alone would say:
+  - single run, equal accuracy: ours-polar not worse than each baseline by more than
+    max(``report.EQUIVALENT_PX``, ``report.EQUIVALENT_REL``) in mean reprojection error and
+    max(``ROT_EQUIV_DEG``, ``ROT_EQUIV_REL``) in GT rotation error;
+  - single run, faster: runtime ratio baseline/polar >= ``SPEEDUP_CLAIM`` x (1 - ``TIMING_SLACK``)
+    supported, < 1 + ``TIMING_SLACK`` not supported, else inconclusive.
+* more tie points (C5, scene only): "supported" when the polar run has more tie points AND more
+  reprojected pixels than the Euclidean baseline; "not supported" otherwise.
+* conditioning / correlation / robustness (C6-C8): see
+  :mod:`polarref.compare.claims_experiments` (multi-seed, two-sided).
 Any claim whose experiment could not run is "not tested", with the reason.
 """
 
@@ -24,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from polarref.compare import claims_experiments as cx
 from polarref.compare import report as rep
 from polarref.compare.runner import run_isolated
 from polarref.compare.schema import (STATUS_OK, BATrace, ClaimResult, Figure, MetricsFile,
@@ -36,11 +39,8 @@ SPEEDUP_CLAIM = 1.4
 TIMING_SLACK = 0.10
 ROT_EQUIV_DEG = 0.01
 ROT_EQUIV_REL = 0.10
-MARGIN = 0.10
 DERIVATION_SAMPLES = 100_000
 MIN_EXPERIMENT_BUDGET_S = 5.0
-SUCCESS_DEG = 1.0      # robustness runs: success = mean pairwise rotation error below this
-SUCCESS_MARGIN = 0.2   # success-rate advantage needed for "more robust"
 CANDIDATE = "ours-polar"
 BASELINES = ("ours-euclidean", "pycolmap-incremental-sift")
 
@@ -106,7 +106,7 @@ def _ok(metrics: MetricsFile, name: str):
     return m if m is not None and m.status == STATUS_OK else None
 
 
-def scene_claims(metrics: MetricsFile) -> list[ClaimResult]:
+def _scene_only(metrics: MetricsFile) -> list[ClaimResult]:
     cand = _ok(metrics, CANDIDATE)
     bases = [b for b in (_ok(metrics, n) for n in BASELINES) if b is not None]
     scene = f"scene {metrics.scene.name} ({metrics.scene.num_images} images)"
@@ -114,8 +114,7 @@ def scene_claims(metrics: MetricsFile) -> list[ClaimResult]:
           "Tables 1-3", "Mean reprojection error (per observation) and GT rotation error of ours-polar vs "
           "the Euclidean baseline (same pipeline) and pycolmap incremental, same images and fixed intrinsics.")
     c4 = ("C4", "About 1.4x faster incremental SfM (Table 1: 77 -> 56 min)", "Tables 1-3",
-          "Wall time of the whole method (features to final BA) of ours-polar vs the baselines; plus "
-          "median BA-only time on a controlled synthetic problem (same solver, each parameterization).")
+          "Wall time of the whole method (features to final BA) of ours-polar vs the baselines (one run).")
     c5 = ("C5", "More tie points and more reprojected pixels (Tables 1-3: +353 / +3,383 in Table 1)",
           "Tables 1-3", "Number of 3D points and of observations of ours-polar vs the Euclidean baseline "
           "(same pipeline) and pycolmap.")
@@ -186,114 +185,38 @@ def scene_claims(metrics: MetricsFile) -> list[ClaimResult]:
     return [res3, res4, res5]
 
 
-# ---- claims 6-8: controlled BA experiments ---------------------------------------------------
+def _merge(res: ClaimResult, controlled: tuple, problem: str) -> ClaimResult:
+    """Put the controlled (multi-seed) result first; it decides, the single scene run is reported."""
+    verdict, figs, text, n = controlled
+    if verdict == "not tested":
+        res.rationale += f" Controlled BA experiment: not run ({text})."
+        return res
+    scene_part = res.rationale if res.verdict != "not tested" else res.rationale.replace("Not tested: ", "not available: ")
+    rationale = (f"{text}. The verdict rests on this controlled experiment ({n} seeds). Single scene run "
+                 f"(1 run per method; the single-run rule alone gives: {res.verdict}): {scene_part}")
+    scene_size = res.sample_size if res.verdict != "not tested" else "no scene run"
+    return ClaimResult(res.claim_id, res.claim, res.source,
+                       res.test + " Controlled: BA only on seeded synthetic problems, every parameterization "
+                       "side by side in one process (single-thread BLAS), paired by seed.",
+                       figs + res.figures, f"controlled: {n} seeds x 1 problem size ({problem}); scene: {scene_size}",
+                       verdict, rationale)
 
-def _better(candidate: float | None, baseline: float | None, lower_is_better: bool = True) -> str:
-    if candidate is None or baseline is None:
-        return "inconclusive"
-    if lower_is_better:
-        return "supported" if candidate < (1 - MARGIN) * baseline else "not supported"
-    return "supported" if candidate > (1 + MARGIN) * baseline else "not supported"
+
+def scene_claims(metrics: MetricsFile, exp: dict | None = None) -> list[ClaimResult]:
+    """C3-C5. With ``exp`` (the experiments' JSON), C3 and C4 are decided by the controlled
+    multi-seed BA experiment and the scene's single run is reported beside it."""
+    res3, res4, res5 = _scene_only(metrics)
+    timing = (exp or {}).get("timing")
+    if timing is not None:
+        problem = timing.get("problem", timing.get("error", ""))
+        res3 = _merge(res3, cx.equal_accuracy(timing), problem)
+        res4 = _merge(res4, cx.speedup(timing), problem)
+    return [res3, res4, res5]
 
 
-def experiment_claims(exp: dict | None, reason: str) -> list[ClaimResult]:
-    c6 = ("C6", "Angular coordinates make BA numerically better conditioned (Discussion 4.1 (2), (4))",
-          "Discussion 4.1 (2), (4)", "Condition number of the Gauss-Newton matrix J^T J (gauge columns "
-          "removed) and of the reduced camera system (Schur complement) at the true solution of one "
-          "synthetic problem, raw and Jacobi-scaled (unit-free), per parameterization.")
-    c7 = ("C7", "Parallax-angle landmarks reduce the correlation of the structure variables (Sec. 1.2.2)",
-          "Section 1.2.2 (after Zhao et al. 2015)", "Mean |correlation coefficient| between the three "
-          "parameters of each point, from the point blocks of (J^T J)^-1 (marginal covariance) at the true "
-          "solution; XYZ vs (azimuth, elevation, parallax angle).")
-    c8 = ("C8", "Angular/parallax forms are more robust to outliers and to low parallax (Sec. 1.2.2, 4.1 (3))",
-          "Section 1.2.2, Discussion 4.1 (3)", "Controlled BA: (a) 10 % gross outliers with the Huber loss, "
-          "(b) camera centres shrunk to 3 % of their spread (near-pure rotation); success rate and median "
-          "error over seeds, per parameterization; rotation error is the mean relative-rotation error over all image pairs "
-          "(gauge-free: no alignment, which is ill-posed for a tiny baseline).")
-    if exp is None:
-        return [_not_tested(*c, reason) for c in (c6, c7, c8)]
-    out = []
-    # C6
-    cond = exp.get("conditioning", {}).get("params", {})
-    eu = cond.get("euclidean", {})
-    figs6, best = [], None
-    for p, v in cond.items():
-        if v.get("error"):
-            continue
-        figs6 += [_fig(f"jtj_{p}", f"{p}: cond(J^T J) Jacobi-scaled", v["cond_JtJ_scaled"]),
-                  _fig(f"schur_{p}", f"{p}: cond(reduced camera system) Jacobi-scaled", v["cond_schur_scaled"]),
-                  _fig(f"raw_{p}", f"{p}: cond(J^T J) raw", v["cond_JtJ"])]
-        if p != "euclidean" and (best is None or v["cond_JtJ_scaled"] < cond[best]["cond_JtJ_scaled"]):
-            best = p
-    if not eu or eu.get("error") or best is None:
-        errs = "; ".join(f"{p}: {v['error']}" for p, v in cond.items() if v.get("error"))
-        out.append(_not_tested(*c6, exp.get("conditioning", {}).get("error")
-                               or f"the Euclidean or every angular parameterization failed ({errs})"))
-    else:
-        v6 = _better(cond[best]["cond_JtJ_scaled"], eu["cond_JtJ_scaled"])
-        r6 = (f"Best angular form ({best}): cond(J^T J) {{jtj_{best}}} vs Euclidean {{jtj_euclidean}} "
-              f"(Jacobi-scaled); reduced camera system {{schur_{best}}} vs {{schur_euclidean}}. The reduced "
-              "camera system is the same matrix for any per-point reparameterization at the same solution "
-              "(points are eliminated), so only J^T J can differ. Failed forms: "
-              + (", ".join(f"{p} ({v['error']})" for p, v in cond.items() if v.get("error")) or "none") + ".")
-        out.append(ClaimResult(*c6, figs6, "1 synthetic problem (" + exp["conditioning"]["problem"] + ")", v6, r6))
-    # C7
-    pa = cond.get("parallax", {})
-    if not eu or eu.get("error") or not pa or pa.get("error"):
-        out.append(_not_tested(*c7, "the Euclidean or parallax parameterization failed in the conditioning run ("
-                               + (eu.get("error") or pa.get("error") or "no result") + ")"))
-    else:
-        figs7 = [_fig("corr_eu", "XYZ: mean |corr| within a point", eu["mean_abs_point_corr"]),
-                 _fig("corr_pa", "parallax: mean |corr| within a point", pa["mean_abs_point_corr"]),
-                 _fig("max_eu", "XYZ: max |corr|", eu["max_abs_point_corr"]),
-                 _fig("max_pa", "parallax: max |corr|", pa["max_abs_point_corr"])]
-        v7 = _better(pa["mean_abs_point_corr"], eu["mean_abs_point_corr"])
-        r7 = ("Mean |corr| {corr_pa} (parallax) vs {corr_eu} (XYZ); max {max_pa} vs {max_eu}. "
-              f"'Reduced' requires a drop of more than {MARGIN:.0%}.")
-        out.append(ClaimResult(*c7, figs7, "1 problem: " + exp["conditioning"]["problem"], v7, r7))
-    # C8
-    rob = exp.get("robustness", {})
-    if "outliers" not in rob:
-        out.append(_not_tested(*c8, rob.get("error", "robustness experiment did not run")))
-    else:
-        figs8, verdicts, texts = [], [], []
-        for key, name in (("outliers", "outliers"), ("low_parallax", "low parallax")):
-            def stats(v):
-                # A run that raised is a solver bug, not a robustness failure: rates are over completed runs.
-                errs = np.asarray(v.get("rotation_error_deg", []), dtype=float)
-                if not len(errs):
-                    return None, None
-                return float(np.mean(errs < SUCCESS_DEG)), float(np.median(errs))
-            eu_ok, eu_med = stats(rob[key].get("euclidean", {}))
-            figs8 += [_fig(f"{key}_euclidean", f"{name}: euclidean success rate", eu_ok),
-                      _fig(f"{key}_euclidean_med", f"{name}: euclidean median rotation error", eu_med, "deg")]
-            best, best_ok = None, None
-            for p, v in rob[key].items():
-                if p == "euclidean":
-                    continue
-                ok, med = stats(v)
-                figs8 += [_fig(f"{key}_{p}", f"{name}: {p} success rate", ok),
-                          _fig(f"{key}_{p}_med", f"{name}: {p} median rotation error", med, "deg")]
-                if ok is not None and (best_ok is None or ok > best_ok):
-                    best, best_ok = p, ok
-            crashed = {p: v["errors"][0] for p, v in rob[key].items() if v.get("errors")}
-            if crashed:
-                texts.append(f"{name}: runs that raised: " + ", ".join(f"{p} ({e})" for p, e in crashed.items()))
-            if best is None or eu_ok is None:
-                verdicts.append("inconclusive")
-            else:
-                verdicts.append("supported" if best_ok >= eu_ok + SUCCESS_MARGIN else "not supported")
-            texts.append(f"{name}: success rate {{{key}_{best}}} ({best}, median {{{key}_{best}_med}}) vs "
-                         f"{{{key}_euclidean}} (euclidean, median {{{key}_euclidean_med}}): {verdicts[-1]}"
-                         if best else f"{name}: no angular form succeeded")
-        v8 = ("supported" if all(v == "supported" for v in verdicts) else
-              "not supported" if all(v == "not supported" for v in verdicts) else "inconclusive")
-        r8 = "; ".join(texts) + (f". A run succeeds when the mean pairwise rotation error is < {SUCCESS_DEG} deg; "
-                                 f"supported needs a success rate at least {SUCCESS_MARGIN:.0%} higher than "
-                                 "Euclidean in both experiments; mixed outcomes are inconclusive.")
-        out.append(ClaimResult(*c8, figs8, f"{rob.get('seeds_run', 0)} seeds x 2 experiments x "
-                               f"{len(rob['outliers'])} forms ({rob.get('problem', '')})", v8, r8))
-    return out
+# ---- claims 6-8: controlled BA experiments (polarref.compare.claims_experiments) ----------
+
+experiment_claims = cx.experiment_claims
 
 
 def traces_from(exp: dict | None) -> list[BATrace]:
@@ -302,21 +225,9 @@ def traces_from(exp: dict | None) -> list[BATrace]:
     out = []
     for p, v in exp["timing"]["params"].items():
         if v.get("trace"):
-            out.append(BATrace(p, exp["timing"]["problem"],
+            out.append(BATrace(p, exp["timing"].get("trace_problem", exp["timing"].get("problem", "")),
                                [TracePoint(int(i), float(t), float(c)) for i, t, c in v["trace"]]))
     return out
-
-
-def ba_timing_figures(exp: dict | None) -> list[Figure]:
-    if not exp or "timing" not in exp:
-        return []
-    figs = []
-    for p, v in exp["timing"].get("params", {}).items():
-        runs = v.get("runs", [])
-        if runs:
-            figs.append(_fig(f"ba_{p}", f"BA-only median wall time, {p} ({len(runs)} runs)",
-                             float(np.median([r["wall_s"] for r in runs])), "s"))
-    return figs
 
 
 def evaluate_into(metrics: MetricsFile, job_results: dict, runs: Path, seed: int,
@@ -335,14 +246,7 @@ def evaluate_into(metrics: MetricsFile, job_results: dict, runs: Path, seed: int
                          min(max(timeout_s, 3 * budget_s), 2 * budget_s + 10), runs / "claims", "experiments")
         exp, why = (e.result if e.status == STATUS_OK else None), e.reason
     claims = equation_claims(evidence, d.reason)
-    claims += scene_claims(metrics)
+    claims += scene_claims(metrics, exp)
     claims += experiment_claims(exp, why)
-    bt = ba_timing_figures(exp)
-    for c in claims:
-        if c.claim_id == "C4" and bt:
-            c.figures += bt
-            c.rationale += " BA-only on the controlled problem (median): " + ", ".join(
-                "{" + f.key + "}" + f" {f.key[3:]}" for f in bt) + "."
-            c.sample_size += f"; BA-only: {exp['timing']['problem']}"
     metrics.claims = claims
     metrics.ba_traces += traces_from(exp)
