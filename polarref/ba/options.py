@@ -92,5 +92,10 @@ class BASummary:
     # seconds before the first LM iteration (validation, landmarks, index structures, first
     # evaluation); (wall_s - setup_s) / iterations is the steady per-iteration cost
     setup_s: float = 0.0
-    behind_camera: dict = field(default_factory=dict)  # observations with depth <= 0: initial/final
+    # observations with depth <= 0 in their camera, initial/final, on the XYZ geometry (the
+    # input and the written-back points), the same count for every parameterization
+    behind_camera: dict = field(default_factory=dict)
     points_state: object = field(default=None, repr=False)  # (P, 3) internal landmark params
+    # parallax forms (omega kept in [0, pi - margin]): points ending at_lower (omega = 0, at
+    # infinity along +d, written back FAR away) / at_upper, and accepted steps that were clipped
+    point_bounds: dict = field(default_factory=dict)

@@ -6,6 +6,13 @@ direction from the main anchor centre ``C_m`` to the point; ``e = C_a - C_m``;
 ``v_i = sin(w) (C_m - C_i) + |e| sin(w + phi_a) d``. We write
 ``|e| sin(w + phi_a) = sin(w) (d.e) + cos(w) |d x e|``, which has no inverse trigonometry,
 so ``v_i = sin(w) (P - C_i)`` for a finite point and ``|d x e| d`` at infinity (w = 0).
+
+Bounds: w is kept in ``[0, pi - OMEGA_MARGIN]`` (ParallaxBA's omega in (0, pi), with the point
+at infinity along +d, w = 0, included). Pixel residuals cannot see the sign of ``sin(w)``: for
+w < 0 the point passes through infinity and comes back behind the anchors (``v_i`` flips with
+it, so it projects to the same pixel); on a forward rig at baseline/depth 3e-4 LM drove 73 of
+150 points there and 49 % of the written-back observations were behind their camera. The
+solver enforces the box by an active set and a projected step (see solver.py).
 The point's 3 parameters also couple to the anchors' centres: an observation has 3 camera
 slots (observing, main, associate) whose Jacobians go into those cameras' blocks.
 """
@@ -23,6 +30,8 @@ from polarref.ba.projection import Projector
 from polarref.errors import PolarrefError
 
 FAR = 1e8  # points at infinity are written back this many baselines from the main anchor
+# w = pi is the point at infinity along -d (behind the main anchor): stop just short of it
+OMEGA_MARGIN = 1e-6
 
 
 def choose_anchors(problem: BAProblem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -82,7 +91,13 @@ class Parallax:
     def init_points(self) -> np.ndarray:
         p = self.p
         a, b = azimuth_elevation_from_direction(p.X - p.C[self.main])
-        return np.stack([a, b, self.omega0], axis=1)
+        lo, hi = self.point_bounds()
+        return np.stack([a, b, np.clip(self.omega0, lo[2], hi[2])], axis=1)
+
+    def point_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Box (lower (3,), upper (3,)) on (alpha, beta, w): w in [0, pi - OMEGA_MARGIN]."""
+        return (np.array([-np.inf, -np.inf, 0.0]),
+                np.array([np.inf, np.inf, np.pi - OMEGA_MARGIN]))
 
     def rays(self, R, C, pts, jac: bool):
         """Camera-frame rays Xc (M, 3) = R_i v_i and, with jac, the pieces of their Jacobians."""
@@ -150,9 +165,12 @@ class Parallax:
         return res, Jp, [J_obs, *anchors.dense(J_obs, op)]
 
     def num_behind_camera(self, R, C, pts) -> int:
-        """Observations whose point has depth <= 0 in the observing camera."""
+        """Observations whose point has depth <= 0 in the observing camera. ``v_i`` is
+        ``sin(w) (P - C_i)``, so its depth is the point's times the sign of ``sin(w)``
+        (w = 0: the point at infinity along +d, whose depth sign is that of ``R_i d``)."""
         Xc, _ = self.rays(R, C, pts, False)
-        return int((Xc[:, 2] <= 0).sum())
+        sgn = np.where(np.sin(pts[:, 2]) < 0, -1.0, 1.0)[self.p.obs_pt]
+        return int((sgn * Xc[:, 2] <= 0).sum())
 
     def pixel_residuals(self, R, C, pts) -> np.ndarray:
         Xc, _ = self.rays(R, C, pts, False)

@@ -10,9 +10,20 @@ With ``D = diag(J^T J)`` the damping is Jacobi-scaled (Ceres' ``jacobi_scaling``
 mixed units of angles, parallax angles and centres do not bias the step.
 
 The normal equations are built from per-slot camera Jacobians (schur.py); parallax forms
-hand over their anchors' Jacobians factored (anchor_terms.py). The whole solve runs with
-``options.blas_threads`` BLAS threads (threadpoolctl; 1 by default: the BLAS calls here
-are small and a multi-threaded BLAS on a busy machine was 45x slower in the Cholesky).
+hand over their anchors' Jacobians factored (anchor_terms.py).
+
+Box bounds on point parameters (``param.point_bounds()``, parallax forms: omega in
+[0, pi - margin]) are handled as a projected trust-region step: (1) a component at its bound
+whose gradient points outward is *active* for the iteration (its Jacobian column is zeroed,
+so the step is solved with it held, and the gradient test uses the projected gradient);
+(2) a step that leaves the box is clipped onto it, and the gain ratio then uses the
+Gauss-Newton model decrease of the *clipped* step, obtained exactly from the damped normal
+equations (no extra Jacobian products). A step is accepted only if the true cost decreases,
+so clipping never breaks the monotone decrease; unclipped steps are unchanged.
+
+The whole solve runs with ``options.blas_threads`` BLAS threads (threadpoolctl; 1 by
+default: the BLAS calls here are small and a multi-threaded BLAS on a busy machine was 45x
+slower in the Cholesky).
 """
 
 from __future__ import annotations
@@ -71,6 +82,23 @@ def pixel_cost(res_px: np.ndarray, loss: str, scale: float) -> tuple[float, floa
     return 0.5 * float(val.sum()), float(np.sqrt(s.mean() / 2.0))
 
 
+def behind_camera_xyz(R, C, X, obs_cam, obs_pt) -> int:
+    """Observations whose point X (P, 3) has depth <= 0 in its camera (R (N,3,3), C (N,3))."""
+    z = np.einsum("mj,mj->m", R[obs_cam, 2], X[obs_pt] - C[obs_cam])
+    return int((z <= 0).sum())
+
+
+def _clipped_model(a_lin, q_damp, g_p, dp, delta, D_p, V, mu) -> float:
+    """Gauss-Newton model decrease ``-g^T s - 1/2 s^T H s`` of the clipped step ``s = dx +
+    delta`` (delta on point components only). With ``(H + mu D) dx = -g`` (the LM system):
+    ``dx^T H dx = a_lin - q_damp`` and ``(H dx)_p = -g_p - mu D_p dp`` on point rows, and
+    ``delta^T H delta`` needs only the per-point blocks V (point blocks are diagonal in H).
+    For delta = 0 this equals the LM model ``1/2 (a_lin + q_damp)``."""
+    d_H_dx = -float((delta * (g_p + mu * D_p * dp)).sum())
+    d_H_d = float(np.einsum("pi,pij,pj->", delta, V, delta))
+    return a_lin - float((g_p * delta).sum()) - 0.5 * ((a_lin - q_damp) + 2.0 * d_H_dx + d_H_d)
+
+
 def solve(problem: BAProblem, options: BAOptions, *, prepared: bool = False,
           param=None) -> BASummary:
     """Run LM on ``problem`` (updated in place: R, C, X). See module docstring."""
@@ -108,6 +136,8 @@ def _solve(problem: BAProblem, options: BAOptions, prepared: bool, param) -> BAS
         second.wall_s = time.perf_counter() - t0
         second.setup_s = first.setup_s
         second.behind_camera["initial"] = first.behind_camera["initial"]
+        if second.point_bounds:
+            second.point_bounds["clipped_steps"] += first.point_bounds["clipped_steps"]
         return second
     return _lm(problem, options, param, t0)
 
@@ -127,6 +157,8 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     mask_v = problem.cam_mask[st.var_cams].astype(np.float64)  # (Nv, 6)
     pt_free = (~problem.pt_fixed).astype(np.float64)[:, None]
     any_pt_fixed = bool(problem.pt_fixed.any())
+    bounds = param.point_bounds() if hasattr(param, "point_bounds") else None
+    clipped_steps = 0
     times["structure"] = time.perf_counter() - tic
     R, C = problem.R.copy(), problem.C.copy()
     pts = param.init_points() if pts0 is None else pts0.copy()
@@ -142,7 +174,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     cost, w = _robust(r, param.groups, loss, scale)
     initial_cost = cost
     init_px_cost, init_rms = pixel_cost(param.pixel_residuals(R, C, pts), loss, scale)
-    behind0 = param.num_behind_camera(R, C, pts)
+    behind0 = behind_camera_xyz(problem.R, problem.C, problem.X, problem.obs_cam, problem.obs_pt)
     setup_s = time.perf_counter() - t0
     radius, decrease_factor = options.initial_trust_radius, 2.0
     trace: list[IterationRecord] = []
@@ -162,6 +194,15 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             if any_pt_fixed:
                 Jp_w = Jp_w * pt_free[problem.obs_pt][:, :, None]
             g_p = st.reduce_points(np.einsum("mki,mk->mi", Jp_w, r_w))
+            active = None
+            if bounds is not None:
+                # at a bound with the descent direction pointing out of the box: held
+                active = (((pts <= bounds[0]) & (g_p > 0)) | ((pts >= bounds[1]) & (g_p < 0)))
+                if active.any():
+                    Jp_w = Jp_w * (~active)[problem.obs_pt][:, None, :]
+                    g_p = np.where(active, 0.0, g_p)
+                else:
+                    active = None
             V = st.reduce_points(gram(Jp_w))
             # gauge-fixed columns and fixed cameras are masked on the assembled blocks
             g_c, W, U = builder.build(Jc_w, Jp_w, r_w)
@@ -183,6 +224,11 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         Vd = V.copy()
         Vd[:, [0, 1, 2], [0, 1, 2]] += mu * D_p
         Vd[problem.pt_fixed] = np.eye(3)
+        if active is not None:  # rows/columns of held components are zero apart from damping
+            ai, ac = np.nonzero(active)
+            Vd[ai, ac, :] = 0.0
+            Vd[ai, :, ac] = 0.0
+            Vd[ai, ac, ac] = 1.0
         diag_c = np.where(mask_v > 0, mu * D_c, 1.0)
         system = st.reduced_system(U, W, Vd, g_c, g_p, diag_c)
         times["schur"] += time.perf_counter() - tic
@@ -204,6 +250,19 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         tic = time.perf_counter()
         dc = x.reshape(st.Nv, 6) * mask_v
         dp = st.back_substitute(W, Li, g_p, dc) * pt_free
+        # Predicted decrease of the linear model: 1/2 (-g^T dx + mu dx^T D dx).
+        a_lin = -(g_c * dc).sum() - (g_p * dp).sum()
+        q_damp = mu * ((D_c * dc**2 * mask_v).sum() + (D_p * dp**2).sum())
+        model = 0.5 * (a_lin + q_damp)
+        delta = None
+        if bounds is not None:
+            # additive retraction (parallax forms): clip the step onto the box
+            delta = np.clip(pts + dp, bounds[0], bounds[1]) - (pts + dp)
+            if delta.any():
+                model = _clipped_model(a_lin, q_damp, g_p, dp, delta, D_p, V, mu)
+                dp = dp + delta
+            else:
+                delta = None
         step_norm = float(np.sqrt((dc**2).sum() + (dp**2).sum()))
         x_norm = float(np.sqrt((C**2).sum() + (pts**2).sum()))
         if step_norm <= options.parameter_tolerance * (x_norm + options.parameter_tolerance):
@@ -211,15 +270,14 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             trace.append(IterationRecord(it, cost, False, radius, step_norm, gmax,
                                          time.perf_counter() - t0))
             break
-        # Predicted decrease of the linear model: 1/2 (-g^T dx + mu dx^T D dx).
-        model = 0.5 * (-(g_c * dc).sum() - (g_p * dp).sum()
-                       + mu * ((D_c * dc**2 * mask_v).sum() + (D_p * dp**2).sum()))
         R_new = R.copy()
         C_new = C.copy()
         vc = st.var_cams
         R_new[vc] = so3_exp(dc[:, :3]) @ R[vc]
         C_new[vc] = C[vc] + dc[:, 3:]
         pts_new = param.retract_points(pts, dp)
+        if delta is not None:  # exactly on the bound, not a rounding error outside it
+            pts_new = np.clip(pts_new, bounds[0], bounds[1])
         times["update"] += time.perf_counter() - tic
         tic = time.perf_counter()
         r_new, Jp_new, Jc_new = param.evaluate(R_new, C_new, pts_new, jac=True, factored=True)
@@ -231,6 +289,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
                                      step_norm, gmax, time.perf_counter() - t0))
         if accepted:
             accepted_n += 1
+            clipped_steps += delta is not None
             rel = (cost - new_cost) / cost if cost > 0 else 0.0
             R, C, pts = R_new, C_new, pts_new
             r, Jp, Jc, w, cost = r_new, Jp_new, Jc_new, w_new, new_cost
@@ -260,8 +319,14 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         num_variable_cameras=st.Nv, gauge=problem.gauge,
         exclusions={k: v for k, v in problem.exclusions.items() if v},
         linear_solver=st.linear_solver_name(), trace=trace, time_in=times, setup_s=setup_s,
-        behind_camera={"initial": behind0, "final": param.num_behind_camera(R, C, pts)})
+        behind_camera={"initial": behind0, "final": behind_camera_xyz(
+            problem.R, problem.C, problem.X, problem.obs_cam, problem.obs_pt)})
     summary.points_state = pts
+    if bounds is not None:
+        summary.point_bounds = {
+            "at_lower": int((pts <= bounds[0]).any(1).sum()),
+            "at_upper": int((pts >= bounds[1]).any(1).sum()),
+            "clipped_steps": clipped_steps}
     log.debug("BA %s: cost %.6g -> %.6g in %d iterations (%s)", options.param, initial_cost,
               cost, it, termination)
     return summary
