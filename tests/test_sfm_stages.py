@@ -162,3 +162,25 @@ def test_initial_pair_prefers_parallax_over_inlier_count():
     assert init.pair == (0, 2) and init.min_angle_deg == 16.0 and init.num_points > 100
     with pytest.raises(PolarrefError, match="no image pair"):
         choose_initial_pair({}, rays, InitConfig())
+
+
+def test_coarse_selection_keeps_coarse_octaves_first():
+    # two blob sizes: the response of SIFT's finest octave picks the small blobs, "coarse" the large ones
+    y, x = np.mgrid[0:240, 0:320]
+    g = np.full((240, 320), 230.0)
+    for k, (cx, cy) in enumerate([(40 + 60 * i, 50 + 70 * j) for i in range(5) for j in range(3)]):
+        s = 2.0 if k % 2 else 7.0
+        g -= 180 * np.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2 * s**2))
+    img = np.repeat(g[:, :, None], 3, 2).round().astype(np.uint8)
+    full = F.extract(img, "b.png", F.FeatureConfig(max_num_features=100000))
+    n = len(full.keypoints) // 2
+    coarse = F.extract(img, "b.png", F.FeatureConfig(max_num_features=n, selection="coarse"))
+    resp = F.extract(img, "b.png", F.FeatureConfig(max_num_features=n))
+    assert len(coarse.keypoints) == len(resp.keypoints) == n
+    # the coarse choice is a subset of all keypoints and holds the largest scales
+    d = np.linalg.norm(coarse.keypoints[:, None] - full.keypoints[None], axis=2).min(1)
+    assert d.max() < 1e-9
+    assert np.median(coarse.scales) > np.median(resp.scales)
+    assert coarse.scales.max() == pytest.approx(full.scales.max())
+    with pytest.raises(ValueError, match="selection"):
+        F.extract(img, "b.png", F.FeatureConfig(selection="octave"))

@@ -12,6 +12,7 @@ from polarref.geometry import Rigid3
 from polarref.progress import track
 from polarref.sfm import bundle
 from polarref.sfm import rays as R_
+from polarref.sfm.guided import GuidedConfig, guided_extend
 from polarref.sfm.initial_pair import InitConfig, choose_initial_pair
 from polarref.sfm.registration import RegisterConfig, estimate_pose
 from polarref.sfm.state import MapState
@@ -33,6 +34,7 @@ class MapperConfig:
     global_ba_loss: str = "trivial"    # global BA runs after filtering: plain least squares
     final_ba_rounds: int = 2           # rounds of (retriangulate, global BA, filter) at the end
     max_registration_attempts: int = 3  # failed PnP attempts per image before giving up on it
+    guided: GuidedConfig = field(default_factory=GuidedConfig)  # track continuation (needs descriptors)
     init: InitConfig = field(default_factory=InitConfig)
     register: RegisterConfig = field(default_factory=RegisterConfig)
 
@@ -43,6 +45,7 @@ class MapperLog:
     registration_order: list[int] = field(default_factory=list)
     failed_registrations: dict[int, int] = field(default_factory=dict)
     ba: list[dict] = field(default_factory=list)  # every BA summary, in order (kind: local|global)
+    guided_observations: int = 0  # observations added by guided matching (before filtering)
 
 
 def _image_tracks(state: MapState, image: int) -> np.ndarray:
@@ -86,9 +89,17 @@ def _retriangulate(state: MapState) -> tuple[int, int]:
     return ext, new
 
 
+def _guided(state: MapState, images, descriptors, cfg: MapperConfig, out: MapperLog) -> None:
+    if descriptors is not None and cfg.guided.enabled:
+        out.guided_observations += guided_extend(state, images, descriptors, cfg.guided)
+
+
 def run_mapper(state: MapState, geoms: dict[tuple[int, int], TwoViewGeometry],
-               cfg: MapperConfig) -> MapperLog:
+               cfg: MapperConfig, descriptors: list[np.ndarray] | None = None) -> MapperLog:
     """Incremental reconstruction into ``state``; returns what happened.
+
+    Args:
+        descriptors: (K_i, 128) unit descriptors per image; enables guided matching (guided.py).
 
     Raises:
         PolarrefError: no initial pair, or fewer than two images registered.
@@ -136,6 +147,7 @@ def run_mapper(state: MapState, geoms: dict[tuple[int, int], TwoViewGeometry],
             out.registration_order.append(c)
             state.triangulate(_image_tracks(state, c))
             state.extend(_image_tracks(state, c))
+            _guided(state, [c], descriptors, cfg, out)
             _local_ba(state, c, cfg, out, gauge)
             state.triangulate(_image_tracks(state, c))
             done = True
@@ -146,10 +158,12 @@ def run_mapper(state: MapState, geoms: dict[tuple[int, int], TwoViewGeometry],
             _global_ba(state, cfg, out, gauge)
             state.filter()
             _retriangulate(state)
+            _guided(state, np.flatnonzero(state.registered), descriptors, cfg, out)
             n_at_global = int(state.registered.sum())
     out.failed_registrations = {k: v for k, v in fails.items() if not state.registered[k]}
     for _ in range(cfg.final_ba_rounds):
         _retriangulate(state)
+        _guided(state, np.flatnonzero(state.registered), descriptors, cfg, out)
         _global_ba(state, cfg, out, gauge)
         state.filter()
     if state.registered.sum() < 2:

@@ -218,6 +218,37 @@ class MapState:
         self.remove_points(drop)
         return len(drop)
 
+    def add_observations(self, images: np.ndarray, keypoints: np.ndarray, track_ids: np.ndarray) -> None:
+        """Append new active observations (keypoints in no track yet) to existing tracks.
+
+        The observation arrays stay aligned; ``tracks`` is no longer sorted by track afterwards
+        and ``tracks.start`` describes only the tracks as built (nothing in the mapper uses it).
+        """
+        images = np.asarray(images, np.int64)
+        keypoints = np.asarray(keypoints, np.int64)
+        track_ids = np.asarray(track_ids, np.int64)
+        if not len(images):
+            return
+        tr = self.tracks
+        taken = np.concatenate([self.obs_of_kp[i][keypoints[images == i]] for i in np.unique(images)])
+        if (taken >= 0).any():
+            raise ValueError(f"{int((taken >= 0).sum())} keypoint(s) already belong to a track")
+        first = len(tr.track)
+        new = np.arange(first, first + len(images))
+        tr.track = np.concatenate([tr.track, track_ids])
+        tr.image = np.concatenate([tr.image, images])
+        tr.keypoint = np.concatenate([tr.keypoint, keypoints])
+        uv = np.zeros((len(images), 2))
+        ray = np.zeros((len(images), 3))
+        for i in np.unique(images):
+            s = images == i
+            uv[s] = self.keypoints[i][keypoints[s]]
+            ray[s] = R_.bearings(self.cameras[self.camera_of_image[i]], uv[s])
+            self.obs_of_kp[i][keypoints[s]] = new[s]
+        self.uv = np.concatenate([self.uv, uv])
+        self.ray = np.concatenate([self.ray, ray])
+        self.active = np.concatenate([self.active, np.ones(len(images), bool)])
+
     def remove_points(self, track_ids: np.ndarray) -> None:
         m = np.zeros(self.tracks.num_tracks, bool)
         m[np.asarray(track_ids, dtype=np.int64)] = True
