@@ -113,6 +113,17 @@ def observation_errors(rec) -> tuple[np.ndarray, np.ndarray]:
     return errs, pidx
 
 
+def mean_error_per_point(errs: np.ndarray, pidx: np.ndarray, num_points: int) -> np.ndarray:
+    """Mean of each point's finite observation errors, (num_points,); 0 for a point with none.
+
+    Args:
+        errs: (A,) and pidx: (A,) as returned by :func:`observation_errors`.
+    """
+    finite = np.isfinite(errs)
+    return (np.bincount(pidx[finite], weights=errs[finite], minlength=num_points)
+            / np.maximum(np.bincount(pidx[finite], minlength=num_points), 1))
+
+
 # ---- alignment -------------------------------------------------------------------------------
 def _chordal_mean(Rs: np.ndarray) -> np.ndarray:
     U, _, Vt = np.linalg.svd(Rs.sum(0))
@@ -173,8 +184,9 @@ def scene_size(gt) -> float:
     return size if size > 0 else 1.0
 
 
-def gt_errors(rec, gt) -> GTErrors:
-    sim, method, names, n_out = align_to_gt(rec, gt)
+def gt_errors(rec, gt, alignment: tuple[Sim3, str, list[str], int] | None = None) -> GTErrors:
+    """Pose errors of ``rec`` against ``gt``; ``alignment``: a result of :func:`align_to_gt` to reuse."""
+    sim, method, names, n_out = alignment if alignment is not None else align_to_gt(rec, gt)
     size = scene_size(gt)
     gt_by_name = {im.name: im for im in gt.images.values()}
     est_by_name = {im.name: im for im in rec.images.values()}
@@ -295,8 +307,7 @@ def evaluate(rec, gt=None, mesh: tuple[np.ndarray, np.ndarray] | None = None,
     errs, pidx = observation_errors(rec)
     n_pts = len(rec.points3D)
     finite = np.isfinite(errs)
-    per_point = (np.bincount(pidx[finite], weights=errs[finite], minlength=n_pts)
-                 / np.maximum(np.bincount(pidx[finite], minlength=n_pts), 1)) if n_pts else np.zeros(0)
+    per_point = mean_error_per_point(errs, pidx, n_pts)
     m = ReconstructionMetrics(
         num_images=int(num_images if num_images is not None else len(rec.images)),
         registered_images=len(rec.images),
@@ -308,10 +319,10 @@ def evaluate(rec, gt=None, mesh: tuple[np.ndarray, np.ndarray] | None = None,
         mean_track_length=float(len(errs) / n_pts) if n_pts else 0.0,
     )
     if gt is not None and len(rec.images) >= 2:
-        m.gt = gt_errors(rec, gt)
+        alignment = align_to_gt(rec, gt)
+        m.gt = gt_errors(rec, gt, alignment)
         if mesh is not None:
-            sim, _, _, _ = align_to_gt(rec, gt)
-            m.surface = surface_errors(rec, sim, mesh[0], mesh[1], m.gt.scene_size)
+            m.surface = surface_errors(rec, alignment[0], mesh[0], mesh[1], m.gt.scene_size)
     return m
 
 

@@ -4,15 +4,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import logging
 from pathlib import Path
 
 from polarref.errors import PolarrefError
 
 NAME = "sfm"
 HELP = "incremental SfM (SIFT, MOCI triangulation, PnP, bundle adjustment) -> COLMAP model + metrics"
-
-log = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -24,7 +24,6 @@ here, see ``shared/notes/pycolmap-4.2.1.md``):
 
 from __future__ import annotations
 
-import logging
 import shutil
 import time
 from collections.abc import Mapping, Sequence
@@ -34,8 +33,6 @@ from pathlib import Path
 import numpy as np
 
 from polarref.errors import PolarrefError
-
-log = logging.getLogger(__name__)
 
 MAPPERS = ("incremental", "global")
 

@@ -38,9 +38,7 @@ def to_reconstruction(state, image_ids=None, track_ids=None, colors=None) -> Rec
         rec.cameras[c + 1] = cam
     in_img = np.zeros(len(state.keypoints), bool)
     in_img[imgs] = True
-    in_trk = np.zeros(tr.num_tracks, bool)
-    in_trk[tids] = True
-    obs = np.flatnonzero(state.active & in_img[tr.image] & in_trk[tr.track])
+    obs = np.flatnonzero(state.active & in_img[tr.image] & state.track_mask(tids)[tr.track])
     for i in imgs:
         i = int(i)
         rec.images[i + 1] = Image(i + 1, state.names[i], int(state.camera_of_image[i]) + 1,
@@ -120,15 +118,12 @@ def adjust(state, variable: list[int], fixed: list[int], ba: str, max_iterations
     if ba == "colmap":
         info = _colmap_adjust(rec, list(variable), list(fixed), max_iterations, loss)
     else:
-        try:
-            from polarref.ba import BAOptions, adjust as ba_adjust
-        except ImportError as exc:
-            raise PolarrefError(f"--ba {ba}: polarref.ba.adjust is not available ({exc}); "
-                                "use --ba colmap") from exc
+        from polarref.ba import BAOptions, adjust as ba_adjust
+
         opts = BAOptions(param=ba, loss=loss, max_iterations=max_iterations)
         summary = ba_adjust(rec, opts, variable_image_ids=[i + 1 for i in variable],
                             fixed_image_ids=[i + 1 for i in fixed])
-        info = dataclasses.asdict(summary) if dataclasses.is_dataclass(summary) else dict(summary)
+        info = dataclasses.asdict(summary)
         # keep scalars and the iteration trace (convergence plots); drop bulky state dumps
         info = {k: v for k, v in info.items() if k == "trace" or not isinstance(v, (list, np.ndarray))}
     _read_back(state, rec, list(variable))

@@ -57,14 +57,11 @@ def _extend_image(state, image: int, descriptors: list[np.ndarray], cfg: GuidedC
     if not len(free) or not state.registered[image]:
         return 0
     # points that have no observation at all (active or not) in this image
-    in_image = np.zeros(tr.num_tracks, bool)
-    in_image[tr.track[tr.image == image]] = True
-    pts = np.flatnonzero(state.has_point & ~in_image)
+    pts = np.flatnonzero(state.has_point & ~state.track_mask(tr.track[tr.image == image]))
     if not len(pts):
         return 0
     cam = state.cameras[state.camera_of_image[image]]
-    Xc = state.X[pts] @ state.R[image].T + state.t[image]
-    uv = R_.project(cam, Xc)
+    uv = R_.project(cam, state.pose(image).apply(state.X[pts]))
     vis = np.isfinite(uv).all(1) & (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & \
         (uv[:, 0] <= cam.width) & (uv[:, 1] <= cam.height)
     pts, uv = pts[vis], uv[vis]

@@ -58,10 +58,7 @@ def choose_initial_pair(geoms: dict[tuple[int, int], TwoViewGeometry], rays: lis
         best = int(np.argmax(scores))
         if scores[best] >= config.min_points:
             return InitialPair(cands[best].pair, scores[best], thr)
-    # Fall back: best count at the smallest angle, whatever it is.
-    thr = config.min_angle_deg[-1]
-    scores = [int(np.sum(a >= thr)) for a in angles]
-    best = int(np.argmax(scores))
+    # Fall back: the best count at the last (smallest) angle just tried, whatever it is.
     if scores[best] < 15:
         raise PolarrefError(f"no initial pair with >= 15 points above {thr} deg triangulation angle "
                             f"(best {cands[best].pair}: {scores[best]}); the views may lack parallax")

@@ -293,7 +293,7 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         t0 = time.perf_counter()
         met = M.evaluate(rec, gt=gt, mesh=mesh, num_images=result["num_images"])
         timings["metrics"] = time.perf_counter() - t0
-        result.update({k: v for k, v in met.to_dict().items()})
+        result.update(met.to_dict())
         result["status"] = "ok"
         if out is not None:
             t0 = time.perf_counter()
@@ -310,11 +310,9 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
 
 
 def _update_point_errors(rec: Reconstruction) -> None:
-    from polarref.metrics import observation_errors
+    from polarref.metrics import mean_error_per_point, observation_errors
 
     errs, pidx = observation_errors(rec)
     pids = sorted(rec.points3D)
-    mean = np.bincount(pidx, weights=np.where(np.isfinite(errs), errs, 0.0), minlength=len(pids)) / \
-        np.maximum(np.bincount(pidx, minlength=len(pids)), 1)
-    for pid, e in zip(pids, mean):
+    for pid, e in zip(pids, mean_error_per_point(errs, pidx, len(pids))):
         rec.points3D[pid].error = float(e)

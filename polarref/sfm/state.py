@@ -69,6 +69,14 @@ class MapState:
     def centers(self) -> np.ndarray:
         return -np.einsum("nji,nj->ni", self.R, self.t)
 
+    def track_mask(self, track_ids: np.ndarray | None) -> np.ndarray:
+        """(T,) bool, True for ``track_ids`` (all tracks when None)."""
+        if track_ids is None:
+            return np.ones(self.tracks.num_tracks, bool)
+        m = np.zeros(self.tracks.num_tracks, bool)
+        m[np.asarray(track_ids, dtype=np.int64)] = True
+        return m
+
     # ---- errors ------------------------------------------------------------------------
     def errors(self, obs: np.ndarray, X: np.ndarray | None = None) -> np.ndarray:
         """Reprojection errors (len(obs),) in px of observations ``obs`` (NaN behind the camera).
@@ -128,9 +136,7 @@ class MapState:
         track_ids = track_ids[~self.has_point[track_ids]]
         if not len(track_ids):
             return 0
-        sel_t = np.zeros(tr.num_tracks, bool)
-        sel_t[track_ids] = True
-        obs = np.flatnonzero(sel_t[tr.track] & self.registered[tr.image])
+        obs = np.flatnonzero(self.track_mask(track_ids)[tr.track] & self.registered[tr.image])
         remap = np.full(tr.num_tracks, -1, np.int64)
         cnt = np.bincount(tr.track[obs], minlength=tr.num_tracks)
         good_t = np.flatnonzero(cnt >= 2)
@@ -174,12 +180,8 @@ class MapState:
     def extend(self, track_ids: np.ndarray | None = None) -> int:
         """Add registered, inactive observations of existing points that reproject within the threshold."""
         tr = self.tracks
-        sel = self.has_point[tr.track] & self.registered[tr.image] & ~self.active
-        if track_ids is not None:
-            m = np.zeros(tr.num_tracks, bool)
-            m[track_ids] = True
-            sel &= m[tr.track]
-        obs = np.flatnonzero(sel)
+        sel_t = self.has_point & self.track_mask(track_ids)
+        obs = np.flatnonzero(sel_t[tr.track] & self.registered[tr.image] & ~self.active)
         if not len(obs):
             return 0
         err = self.errors(obs)
@@ -193,23 +195,16 @@ class MapState:
         Returns the number of points removed.
         """
         tr = self.tracks
-        sel = self.active.copy()
-        if track_ids is not None:
-            m = np.zeros(tr.num_tracks, bool)
-            m[track_ids] = True
-            sel &= m[tr.track]
-        obs = np.flatnonzero(sel)
+        sel_t = self.track_mask(track_ids)
+        obs = np.flatnonzero(self.active & sel_t[tr.track])
         err = self.errors(obs)
         self.active[obs[~(err <= self.tri.max_error_px)]] = False
-        pts = np.flatnonzero(self.has_point) if track_ids is None else \
-            np.unique(np.asarray(track_ids))[self.has_point[np.unique(np.asarray(track_ids))]]
+        pts = np.flatnonzero(self.has_point & sel_t)
         n_obs = np.bincount(tr.track[self.active], minlength=tr.num_tracks)
         drop = pts[n_obs[pts] < 2]
         keep_pts = pts[n_obs[pts] >= 2]
         if len(keep_pts):
-            m = np.zeros(tr.num_tracks, bool)
-            m[keep_pts] = True
-            o = np.flatnonzero(self.active & m[tr.track])
+            o = np.flatnonzero(self.active & self.track_mask(keep_pts)[tr.track])
             remap = np.full(tr.num_tracks, -1, np.int64)
             remap[keep_pts] = np.arange(len(keep_pts))
             ang = triangulation_angles_deg(self.X[keep_pts], self.centers()[tr.image[o]],
@@ -250,8 +245,7 @@ class MapState:
         self.active = np.concatenate([self.active, np.ones(len(images), bool)])
 
     def remove_points(self, track_ids: np.ndarray) -> None:
-        m = np.zeros(self.tracks.num_tracks, bool)
-        m[np.asarray(track_ids, dtype=np.int64)] = True
+        m = self.track_mask(track_ids)
         self.active[m[self.tracks.track]] = False
         self.has_point[m] = False
         self.X[m] = np.nan
@@ -273,10 +267,5 @@ class MapState:
     def covisibility(self, image: int) -> np.ndarray:
         """(N,) number of points image ``image`` shares (actively) with each image."""
         tr = self.tracks
-        mine = np.zeros(tr.num_tracks, bool)
-        mine[tr.track[self.active & (tr.image == image)]] = True
+        mine = self.track_mask(tr.track[self.active & (tr.image == image)])
         return np.bincount(tr.image[self.active & mine[tr.track]], minlength=len(self.keypoints))
-
-    def point_errors(self) -> np.ndarray:
-        """Per-observation errors (A,) of all active observations."""
-        return self.errors(np.flatnonzero(self.active))

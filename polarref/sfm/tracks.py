@@ -40,9 +40,6 @@ class Tracks:
     def num_tracks(self) -> int:
         return len(self.start) - 1
 
-    def lengths(self) -> np.ndarray:
-        return np.diff(self.start)
-
 
 def build_tracks(num_keypoints: list[int], inliers: dict[tuple[int, int], np.ndarray],
                  min_length: int = 2, conflicts: str = "drop") -> Tracks:

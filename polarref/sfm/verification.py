@@ -59,10 +59,9 @@ def verify_pair(xy1: np.ndarray, xy2: np.ndarray, matches: np.ndarray, focal: fl
     cv2.setRNGSeed(int(seed))
     E, mask = cv2.findEssentialMat(p1, p2, np.eye(3), cv2.USAC_ACCURATE, config.confidence,
                                    config.max_error_px / focal, config.max_iterations)
-    if E is None or mask is None or E.shape != (3, 3):  # several solutions come stacked (3k, 3)
-        if E is None or mask is None:
-            return None
-        E = E[:3]
+    if E is None or mask is None:
+        return None
+    E = E[:3]  # several solutions come stacked (3k, 3): take the first
     mask = mask.ravel().astype(bool)
     if mask.sum() < config.min_inliers:
         return None
