@@ -36,11 +36,6 @@ class PinholeCamera:
     model: str = "PINHOLE"
     camera_id: int = 1
 
-    @property
-    def K(self) -> np.ndarray:
-        fx, fy, cx, cy = self.params
-        return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
-
 
 @dataclass(frozen=True)
 class View:
@@ -71,10 +66,6 @@ class Scene:
     @property
     def mesh_path(self) -> Path:
         return self.root / "mesh.ply"
-
-    @property
-    def image_paths(self) -> list[Path]:
-        return [v.image_path for v in self.views]
 
     def mesh(self) -> tuple[np.ndarray, np.ndarray]:
         """(vertices (V, 3) float64, faces (F, 3) int64) of the rendered surface."""

@@ -143,6 +143,7 @@ def test_existing_files_are_kept(tmp_path):
     (lambda m: m.update(schema_version=99), "schema_version"),
     (lambda m: m["scene"].update(bogus=1), "unknown key"),
     (lambda m: m["methods"][0].update(tie_points="many"), "integer"),
+    (lambda m: m["environment"].update(versions=["numpy"]), r"environment\.versions should be an object"),
 ])
 def test_bad_metrics_json_is_a_clear_error(tmp_path, mutate, message):
     data = synthetic_metrics()

@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="render seed and every method/experiment seed")
     parser.add_argument("--method-timeout", type=float, default=None, metavar="S",
                         help="wall-clock limit per method in seconds (default by preset: small 120, "
-                             "default 60, large 1800); a method over it is reported as timed out")
+                             "default 90, large 1800); a method over it is reported as timed out")
     parser.add_argument("--budget", type=float, default=-1.0, metavar="S",
                         help="whole-run time limit in seconds, rendering included (default by preset: "
                              "default 290, others none; 0 = none); later methods get shorter limits")
@@ -42,6 +42,7 @@ def run(args: argparse.Namespace) -> int:
     import time
 
     from polarref.compare.pipeline import CompareConfig, command_line, run_compare
+    from polarref.compare.schema import STATUS_OK
 
     if args.method_timeout is not None and not args.method_timeout > 0:
         raise PolarrefError(f"--method-timeout must be > 0, got {args.method_timeout}")
@@ -52,11 +53,11 @@ def run(args: argparse.Namespace) -> int:
                         command=command_line())
     t0 = time.perf_counter()
     out, metrics = run_compare(cfg)
-    ok = sum(m.status == "ok" for m in metrics.methods)
+    ok = sum(m.status == STATUS_OK for m in metrics.methods)
     print(f"{ok}/{len(metrics.methods)} methods succeeded in {time.perf_counter() - t0:.1f} s; "
           f"report: {out / 'report.html'} (and report.md, metrics.json)")
     for m in metrics.methods:
-        if m.status != "ok":
+        if m.status != STATUS_OK:
             print(f"  {m.name}: {m.status}: {m.reason}")
     for c in metrics.claims:
         print(f"  {c.claim_id} {c.verdict:<13} {c.claim}")

@@ -25,9 +25,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from polarref.compare.report import EQUIVALENT_PX  # the report's "Equivalent" px threshold, reused as the floor
 from polarref.compare.schema import ClaimResult, Figure
 
-EQUIVALENT_PX = 0.01
 ROT_FLOOR_DEG = 0.005
 SPEEDUP_CLAIM = 1.4
 TIMING_SLACK = 0.10

@@ -123,9 +123,8 @@ def _dense_system(problem, param_obj):
     dp = pts.shape[1]
     J = np.zeros((M * k, 6 * N + dp * P))
     rows = (np.arange(M)[:, None] * k + np.arange(k)[None, :])[:, :, None]      # (M, k, 1)
-    cols = getattr(param_obj, "slot_cols", None) or [(0, 6)] * len(Jc)
     for s, Js in enumerate(Jc):
-        c0, c1 = cols[s]
+        c0, c1 = param_obj.slot_cols[s]
         cidx = 6 * np.asarray(param_obj.slot_cams[s])[:, None] + np.arange(c0, c1)[None, :]
         np.add.at(J, (rows, cidx[:, None, :]), Js)
     pidx = 6 * N + dp * np.asarray(problem.obs_pt)[:, None] + np.arange(dp)[None, :]
@@ -181,8 +180,8 @@ def conditioning(seed: int, seeds: int = CONDITIONING_SEEDS, size: tuple[int, in
             except Exception as exc:
                 out["params"][p]["error"] = _err(exc)
                 continue
-            out["gauge"] = out["gauge"] or r.pop("gauge")
-            r.pop("gauge", None)
+            gauge = r.pop("gauge")
+            out["gauge"] = out["gauge"] or gauge
             out["params"][p]["per_seed"].append(r)
         out["seeds"].append(seed + k)
     return out

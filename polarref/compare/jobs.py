@@ -14,6 +14,11 @@ from polarref.peers.colmap_sfm import (ColmapSfMOptions, copy_database, count_ve
                                        extract_and_match_sift, run_mapper)
 
 
+def camera_to_json(cam: Camera) -> dict:
+    """The fixed camera as a JSON-able job argument (read back by :func:`_camera`)."""
+    return {"model": cam.model, "width": cam.width, "height": cam.height, "params": cam.params.tolist()}
+
+
 def _camera(camera: dict) -> Camera:
     return Camera(camera["model"], int(camera["width"]), int(camera["height"]),
                   [float(p) for p in camera["params"]])
@@ -73,8 +78,6 @@ def claim_experiments(seed: int, budget_s: float, out_json: str) -> dict:
     from polarref.compare import experiments
 
     return experiments.run_all(seed=seed, budget_s=budget_s, out_json=Path(out_json))
-
-
 
 
 def derivation_evidence(n: int, out_json: str) -> dict:

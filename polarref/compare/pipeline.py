@@ -19,11 +19,11 @@ from pathlib import Path
 
 from polarref.compare import claims as claims_mod
 from polarref.compare import scenes
+from polarref.compare.jobs import camera_to_json
 from polarref.compare.methods import METHOD_NAMES, PAIRS, RUN_ORDER, MethodSpec, select
 from polarref.compare.runner import run_isolated
-from polarref.compare.schema import (SCHEMA_VERSION, STATUS_FAILED, STATUS_OK, STATUS_SKIPPED, STATUS_TIMEOUT,
-                                     BATrace, Environment, MethodResult, MetricsFile, SceneInfo,
-                                     TracePoint, save)
+from polarref.compare.schema import (SCHEMA_VERSION, STATUS_FAILED, STATUS_OK, STATUS_TIMEOUT, BATrace,
+                                     Environment, MethodResult, MetricsFile, SceneInfo, TracePoint, save)
 from polarref.errors import PolarrefError
 from polarref.progress import track
 
@@ -204,8 +204,7 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
         raise PolarrefError(f"cannot create report folder {out}: {exc}") from exc
     timeout = float(cfg.method_timeout_s or METHOD_TIMEOUT_S[cfg.preset])
     ctx = _Context(scene, out / "runs", timeout, cfg.seed, cfg.preset, out / "runs" / "ours-features" / "cache",
-                   camera={"model": scene.camera.model, "width": scene.camera.width,
-                           "height": scene.camera.height, "params": scene.camera.params.tolist()})
+                   camera=camera_to_json(scene.camera))
     from polarref.compare.scoring import load_mesh
     from polarref.metrics import scene_size
 
@@ -278,4 +277,4 @@ def command_line(argv: list[str] | None = None) -> str:
     return " ".join([prog, *map(shlex.quote, argv[1:])])
 
 
-__all__ = ["CompareConfig", "run_compare", "METHOD_TIMEOUT_S", "STATUS_SKIPPED"]
+__all__ = ["CompareConfig", "run_compare", "METHOD_TIMEOUT_S"]

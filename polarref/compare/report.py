@@ -16,7 +16,7 @@ from pathlib import Path
 
 from polarref.compare import figures as figs
 from polarref.compare.schema import (STATUS_OK, ClaimResult, MethodPair, MethodResult,
-                                     MetricsFile, load)
+                                     MetricsFile, load, write_text_atomic)
 
 # "Equivalent" accuracy in the paper's table: 0.482 vs 0.481 px. We call two mean reprojection
 # errors equivalent when they differ by at most this many px or this fraction, whichever is larger.
@@ -342,12 +342,6 @@ def to_html(blocks: list, fig_dir: Path, title: str) -> str:
     return "\n".join(parts) + "\n"
 
 
-def _write(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    tmp.replace(path)
-
-
 def build_report(out_dir: str | Path, metrics: MetricsFile | None = None) -> dict[str, Path]:
     """(Re)draw figures and write report.md / report.html in ``out_dir`` from its metrics.json.
 
@@ -360,6 +354,6 @@ def build_report(out_dir: str | Path, metrics: MetricsFile | None = None) -> dic
     drawn = figs.draw_all(metrics, fig_dir)
     blocks = build_blocks(metrics, set(drawn))
     md, page = out_dir / "report.md", out_dir / "report.html"
-    _write(md, to_markdown(blocks))
-    _write(page, to_html(blocks, fig_dir, f"polarref compare: {metrics.scene.name}"))
+    write_text_atomic(md, to_markdown(blocks))
+    write_text_atomic(page, to_html(blocks, fig_dir, f"polarref compare: {metrics.scene.name}"))
     return {"markdown": md, "html": page, **{f"figure:{k}": p for k, p in drawn.items()}}

@@ -15,8 +15,6 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from polarref.camera import Camera
 from polarref.data import cache_root
 from polarref.errors import PolarrefError
@@ -74,22 +72,13 @@ def _synthetic(scene: str, preset: str, seed: int) -> PreparedScene:
 def _from_rendered(loaded, name: str, source: str, preset: str, seed: int, render_s: float) -> PreparedScene:
     from polarref.reconstruction import Reconstruction
 
-    cam = loaded.camera
     gt = Reconstruction.read(loaded.gt_dir) if loaded.gt_dir.is_dir() else None
     return PreparedScene(
         name=name, kind="synthetic", source=source, root=loaded.root, image_dir=loaded.root / "images",
-        image_names=[v.name for v in loaded.views],
-        camera=Camera(cam.model, int(cam.width), int(cam.height), np.asarray(cam.params, np.float64)),
+        image_names=[v.name for v in loaded.views], camera=loaded.polarref_camera(),
         gt=gt, mesh_path=loaded.mesh_path if loaded.mesh_path.is_file() else None,
         preset=preset, seed=seed, render_s=render_s,
         mitsuba_variant=str(loaded.meta.get("mitsuba_variant", "")))
-
-
-def _strecha_gt(folder: Path, names: list[str]):
-    """GT cameras from Strecha ``.camera`` files (cx, cy +0.5 for COLMAP's corner origin)."""
-    from polarref.io import strecha
-
-    return strecha.read_ground_truth(folder, names)
 
 
 def _downscale_factor(width: int, height: int, max_width: int) -> int:
@@ -128,7 +117,9 @@ def _real(folder: Path, source: str, preset: str) -> PreparedScene:
     if not names:
         raise PolarrefError(f"no images (*{', *'.join(IMAGE_SUFFIXES)}) in {image_dir}")
     if (folder / "gt_dense_cameras").is_dir():
-        gt = _strecha_gt(folder / "gt_dense_cameras", names)
+        from polarref.io import strecha
+
+        gt = strecha.read_ground_truth(folder / "gt_dense_cameras", names)  # cx, cy +0.5: corner origin
     elif (folder / "gt").is_dir():
         gt = Reconstruction.read(folder / "gt")
     else:
@@ -141,8 +132,7 @@ def _real(folder: Path, source: str, preset: str) -> PreparedScene:
         used_dir = cache_root() / "compare-inputs" / f"{folder.name}-x{factor}"
         _downscale(image_dir, names, factor, used_dir)
         used_names = [Path(n).stem + ".png" for n in names]
-    params = np.asarray(cam.params, np.float64) / factor  # exact with corner origin
-    fixed = Camera(cam.model, int(cam.width) // factor, int(cam.height) // factor, params)
+    fixed = cam.rescaled(1.0 / factor)  # exact with corner origin; distortion terms unchanged
     # Ground truth keyed by the names the methods will see; poses do not change with scale.
     gt_used = Reconstruction(cameras=dict(gt.cameras))
     for (image_id, im), new_name in zip(sorted(gt.images.items()), used_names if factor > 1 else names):

@@ -243,6 +243,8 @@ def _build(tp, value, where: str):
         return [_build(inner, v, f"{where}[{i}]") for i, v in enumerate(value)]
     if origin is dict:
         _, inner = typing.get_args(tp)
+        if not isinstance(value, dict):
+            raise PolarrefError(f"metrics.json: {where} should be an object, got {type(value).__name__}")
         return {k: _build(inner, v, f"{where}.{k}") for k, v in value.items()}
     if tp is float:
         if not isinstance(value, (int, float)):
@@ -272,13 +274,18 @@ def dumps(metrics: MetricsFile) -> str:
     return _NUMBER_LIST.sub(lambda m: "[" + re.sub(r"\s+", "", m.group(1)).replace(",", ", ") + "]", text) + "\n"
 
 
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write UTF-8 ``text`` beside ``path`` and rename it into place (never a truncated file)."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    tmp.replace(path)
+
+
 def save(metrics: MetricsFile, path: str | Path) -> Path:
-    """Write atomically (a crash never leaves a truncated metrics.json)."""
+    """Write ``metrics.json`` atomically."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(dumps(metrics))
-    tmp.replace(path)
+    write_text_atomic(path, dumps(metrics))
     return path
 
 
