@@ -20,6 +20,7 @@ import sympy as sp
 from derivations import model as m
 from polarref import angular
 from polarref._generated.angles import view_angle_with_jacobian
+from polarref.geometry import axis_rotation
 
 N_SAMPLES = 100_000  # per case
 N_MPMATH = 200  # per case, for certifying the float64 truth
@@ -233,7 +234,7 @@ class ConventionTrial:
 
 
 def _active(axis: str, t: np.ndarray) -> np.ndarray:
-    return angular._rot({"x": 0, "y": 1, "z": 2}[axis], t)
+    return axis_rotation({"x": 0, "y": 1, "z": 2}[axis], t)
 
 
 def convention_trials(n: int = 20_000, seed: int = SEED + 1) -> list[ConventionTrial]:

@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from polarref._generated.angles import polar_angle_with_jacobian, view_angle_with_jacobian
+from polarref.geometry import axis_rotation
 
 Array = NDArray[np.float64]
 
@@ -108,20 +109,6 @@ def direction_jacobian(alpha: ArrayLike, beta: ArrayLike) -> Array:
     return _nan_rows(np.stack([col_a, col_b], axis=-1), alpha, beta, 2)
 
 
-def _rot(axis: int, t: Array) -> Array:
-    """Right-handed active rotation about coordinate ``axis`` by angle t: (...) -> (..., 3, 3)."""
-    c, s = np.cos(t), np.sin(t)
-    out = np.zeros(t.shape + (3, 3))
-    i, j = [(1, 2), (2, 0), (0, 1)][axis]
-    out[..., axis, axis] = 1.0
-    out[..., i, i] = c
-    out[..., j, j] = c
-    out[..., i, j] = -s
-    out[..., j, i] = s
-    # zeros stay 0 even for NaN angles; NaN-ness is restored by the caller
-    return out
-
-
 def rotation_from_polar_angles(e_y: ArrayLike, e_x: ArrayLike, e_z: ArrayLike) -> Array:
     """World-from-camera rotation for the polar rotation angles (see the module docstring).
 
@@ -136,7 +123,8 @@ def rotation_from_polar_angles(e_y: ArrayLike, e_x: ArrayLike, e_z: ArrayLike) -
         transpose is the COLMAP ``cam_from_world`` rotation. NaN in any angle -> all-NaN matrix.
     """
     e_y, e_x, e_z = np.broadcast_arrays(_f64(e_y), _f64(e_x), _f64(e_z))
-    R = _rot(0, -e_y) @ _rot(1, -e_x) @ _rot(2, -e_z)
+    # axis_rotation keeps the zeros exact for NaN angles; NaN-ness is restored below
+    R = axis_rotation(0, -e_y) @ axis_rotation(1, -e_x) @ axis_rotation(2, -e_z)
     bad = np.isnan(e_y) | np.isnan(e_x) | np.isnan(e_z)
     return np.where(bad[..., None, None], np.nan, R)
 

@@ -22,6 +22,29 @@ def skew(v: np.ndarray) -> np.ndarray:
                      np.stack([-y, x, z], -1)], -2)
 
 
+def axis_rotation(axis: int, angle: np.ndarray) -> np.ndarray:
+    """Right-handed active rotation about coordinate ``axis`` (0 = x, 1 = y, 2 = z).
+
+    Args:
+        axis: 0, 1 or 2.
+        angle: (...) angles [rad].
+
+    Returns:
+        (..., 3, 3), e.g. ``Rx(t) = [[1, 0, 0], [0, cos t, -sin t], [0, sin t, cos t]]``. The
+        constant zeros and one stay exact even for NaN angles.
+    """
+    angle = np.asarray(angle, dtype=np.float64)
+    c, s = np.cos(angle), np.sin(angle)
+    out = np.zeros(angle.shape + (3, 3))
+    i, j = [(1, 2), (2, 0), (0, 1)][axis]
+    out[..., axis, axis] = 1.0
+    out[..., i, i] = c
+    out[..., j, j] = c
+    out[..., i, j] = -s
+    out[..., j, i] = s
+    return out
+
+
 def so3_exp(rotvec: np.ndarray) -> np.ndarray:
     """Rodrigues' formula: rotation vector (..., 3) -> rotation matrix (..., 3, 3)."""
     rotvec = np.asarray(rotvec, dtype=np.float64)

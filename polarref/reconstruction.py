@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from polarref.camera import Camera
 from polarref.errors import PolarrefError
 from polarref.geometry import Rigid3
 
@@ -41,7 +42,7 @@ class Point3D:
 class Reconstruction:
     """Cameras (``polarref.camera.Camera``), registered images and 3D points, by integer id."""
 
-    cameras: dict = field(default_factory=dict)
+    cameras: dict[int, Camera] = field(default_factory=dict)
     images: dict[int, Image] = field(default_factory=dict)
     points3D: dict[int, Point3D] = field(default_factory=dict)
 
@@ -117,8 +118,6 @@ class Reconstruction:
     @staticmethod
     def from_pycolmap(rec) -> "Reconstruction":
         """Copy a ``pycolmap.Reconstruction``; only registered images are kept."""
-        from polarref.camera import Camera
-
         out = Reconstruction()
         for cam_id, c in rec.cameras.items():
             try:

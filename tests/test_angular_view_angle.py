@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from polarref import angular as A
+from polarref.geometry import axis_rotation
 
 N = 100_000
 TOL = 1e-12
@@ -98,9 +99,9 @@ def test_rotation_convention_is_passive_intrinsic_and_colmap():
     # ray's polar angle grows by +e_z
     np.testing.assert_allclose(R[..., :, 0], c[:, None] * R0[..., :, 0] - s[:, None] * R0[..., :, 1], atol=1e-14)
     # composition order: e_y about x first
-    Rx = A._rot(0, -e_y)
-    Ry = A._rot(1, -e_x)
-    Rz = A._rot(2, -e_z)
+    Rx = axis_rotation(0, -e_y)
+    Ry = axis_rotation(1, -e_x)
+    Rz = axis_rotation(2, -e_z)
     np.testing.assert_allclose(R, Rx @ Ry @ Rz, atol=1e-15)
 
 

@@ -86,10 +86,11 @@ def test_pvl_rotation_is_a_rotation_and_round_trips():
     # the spec's angles: ex alone tilts about the camera x axis (R[7] = -sin ex)
     assert rotation_from_pvl_euler([0, 0.3, 0])[2, 1] == pytest.approx(-np.sin(0.3))
     # characterization: R = Rz(-ez) Rx(-ex) Ry(ey) (phi-omega-kappa, documented in the module)
-    from polarref.io.parallaxba import _rx, _ry, _rz
+    from polarref.geometry import axis_rotation
     ey, ex, ez = rng.uniform(-3, 3, (3, 20))
     np.testing.assert_allclose(rotation_from_pvl_euler(np.stack([ey, ex, ez], -1)),
-                               _rz(-ez) @ _rx(-ex) @ _ry(ey), atol=1e-14)
+                               axis_rotation(2, -ez) @ axis_rotation(0, -ex)
+                               @ axis_rotation(1, ey), atol=1e-14)
 
 
 def test_four_file_round_trip(sample_xml, tmp_path):

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from polarref.angular import ray_angles
 from polarref.camera.models import MODELS, ModelSpec, radial_map
 from polarref.camera.radial import RadialMap
 
@@ -68,7 +69,6 @@ class Camera:
     _spec: ModelSpec = field(init=False, repr=False, compare=False)
     _radial: RadialMap = field(init=False, repr=False, compare=False)
     _theta_max: float = field(init=False, repr=False, compare=False)
-    _rd_max: float = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
@@ -93,7 +93,6 @@ class Camera:
         radial = radial_map(spec, params)
         object.__setattr__(self, "_radial", radial)
         object.__setattr__(self, "_theta_max", radial.theta_max)
-        object.__setattr__(self, "_rd_max", radial.rd_max)
 
     # ---- identity ------------------------------------------------------------------------
     def __eq__(self, other: object) -> bool:
@@ -389,21 +388,19 @@ def ray_from_angular(theta, phi) -> Array:
 def angular_from_ray(X_cam) -> tuple[Array, Array, Array]:
     """``(theta, phi, angular_D_X)`` of camera-frame vectors (..., 3) of any length > 0.
 
+    theta and phi are :func:`polarref.angular.ray_angles` (phi = 0 on the principal axis).
+
     The Jacobian (..., 2, 3) has rows (theta, phi); it is NaN on the principal axis (phi
     undefined) and for a zero vector.
     """
     X = _last(X_cam, 3, "X_cam")
+    theta, phi = ray_angles(X)
     with np.errstate(**_ERR):
         r = np.hypot(X[..., 0], X[..., 1])
         n2 = r * r + X[..., 2] ** 2
-        theta = np.arctan2(r, X[..., 2])
-        phi = np.arctan2(X[..., 1] + 0.0, X[..., 0])
         zero = np.zeros_like(r)
         J = np.stack([np.stack([X[..., 2] * X[..., 0] / r, X[..., 2] * X[..., 1] / r, -r], -1)
                       / n2[..., None],
                       np.stack([-X[..., 1], X[..., 0], zero], -1) / (r * r)[..., None]], -2)
         J = np.where((r > 0)[..., None, None], J, np.nan)
-        bad = n2 == 0
-        theta = np.where(bad, np.nan, theta)
-        phi = np.where(bad, np.nan, phi)
     return theta, phi, J

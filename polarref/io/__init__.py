@@ -12,7 +12,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from polarref.errors import PolarrefError
+from polarref.reconstruction import Image, Point3D, Reconstruction
 
 
 class FormatError(PolarrefError):
@@ -64,12 +67,9 @@ def build_reconstruction(cameras, camera_of_image, cam_from_world, names, obs_im
     Image ids are ``index + 1``, point ids ``index + 1``; each image's keypoints are its
     observations in input order.
     """
-    import numpy as np
-
-    from polarref.reconstruction import Image, Point3D, Reconstruction
-
     obs_image = np.asarray(obs_image, dtype=np.int64)
     obs_point = np.asarray(obs_point, dtype=np.int64)
+    obs_uv = np.asarray(obs_uv, dtype=np.float64).reshape(-1, 2)
     rec = Reconstruction()
     for c, camera in enumerate(cameras):
         rec.cameras[c + 1] = camera
@@ -80,7 +80,7 @@ def build_reconstruction(cameras, camera_of_image, cam_from_world, names, obs_im
         obs = order[starts[i]:starts[i + 1]]
         kp_index[obs] = np.arange(len(obs))
         rec.images[i + 1] = Image(i + 1, names[i], int(camera_of_image[i]) + 1, cam_from_world[i],
-                                  np.asarray(obs_uv, dtype=np.float64)[obs].reshape(-1, 2),
+                                  obs_uv[obs],
                                   obs_point[obs] + 1)
     by_point = np.argsort(obs_point, kind="stable")
     pstarts = np.searchsorted(obs_point[by_point], np.arange(len(points) + 1))

@@ -22,8 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
+from polarref.camera import Camera
 from polarref.geometry import Rigid3, so3_exp
-from polarref.io import FormatError, parse_numbers, read_lines
+from polarref.io import FormatError, build_reconstruction, parse_numbers, read_lines
 
 _F = np.diag([1.0, -1.0, -1.0])  # BAL camera frame (y up, -z forward) -> COLMAP camera frame
 
@@ -176,9 +177,6 @@ def bal_to_reconstruction(problem: BALProblem):
     behind its camera (P_z >= 0 in BAL's frame) or past the fold of the RADIAL polynomial
     is NaN there (COLMAP's RADIAL model cannot represent it).
     """
-    from polarref.camera import Camera
-    from polarref.io import build_reconstruction
-
     width, height, cx, cy = bal_principal_point(problem)
     R = so3_exp(problem.rotvec)
     cameras, poses = [], []

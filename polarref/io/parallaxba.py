@@ -27,33 +27,16 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref.geometry import Rigid3
-from polarref.io import FormatError, parse_numbers, read_lines
-
-
-def _rx(a):
-    c, s = np.cos(a), np.sin(a)
-    o, z = np.ones_like(a), np.zeros_like(a)
-    return np.stack([np.stack([o, z, z], -1), np.stack([z, c, -s], -1), np.stack([z, s, c], -1)], -2)
-
-
-def _ry(a):
-    c, s = np.cos(a), np.sin(a)
-    o, z = np.ones_like(a), np.zeros_like(a)
-    return np.stack([np.stack([c, z, s], -1), np.stack([z, o, z], -1), np.stack([-s, z, c], -1)], -2)
-
-
-def _rz(a):
-    c, s = np.cos(a), np.sin(a)
-    o, z = np.ones_like(a), np.zeros_like(a)
-    return np.stack([np.stack([c, -s, z], -1), np.stack([s, c, z], -1), np.stack([z, z, o], -1)], -2)
+from polarref.camera import Camera
+from polarref.geometry import Rigid3, axis_rotation
+from polarref.io import FormatError, build_reconstruction, parse_numbers, read_lines
 
 
 def cam_from_world_rotation(euler) -> np.ndarray:
     """ParallaxBA Euler angles (..., 3) = (alpha, beta, gamma) -> cam_from_world R (..., 3, 3)."""
     euler = np.asarray(euler, dtype=np.float64)
     a, b, g = euler[..., 0], euler[..., 1], euler[..., 2]
-    world_from_cam = _rz(a) @ _ry(b) @ _rx(g)
+    world_from_cam = axis_rotation(2, a) @ axis_rotation(1, b) @ axis_rotation(0, g)
     return np.swapaxes(world_from_cam, -1, -2)
 
 
@@ -118,8 +101,6 @@ class ParallaxBAProblem:
         The files carry no image size; by default it is the smallest box holding the principal
         point at its centre-or-beyond and every observation.
         """
-        from polarref.camera import Camera
-
         fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
         if width is None:
             width = int(np.ceil(max(2 * cx, self.obs_uv[:, 0].max(initial=0.0))))
@@ -132,8 +113,6 @@ def parallaxba_to_reconstruction(problem: ParallaxBAProblem, points: np.ndarray 
     """The problem as a :class:`polarref.reconstruction.Reconstruction` (one shared PINHOLE
     camera, id 1; image ids camera index + 1; point ids point index + 1). ``points`` (M, 3)
     default to :func:`triangulate_dlt`. Pixels are used as stored (see module docstring)."""
-    from polarref.io import build_reconstruction
-
     points = triangulate_dlt(problem) if points is None else np.asarray(points, dtype=np.float64)
     poses = [problem.cam_from_world(i) for i in range(problem.num_cameras)]
     return build_reconstruction([problem.camera()], np.zeros(problem.num_cameras, np.int64), poses,

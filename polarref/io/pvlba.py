@@ -32,7 +32,9 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref.io import FormatError, parse_numbers, read_lines
+from polarref.camera import Camera
+from polarref.geometry import Rigid3
+from polarref.io import FormatError, build_reconstruction, parse_numbers, read_lines
 
 
 def rotation_from_pvl_euler(euler) -> np.ndarray:
@@ -113,10 +115,6 @@ class PVLBAProblem:
         """As a :class:`polarref.reconstruction.Reconstruction`: one PINHOLE camera per group
         (id group + 1; skew must be 0), image ids index + 1, point ids index + 1. Image size
         defaults to twice the principal point (the four files do not store it)."""
-        from polarref.camera import Camera
-        from polarref.geometry import Rigid3
-        from polarref.io import build_reconstruction
-
         cams = []
         for k in self.K:
             if k[0, 1] != 0:

@@ -24,8 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref.geometry import Rigid3
+from polarref.camera import Camera
+from polarref.geometry import Rigid3, skew
 from polarref.io import FormatError, parse_numbers, read_lines
+from polarref.reconstruction import Image, Reconstruction
 
 
 @dataclass(frozen=True)
@@ -50,8 +52,6 @@ def read_strecha_camera(path, pixel_offset: float = 0.5) -> StrechaView:
 
     ``pixel_offset`` is added to cx, cy (module docstring: K -> COLMAP pixel convention).
     """
-    from polarref.camera import Camera
-
     path = Path(path)
     rows = [(i + 1, s.split()) for i, s in enumerate(read_lines(path)) if s.strip()]
     if len(rows) != 9:
@@ -98,8 +98,6 @@ def read_ground_truth(folder, names=None, pixel_offset: float = 0.5):
 
     Cameras with identical intrinsics share one camera id.
     """
-    from polarref.reconstruction import Image, Reconstruction
-
     folder = Path(folder)
     if names is None:
         views = read_strecha_folder(folder, pixel_offset)
@@ -117,11 +115,9 @@ def read_ground_truth(folder, names=None, pixel_offset: float = 0.5):
 def fundamental_matrix(view_a: StrechaView, view_b: StrechaView) -> np.ndarray:
     """(3, 3) F with ``x_b^T F x_a = 0`` for homogeneous pixels of the two views."""
     rel = view_b.cam_from_world.compose(view_a.cam_from_world.inverse())
-    t = rel.t
-    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
     Ka_inv = np.linalg.inv(view_a.camera.calibration_matrix())
     Kb_inv = np.linalg.inv(view_b.camera.calibration_matrix())
-    return Kb_inv.T @ tx @ rel.R @ Ka_inv
+    return Kb_inv.T @ skew(rel.t) @ rel.R @ Ka_inv
 
 
 def sampson_error(F: np.ndarray, uv_a: np.ndarray, uv_b: np.ndarray) -> np.ndarray:
