@@ -6,6 +6,7 @@ import numpy as np
 
 from polarref.ba.options import BAOptions, BASummary
 from polarref.ba.problem import BAProblem, prepare
+from polarref.ba.projection import camera_groups
 from polarref.ba.solver import solve
 from polarref.errors import PolarrefError
 from polarref.geometry import Rigid3
@@ -53,11 +54,10 @@ def problem_from_reconstruction(rec, *, variable_image_ids=None, fixed_image_ids
     if len(image_ids) == 0:
         raise PolarrefError("bundle adjustment: the chosen points have no observations")
     index = {int(i): k for k, i in enumerate(image_ids)}
-    known = np.array([int(i) in index for i in track[:, 0]], bool)
     obs_cam = np.array([index.get(int(i), -1) for i in track[:, 0]], np.int64)
+    known = obs_cam >= 0
     uv = np.full((len(track), 2), np.nan)
-    for k, i in enumerate(image_ids):  # one vectorized gather per image
-        sel = np.flatnonzero(obs_cam == k)
+    for i, sel in camera_groups(image_ids, obs_cam):  # one vectorized gather per image
         kp = rec.images[int(i)].keypoints
         idx = track[sel, 1]
         ok = (idx >= 0) & (idx < len(kp))
@@ -68,7 +68,7 @@ def problem_from_reconstruction(rec, *, variable_image_ids=None, fixed_image_ids
     X = np.array([rec.points3D[p].xyz for p in pids], np.float64)
     cam_fixed = np.array([int(i) not in variable for i in image_ids])
     problem = BAProblem(cameras=[rec.cameras[im.camera_id] for im in imgs], R=R, C=C, X=X,
-                        obs_cam=np.where(known, obs_cam, -1), obs_pt=obs_pt, obs_uv=uv,
+                        obs_cam=obs_cam, obs_pt=obs_pt, obs_uv=uv,
                         cam_fixed=cam_fixed, image_ids=image_ids,
                         point_ids=np.array(pids, np.int64))
     problem.exclusions["observations_unknown_image"] = int((~known).sum())
@@ -77,12 +77,34 @@ def problem_from_reconstruction(rec, *, variable_image_ids=None, fixed_image_ids
 
 def write_back(rec, problem: BAProblem) -> None:
     """Copy the adjusted variable poses and the points back into ``rec``."""
+    t = problem.cam_from_world_t()
     for k, i in enumerate(problem.image_ids):
         if problem.cam_mask is not None and problem.cam_mask[k].any():
-            R = problem.R[k]
-            rec.images[int(i)].cam_from_world = Rigid3(R, -R @ problem.C[k])
+            rec.images[int(i)].cam_from_world = Rigid3(problem.R[k], t[k])
     for k, p in enumerate(problem.point_ids):
         rec.points3D[int(p)].xyz = problem.X[k].copy()
+
+
+def problem_to_reconstruction(problem: BAProblem):
+    """A Reconstruction holding the problem's cameras, poses, points and observations."""
+    from polarref.reconstruction import Image, Point3D, Reconstruction
+
+    rec = Reconstruction()
+    order = np.argsort(problem.obs_cam, kind="stable")
+    starts = np.searchsorted(problem.obs_cam[order], np.arange(problem.num_cameras + 1))
+    p2d = np.empty(problem.num_observations, np.int64)
+    t = problem.cam_from_world_t()
+    for i in range(problem.num_cameras):
+        obs = order[starts[i]:starts[i + 1]]
+        p2d[obs] = np.arange(len(obs))
+        rec.cameras[i + 1] = problem.cameras[i]
+        rec.images[i + 1] = Image(i + 1, f"img_{i:05d}", i + 1, Rigid3(problem.R[i], t[i]),
+                                  problem.obs_uv[obs].copy(), problem.obs_pt[obs] + 1)
+    tracks = np.stack([problem.obs_cam + 1, p2d], axis=1)
+    starts = np.searchsorted(problem.obs_pt, np.arange(problem.num_points + 1))
+    for j in range(problem.num_points):
+        rec.points3D[j + 1] = Point3D(problem.X[j].copy(), tracks[starts[j]:starts[j + 1]])
+    return rec
 
 
 def adjust(rec, options: BAOptions = BAOptions(), *, variable_image_ids=None,

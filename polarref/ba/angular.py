@@ -21,7 +21,9 @@ import numpy as np
 
 from polarref.ba.angular_obs import (axis_chart_rows, observed_angles, observed_axis_chart,
                                      phi_rows, theta_rows, wrap)
+from polarref.ba.options import BAOptions
 from polarref.ba.parallax import Parallax
+from polarref.ba.projection import camera_groups
 from polarref.camera.noise import phi_sigma
 from polarref.errors import PolarrefError
 
@@ -33,16 +35,14 @@ class Angular(Parallax):
 
     def __init__(self, problem, options=None):
         super().__init__(problem, options)
-        sigma = getattr(options, "sigma_px", 1.0)
-        max_sphi = getattr(options, "max_sigma_phi", 0.05)
+        options = BAOptions(param=self.name) if options is None else options
+        sigma, max_sphi = options.sigma_px, options.max_sigma_phi
         ang, A = observed_angles(problem)
         if not np.isfinite(ang[:, 0]).all():
             raise PolarrefError("angular BA: observations outside the camera model's angular range")
         sphi = np.empty(len(ang))
-        for i, cam in enumerate(problem.cameras):
-            idx = np.flatnonzero(problem.obs_cam == i)
-            if len(idx):
-                sphi[idx] = phi_sigma(cam, problem.obs_uv[idx], sigma)
+        for cam, idx in camera_groups(problem.cameras, problem.obs_cam):
+            sphi[idx] = phi_sigma(cam, problem.obs_uv[idx], sigma)
         self.phi_ok = np.isfinite(ang[:, 1]) & (sphi <= max_sphi) & np.isfinite(A).all((1, 2))
         self.obs_ang = np.nan_to_num(ang)
         Aok = np.where(self.phi_ok[:, None, None], A, np.eye(2))
@@ -50,7 +50,7 @@ class Angular(Parallax):
         self.w_theta = 1.0 / np.linalg.norm(np.nan_to_num(A[:, 0, :]), axis=1).clip(1e-300)
         self.num_phi_gated = int((~self.phi_ok).sum())
         self.chart_idx = np.zeros(0, np.int64)
-        if getattr(options, "axis_residual", "chart") == "chart" and self.num_phi_gated:
+        if options.axis_residual == "chart" and self.num_phi_gated:
             idx = np.flatnonzero(~self.phi_ok)
             e_obs, B = observed_axis_chart(problem, idx)
             good = np.isfinite(e_obs).all(1) & np.isfinite(B).all((1, 2))

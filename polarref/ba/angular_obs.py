@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from polarref.ba.problem import BAProblem
+from polarref.ba.projection import camera_groups
 
 
 def observed_angles(problem: BAProblem) -> tuple[np.ndarray, np.ndarray]:
@@ -24,10 +25,8 @@ def observed_angles(problem: BAProblem) -> tuple[np.ndarray, np.ndarray]:
     M = problem.num_observations
     ang = np.full((M, 2), np.nan)
     J = np.full((M, 2, 2), np.nan)
-    for i, cam in enumerate(problem.cameras):
-        idx = np.flatnonzero(problem.obs_cam == i)
-        if len(idx):
-            ang[idx], J[idx] = cam.to_angular_with_jacobian(problem.obs_uv[idx])
+    for cam, idx in camera_groups(problem.cameras, problem.obs_cam):
+        ang[idx], J[idx] = cam.to_angular_with_jacobian(problem.obs_uv[idx])
     return ang, J
 
 
@@ -111,10 +110,8 @@ def observed_axis_chart(problem: BAProblem, idx: np.ndarray) -> tuple[np.ndarray
     ``Camera.unproject_with_jacobian`` (lens distortion included)."""
     e = np.full((len(idx), 2), np.nan)
     B = np.full((len(idx), 2, 2), np.nan)
-    cams = problem.obs_cam[idx]
-    for i in np.unique(cams):
-        sel = np.flatnonzero(cams == i)
-        ray, dray = problem.cameras[int(i)].unproject_with_jacobian(problem.obs_uv[idx[sel]])
+    for cam, sel in camera_groups(problem.cameras, problem.obs_cam[idx]):
+        ray, dray = cam.unproject_with_jacobian(problem.obs_uv[idx[sel]])
         e[sel], Je = axis_chart_rows(ray, True)
         B[sel] = Je @ dray
     return e, B

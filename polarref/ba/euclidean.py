@@ -57,15 +57,8 @@ class Euclidean:
         Jc[:, :, 3:] = -Jp
         return uv - self.p.obs_uv, Jp, [Jc]
 
-    def num_behind_camera(self, R, C, pts) -> int:
-        """Observations whose point has depth <= 0 in the observing camera."""
-        return int((self.camera_frame(R, C, pts)[1][:, 2] <= 0).sum())
-
     def pixel_residuals(self, R, C, pts) -> np.ndarray:
         return self.evaluate(R, C, pts, jac=False)[0]
-
-    def to_xyz(self, R, C, pts) -> np.ndarray:
-        return pts.copy()
 
     def retract_points(self, pts, dp):
         return pts + dp

@@ -4,8 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from polarref.ba.problem import BAProblem
 from polarref.errors import PolarrefError
 
@@ -53,25 +51,3 @@ def load_problem(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]
         raise PolarrefError(f"cannot read BAL problem {path}: {exc}") from exc
     return problem_from_reconstruction(bal_to_reconstruction(bal)), None
 
-
-def problem_to_reconstruction(problem: BAProblem):
-    """A Reconstruction holding the problem's cameras, poses, points and observations."""
-    from polarref.geometry import Rigid3
-    from polarref.reconstruction import Image, Point3D, Reconstruction
-
-    rec = Reconstruction()
-    order = np.argsort(problem.obs_cam, kind="stable")
-    starts = np.searchsorted(problem.obs_cam[order], np.arange(problem.num_cameras + 1))
-    p2d = np.empty(problem.num_observations, np.int64)
-    for i in range(problem.num_cameras):
-        obs = order[starts[i]:starts[i + 1]]
-        p2d[obs] = np.arange(len(obs))
-        rec.cameras[i + 1] = problem.cameras[i]
-        R = problem.R[i]
-        rec.images[i + 1] = Image(i + 1, f"img_{i:05d}", i + 1, Rigid3(R, -R @ problem.C[i]),
-                                  problem.obs_uv[obs].copy(), problem.obs_pt[obs] + 1)
-    tracks = np.stack([problem.obs_cam + 1, p2d], axis=1)
-    starts = np.searchsorted(problem.obs_pt, np.arange(problem.num_points + 1))
-    for j in range(problem.num_points):
-        rec.points3D[j + 1] = Point3D(problem.X[j].copy(), tracks[starts[j]:starts[j + 1]])
-    return rec

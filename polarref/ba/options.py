@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from polarref.ba.losses import LOSSES
+
 PARAMS = ("euclidean", "parallax", "polar", "angular")
 
 
@@ -39,8 +41,8 @@ class BAOptions:
     def __post_init__(self) -> None:
         if self.param not in PARAMS:
             raise ValueError(f"unknown BA parameterization {self.param!r}; choose {', '.join(PARAMS)}")
-        if self.loss not in ("trivial", "huber", "cauchy"):
-            raise ValueError(f"unknown loss {self.loss!r}; choose trivial, huber or cauchy")
+        if self.loss not in LOSSES:
+            raise ValueError(f"unknown loss {self.loss!r}; choose {', '.join(LOSSES)}")
         if not self.loss_scale > 0:
             raise ValueError(f"loss_scale must be > 0, got {self.loss_scale}")
         if self.axis_residual not in ("chart", "theta"):

@@ -21,9 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from polarref.ba.anchor_terms import AnchorJacobian
 from polarref.angular import (azimuth_elevation_from_direction, direction_from_azimuth_elevation,
                               direction_jacobian)
+from polarref.ba.anchor_terms import AnchorJacobian
 from polarref.ba.euclidean import rot_columns
 from polarref.ba.problem import BAProblem
 from polarref.ba.projection import Projector
@@ -99,17 +99,22 @@ class Parallax:
         return (np.array([-np.inf, -np.inf, 0.0]),
                 np.array([np.inf, np.inf, np.pi - OMEGA_MARGIN]))
 
+    def landmark_terms(self, C, pts):
+        """Per-point terms of the landmark (see the module docstring), each (P, ...):
+        main centre ``C_m`` (P, 3), direction ``d`` (P, 3), baseline ``e`` (P, 3), ``c = d.e``,
+        ``s = |d x e|``, ``sin(w)``, ``cos(w)`` and ``h = |e| sin(w + phi_a)`` (P,)."""
+        Cm = C[self.main]
+        d = direction_from_azimuth_elevation(pts[:, 0], pts[:, 1])
+        e = C[self.assoc] - Cm
+        c = np.einsum("pi,pi->p", d, e)
+        s = np.linalg.norm(np.cross(d, e), axis=1)
+        sw, cw = np.sin(pts[:, 2]), np.cos(pts[:, 2])
+        return Cm, d, e, c, s, sw, cw, sw * c + cw * s
+
     def rays(self, R, C, pts, jac: bool):
         """Camera-frame rays Xc (M, 3) = R_i v_i and, with jac, the pieces of their Jacobians."""
         p = self.p
-        Cm, Ca = C[self.main], C[self.assoc]
-        d = direction_from_azimuth_elevation(pts[:, 0], pts[:, 1])
-        e = Ca - Cm
-        c = np.einsum("pi,pi->p", d, e)
-        crs = np.cross(d, e)
-        s = np.linalg.norm(crs, axis=1)
-        sw, cw = np.sin(pts[:, 2]), np.cos(pts[:, 2])
-        h = sw * c + cw * s
+        Cm, d, e, c, s, sw, cw, h = self.landmark_terms(C, pts)
         op, oc = p.obs_pt, p.obs_cam
         sw_o = sw[op]
         base = Cm[op] - C[oc]
@@ -181,13 +186,7 @@ class Parallax:
 
     def to_xyz(self, R, C, pts) -> np.ndarray:
         """XYZ of the landmarks; points at infinity (w ~ 0) go FAR baselines out along d."""
-        Cm, Ca = C[self.main], C[self.assoc]
-        d = direction_from_azimuth_elevation(pts[:, 0], pts[:, 1])
-        e = Ca - Cm
-        c = np.einsum("pi,pi->p", d, e)
-        s = np.linalg.norm(np.cross(d, e), axis=1)
-        sw, cw = np.sin(pts[:, 2]), np.cos(pts[:, 2])
-        h = sw * c + cw * s
+        Cm, d, e, _, _, sw, _, h = self.landmark_terms(C, pts)
         base = np.linalg.norm(e, axis=1)
         far = np.abs(sw) * FAR < 1.0
         dist = np.where(far, FAR * base, h / np.where(far, 1.0, sw))

@@ -15,7 +15,7 @@ import numpy as np
 from polarref.ba.euclidean import Euclidean
 from polarref.ba.options import BAOptions
 from polarref.ba.problem import BAProblem
-from polarref.ba.solver import pixel_cost
+from polarref.ba.solver import behind_camera_xyz, pixel_cost
 from polarref.geometry import so3_exp
 
 
@@ -32,13 +32,12 @@ class PeerResult:
     behind_camera: int = -1  # observations whose point ends with depth <= 0 in its camera
 
 
-def _cost_of(problem: BAProblem, R, C, X, options: BAOptions):
-    e = Euclidean(problem)
+def _cost_of(e: Euclidean, R, C, X, options: BAOptions):
     return pixel_cost(e.pixel_residuals(R, C, X), options.loss, options.loss_scale)
 
 
 def _behind(problem: BAProblem, R, C, X) -> int:
-    return Euclidean(problem).num_behind_camera(R, C, X)
+    return behind_camera_xyz(R, C, X, problem.obs_cam, problem.obs_pt)
 
 
 def run_pycolmap(problem: BAProblem, options: BAOptions) -> PeerResult:
@@ -47,7 +46,7 @@ def run_pycolmap(problem: BAProblem, options: BAOptions) -> PeerResult:
     function_tolerance 0)."""
     import pycolmap
 
-    from polarref.ba.loaders import problem_to_reconstruction
+    from polarref.ba.adapter import problem_to_reconstruction
 
     # image id = camera index + 1, point id = point index + 1 (kept by to_pycolmap)
     rec = problem_to_reconstruction(problem).to_pycolmap()
@@ -64,7 +63,8 @@ def run_pycolmap(problem: BAProblem, options: BAOptions) -> PeerResult:
     for image_id in rec.images:
         config.add_image(image_id)
     config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
-    c0, _ = _cost_of(problem, problem.R, problem.C, problem.X, options)
+    e = Euclidean(problem)
+    c0, _ = _cost_of(e, problem.R, problem.C, problem.X, options)
     t = time.perf_counter()
     adjuster = pycolmap.create_default_bundle_adjuster(opts, config, rec)
     summary = adjuster.solve()
@@ -78,7 +78,7 @@ def run_pycolmap(problem: BAProblem, options: BAOptions) -> PeerResult:
         R[i] = pose.rotation.matrix()
         C[i] = -R[i].T @ np.asarray(pose.translation)
     X = np.array([rec.points3D[j + 1].xyz for j in range(problem.num_points)])
-    c1, rms = _cost_of(problem, R, C, X, options)
+    c1, rms = _cost_of(e, R, C, X, options)
     return PeerResult("pycolmap", c0, c1, rms, int(cs.num_successful_steps + cs.num_unsuccessful_steps),
                       wall, str(cs.termination_type).split(".")[-1], float(cs.final_cost),
                       _behind(problem, R, C, X))
@@ -158,7 +158,7 @@ def run_scipy(problem: BAProblem, options: BAOptions) -> PeerResult:
     loss = {"trivial": "linear", "huber": "huber", "cauchy": "cauchy"}[options.loss]
     x0 = np.zeros(n)
     x0[nc:] = X0.reshape(-1)[pt_cols]
-    c0, _ = _cost_of(problem, R0, C0, X0, options)
+    c0, _ = _cost_of(e, R0, C0, X0, options)
     t = time.perf_counter()
     res = scipy.optimize.least_squares(fun, x0, jac=jac, jac_sparsity=sparsity, method="trf",
                                        loss=loss, f_scale=options.loss_scale, x_scale="jac",
@@ -166,7 +166,7 @@ def run_scipy(problem: BAProblem, options: BAOptions) -> PeerResult:
                                        max_nfev=max(1, options.max_iterations), tr_solver="lsmr")
     wall = time.perf_counter() - t
     R, C, X = unpack(res.x)
-    c1, rms = _cost_of(problem, R, C, X, options)
+    c1, rms = _cost_of(e, R, C, X, options)
     return PeerResult("scipy", c0, c1, rms, int(res.nfev), wall,
                       _SCIPY_STATUS.get(int(res.status), str(res.status)), float(res.cost),
                       _behind(problem, R, C, X))

@@ -8,6 +8,7 @@ rays depend on anchor-camera centres, share the same camera blocks.
 
 from __future__ import annotations
 
+import copy
 import logging
 from dataclasses import dataclass, field
 
@@ -64,7 +65,6 @@ class BAProblem:
         return len(self.obs_cam)
 
     def copy(self) -> "BAProblem":
-        import copy
         return BAProblem(list(self.cameras), self.R.copy(), self.C.copy(), self.X.copy(),
                          self.obs_cam.copy(), self.obs_pt.copy(), self.obs_uv.copy(),
                          None if self.cam_fixed is None else self.cam_fixed.copy(),
@@ -75,8 +75,8 @@ class BAProblem:
                          self.gauge, copy.deepcopy(self.exclusions))
 
     def cam_from_world_t(self) -> np.ndarray:
-        """(N, 3) translations t = -R C."""
-        return -np.einsum("nij,nj->ni", self.R, self.C)
+        """(N, 3) translations t = -R C (matmul: bit-identical to ``-R[i] @ C[i]``)."""
+        return -np.matmul(self.R, self.C[:, :, None])[:, :, 0]
 
 
 def prepare(problem: BAProblem, min_track: int = 2) -> BAProblem:
@@ -120,7 +120,7 @@ def prepare(problem: BAProblem, min_track: int = 2) -> BAProblem:
     cam, pt, uv = cam[keep], pt[keep], uv[keep]
     if len(cam) == 0:
         raise PolarrefError("bundle adjustment: no usable observations left "
-                            f"(exclusions: {_nonzero(ex)})")
+                            f"(exclusions: {nonzero_counts(ex)})")
     # Re-index points densely, sort observations by point (the solver's reductions need it).
     pts_used = np.flatnonzero(counts >= min_track)
     remap = -np.ones(P, np.int64)
@@ -189,5 +189,6 @@ def fix_gauge(p: BAProblem) -> None:
     p.gauge = gauge
 
 
-def _nonzero(d: dict) -> dict:
+def nonzero_counts(d: dict) -> dict:
+    """The entries of a count dict that are non-zero (exclusions worth reporting)."""
     return {k: v for k, v in d.items() if v}

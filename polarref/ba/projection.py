@@ -29,6 +29,19 @@ def radial_params(camera) -> np.ndarray | None:
     return None
 
 
+def camera_groups(cameras, obs_cam: np.ndarray) -> list[tuple[object, np.ndarray]]:
+    """(cameras[c], indices of the observations of camera c, ascending) per observed camera c.
+
+    For work done camera by camera (camera models without the fast kernel, pixel lookups per
+    image). cameras: a sequence indexed by camera index; obs_cam (M,) camera index per
+    observation, negative = no camera.
+    """
+    order = np.argsort(obs_cam, kind="stable")
+    cams, starts = np.unique(obs_cam[order], return_index=True)
+    ends = np.r_[starts[1:], len(order)]
+    return [(cameras[int(c)], order[a:b]) for c, a, b in zip(cams, starts, ends) if c >= 0]
+
+
 def project(Xc: np.ndarray, K: np.ndarray, jac: bool = True):
     """Project camera-frame points.
 
@@ -74,8 +87,7 @@ class Projector:
         if self.fast:
             self.K = np.array(table).reshape(-1, 6)[obs_cam]
         else:
-            self.cameras = cameras
-            self.groups = [(c, np.flatnonzero(obs_cam == i)) for i, c in enumerate(cameras)]
+            self.groups = camera_groups(cameras, obs_cam)
 
     def __call__(self, Xc: np.ndarray, jac: bool = True):
         if self.fast:
@@ -83,6 +95,5 @@ class Projector:
         uv = np.empty((len(Xc), 2))
         J = np.empty((len(Xc), 2, 3))
         for cam, idx in self.groups:
-            if len(idx):
-                uv[idx], J[idx] = cam.project_with_jacobian(Xc[idx])
+            uv[idx], J[idx] = cam.project_with_jacobian(Xc[idx])
         return (uv, J) if jac else uv

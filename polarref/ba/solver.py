@@ -28,6 +28,7 @@ slower in the Cholesky).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 
@@ -35,7 +36,7 @@ import numpy as np
 
 from polarref.ba.losses import rho as loss_rho
 from polarref.ba.options import BAOptions, BASummary, IterationRecord
-from polarref.ba.problem import BAProblem, prepare
+from polarref.ba.problem import BAProblem, nonzero_counts, prepare
 from polarref.ba.schur import SchurStructure, gram
 from polarref.geometry import so3_exp
 
@@ -65,14 +66,14 @@ def make_param(problem: BAProblem, options: BAOptions):
 def _robust(r: np.ndarray, groups, loss: str, scale: float):
     """Cost and per-residual-row weights sqrt(rho') for residuals (M, k)."""
     cost = 0.0
-    w = np.ones(r.shape)
+    w = None if loss == "trivial" else np.ones(r.shape)
     for a, b in groups:
         s = np.einsum("mk,mk->m", r[:, a:b], r[:, a:b]) if b - a > 1 else r[:, a] ** 2
         val, d1 = loss_rho(loss, s, scale)
         cost += 0.5 * float(val.sum())
-        if loss != "trivial":
+        if w is not None:
             w[:, a:b] = np.sqrt(d1)[:, None]
-    return cost, (None if loss == "trivial" else w)
+    return cost, w
 
 
 def pixel_cost(res_px: np.ndarray, loss: str, scale: float) -> tuple[float, float]:
@@ -117,7 +118,6 @@ def _solve(problem: BAProblem, options: BAOptions, prepared: bool, param) -> BAS
         param = make_param(problem, options)
     if options.staged and hasattr(param, "set_stage"):
         # Stage 1: theta only (half the iteration budget); stage 2: theta and phi jointly.
-        import dataclasses
         param.set_stage(theta_only=True)
         first = _lm(problem, dataclasses.replace(options, max_iterations=max(
             1, options.max_iterations // 2)), param, t0)
@@ -317,7 +317,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         termination=termination, num_cameras=problem.num_cameras,
         num_points=problem.num_points, num_observations=problem.num_observations,
         num_variable_cameras=st.Nv, gauge=problem.gauge,
-        exclusions={k: v for k, v in problem.exclusions.items() if v},
+        exclusions=nonzero_counts(problem.exclusions),
         linear_solver=st.linear_solver_name(), trace=trace, time_in=times, setup_s=setup_s,
         behind_camera={"initial": behind0, "final": behind_camera_xyz(
             problem.R, problem.C, problem.X, problem.obs_cam, problem.obs_pt)})

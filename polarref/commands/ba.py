@@ -13,11 +13,12 @@ HELP = "bundle-adjust a BAL / ParallaxBA / PVL-BA / COLMAP problem with one para
 
 
 def add_arguments(parser) -> None:
+    from polarref.ba.losses import LOSSES
     from polarref.ba.options import PARAMS
     parser.add_argument("problem", help="BAL .txt, ParallaxBA folder, PVL-BA folder or BlocksExchange .xml, COLMAP model folder, "
                         "or synth-20 / synth-60 / synth-200")
     parser.add_argument("--param", choices=PARAMS, default="euclidean")
-    parser.add_argument("--loss", choices=("trivial", "huber", "cauchy"), default="trivial")
+    parser.add_argument("--loss", choices=LOSSES, default="trivial")
     parser.add_argument("--loss-scale", type=float, default=1.0, help="robust loss scale [px]")
     parser.add_argument("--max-iterations", type=int, default=100)
     parser.add_argument("--staged", action="store_true", help="angular: theta first, then joint")

@@ -11,11 +11,13 @@ HELP = "benchmarks (currently: ba, bundle adjustment vs pycolmap and scipy)"
 
 
 def add_arguments(parser) -> None:
+    from polarref.ba.losses import LOSSES
+
     parser.add_argument("what", choices=("ba",), help="which benchmark")
     parser.add_argument("--problem", action="append", default=None,
                         help="problem path or synth-20/60/200 (repeatable; default: the full set)")
     parser.add_argument("--quick", action="store_true", help="only the small problems")
-    parser.add_argument("--loss", choices=("trivial", "huber", "cauchy"), default="trivial")
+    parser.add_argument("--loss", choices=LOSSES, default="trivial")
     parser.add_argument("--max-iterations", type=int, default=100)
     parser.add_argument("--scipy-max-obs", type=int, default=400_000,
                         help="skip scipy on problems with more observations")
