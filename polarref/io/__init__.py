@@ -51,6 +51,48 @@ def parse_numbers(path, lineno: int, tokens: list[str], kind=float, count: int |
         raise FormatError(path, lineno, f"bad number in {what}: {exc}") from exc
 
 
+def read_tracks(path, num_views: int, view: str = "camera", distinct: bool = False):
+    """Parse a track file with one point per line: ``n  v1 u1 w1  v2 u2 w2 ...``.
+
+    The layout shared by ParallaxBA's ``Feature.pmba`` and PVL-BA's ``Feature.txt``: ``n``
+    observations of (0-based view index, u, v). Blank lines are skipped.
+
+    Args:
+        path: the track file.
+        num_views: number of cameras/images; indices must lie in ``0..num_views-1``.
+        view: what an index names, for error messages ("camera" or "image").
+        distinct: reject a track that lists one view twice.
+    Returns:
+        obs_point (K,) int64, obs_view (K,) int64, obs_uv (K, 2) float64, track_start (P+1,) int64.
+    Raises:
+        FormatError naming the file and line.
+    """
+    path = Path(path)
+    obs_point, obs_view, obs_uv, starts = [], [], [], [0]
+    for i, s in enumerate(read_lines(path)):
+        tokens = s.split()
+        if not tokens:
+            continue
+        (n,) = parse_numbers(path, i + 1, tokens[:1], int, what="track length")
+        if n < 1 or len(tokens) != 1 + 3 * n:
+            raise FormatError(path, i + 1, f"track length {n} needs {1 + 3 * n} fields, "
+                              f"found {len(tokens)}")
+        trip = np.array(parse_numbers(path, i + 1, tokens[1:], float, what="observations"))
+        trip = trip.reshape(n, 3)
+        idx = trip[:, 0]
+        if np.any(idx != np.round(idx)) or idx.min() < 0 or idx.max() >= num_views:
+            raise FormatError(path, i + 1, f"{view} index out of range 0..{num_views - 1} "
+                              f"or not an integer: {idx.tolist()}")
+        if distinct and len(set(idx.tolist())) != n:
+            raise FormatError(path, i + 1, f"{view} listed twice in one track: {idx.tolist()}")
+        obs_point.extend([len(starts) - 1] * n)
+        obs_view.extend(idx.astype(np.int64).tolist())
+        obs_uv.append(trip[:, 1:])
+        starts.append(starts[-1] + n)
+    return (np.array(obs_point, dtype=np.int64), np.array(obs_view, dtype=np.int64),
+            np.concatenate(obs_uv) if obs_uv else np.zeros((0, 2)), np.array(starts, dtype=np.int64))
+
+
 def build_reconstruction(cameras, camera_of_image, cam_from_world, names, obs_image, obs_point,
                          obs_uv, points):
     """A :class:`polarref.reconstruction.Reconstruction` from flat observation arrays.

@@ -29,7 +29,7 @@ import numpy as np
 
 from polarref.camera import Camera
 from polarref.geometry import Rigid3, axis_rotation
-from polarref.io import FormatError, build_reconstruction, parse_numbers, read_lines
+from polarref.io import FormatError, build_reconstruction, parse_numbers, read_lines, read_tracks
 
 
 def cam_from_world_rotation(euler) -> np.ndarray:
@@ -144,34 +144,13 @@ def read_parallaxba(folder, cam_file: str = "Cam.txt", feature_file: str = "Feat
         raise FormatError(cpath, 1, "no cameras")
     cams = np.array(cams)
     fpath = folder / feature_file
-    obs_point, obs_cam, obs_uv, starts = [], [], [], [0]
-    for i, s in enumerate(read_lines(fpath)):
-        tokens = s.split()
-        if not tokens:
-            continue
-        (n,) = parse_numbers(fpath, i + 1, tokens[:1], int, what="track length")
-        if n < 1 or len(tokens) != 1 + 3 * n:
-            raise FormatError(fpath, i + 1, f"track length {n} needs {1 + 3 * n} fields, "
-                              f"found {len(tokens)}")
-        vals = parse_numbers(fpath, i + 1, tokens[1:], float, what="observations")
-        trip = np.array(vals).reshape(n, 3)
-        idx = trip[:, 0]
-        if np.any(idx != np.round(idx)) or idx.min() < 0 or idx.max() >= len(cams):
-            raise FormatError(fpath, i + 1, f"camera index out of range 0..{len(cams) - 1} "
-                              f"or not an integer: {idx.tolist()}")
-        if len(set(idx.tolist())) != n:
-            raise FormatError(fpath, i + 1, f"camera listed twice in one track: {idx.tolist()}")
-        obs_point.extend([len(starts) - 1] * n)
-        obs_cam.extend(idx.astype(np.int64).tolist())
-        obs_uv.append(trip[:, 1:])
-        starts.append(starts[-1] + n)
+    obs_point, obs_cam, obs_uv, starts = read_tracks(fpath, len(cams), "camera", distinct=True)
     if len(starts) == 1:
         raise FormatError(fpath, 1, "no points")
     return ParallaxBAProblem(K=K, euler=cams[:, :3].copy(), centers=cams[:, 3:].copy(),
                              R=cam_from_world_rotation(cams[:, :3]),
-                             obs_point=np.array(obs_point, dtype=np.int64),
-                             obs_camera=np.array(obs_cam, dtype=np.int64),
-                             obs_uv=np.concatenate(obs_uv), track_start=np.array(starts, np.int64))
+                             obs_point=obs_point, obs_camera=obs_cam, obs_uv=obs_uv,
+                             track_start=starts)
 
 
 def write_parallaxba(problem: ParallaxBAProblem, folder) -> None:

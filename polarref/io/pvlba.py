@@ -34,7 +34,7 @@ import numpy as np
 
 from polarref.camera import Camera
 from polarref.geometry import Rigid3
-from polarref.io import FormatError, build_reconstruction, parse_numbers, read_lines
+from polarref.io import FormatError, build_reconstruction, parse_numbers, read_lines, read_tracks
 
 
 def rotation_from_pvl_euler(euler) -> np.ndarray:
@@ -169,34 +169,14 @@ def read_pvlba(folder) -> PVLBAProblem:
     pts = [(i + 1, parse_numbers(xyzp, i + 1, s.split(), float, 3, "coordinates (X Y Z)"))
            for i, s in enumerate(read_lines(xyzp)) if s.strip()]
     featp = folder / "Feature.txt"
-    obs_point, obs_img, obs_uv, starts = [], [], [], [0]
-    for i, s in enumerate(read_lines(featp)):
-        tokens = s.split()
-        if not tokens:
-            continue
-        (n,) = parse_numbers(featp, i + 1, tokens[:1], int, what="track length")
-        if n < 1 or len(tokens) != 1 + 3 * n:
-            raise FormatError(featp, i + 1, f"track length {n} needs {1 + 3 * n} fields, "
-                              f"found {len(tokens)}")
-        trip = np.array(parse_numbers(featp, i + 1, tokens[1:], float, what="observations"))
-        trip = trip.reshape(n, 3)
-        idx = trip[:, 0]
-        if np.any(idx != np.round(idx)) or idx.min() < 0 or idx.max() >= n_images:
-            raise FormatError(featp, i + 1, f"image index not an integer in 0..{n_images - 1}: "
-                              f"{idx.tolist()}")
-        obs_point.extend([len(starts) - 1] * n)
-        obs_img.extend(idx.astype(np.int64).tolist())
-        obs_uv.append(trip[:, 1:])
-        starts.append(starts[-1] + n)
+    obs_point, obs_img, obs_uv, starts = read_tracks(featp, n_images, "image")
     if len(starts) - 1 != len(pts):
         raise FormatError(featp, None, f"{len(starts) - 1} tracks but XYZ.txt has {len(pts)} points")
     return PVLBAProblem(K=K, euler=cams[:, :3].copy(), centers=cams[:, 3:6].copy(),
                         group=cams[:, 6].astype(np.int64) - 1,
                         points=np.array([p for _, p in pts]).reshape(-1, 3),
-                        obs_point=np.array(obs_point, dtype=np.int64),
-                        obs_image=np.array(obs_img, dtype=np.int64),
-                        obs_uv=np.concatenate(obs_uv) if obs_uv else np.zeros((0, 2)),
-                        track_start=np.array(starts, dtype=np.int64),
+                        obs_point=obs_point, obs_image=obs_img, obs_uv=obs_uv,
+                        track_start=starts,
                         image_names=("",) * len(cams))
 
 
