@@ -296,15 +296,19 @@ def surface_errors(rec, sim: Sim3, vertices: np.ndarray, faces: np.ndarray, size
 
 # ---- all together ----------------------------------------------------------------------------
 def evaluate(rec, gt=None, mesh: tuple[np.ndarray, np.ndarray] | None = None,
-             num_images: int | None = None) -> ReconstructionMetrics:
+             num_images: int | None = None, *,
+             errors: tuple[np.ndarray, np.ndarray] | None = None,
+             alignment: tuple[Sim3, str, list[str], int] | None = None) -> ReconstructionMetrics:
     """Score a :class:`polarref.reconstruction.Reconstruction`.
 
     Args:
         gt: ground-truth Reconstruction (images matched by name), optional.
         mesh: (vertices (V, 3), faces (F, 3)) in GT coordinates, optional (needs gt).
         num_images: input image count (default: images in rec).
+        errors: a result of :func:`observation_errors` for ``rec`` to reuse.
+        alignment: a result of :func:`align_to_gt` for ``rec`` and ``gt`` to reuse.
     """
-    errs, pidx = observation_errors(rec)
+    errs, pidx = errors if errors is not None else observation_errors(rec)
     n_pts = len(rec.points3D)
     finite = np.isfinite(errs)
     per_point = mean_error_per_point(errs, pidx, n_pts)
@@ -319,7 +323,7 @@ def evaluate(rec, gt=None, mesh: tuple[np.ndarray, np.ndarray] | None = None,
         mean_track_length=float(len(errs) / n_pts) if n_pts else 0.0,
     )
     if gt is not None and len(rec.images) >= 2:
-        alignment = align_to_gt(rec, gt)
+        alignment = alignment if alignment is not None else align_to_gt(rec, gt)
         m.gt = gt_errors(rec, gt, alignment)
         if mesh is not None:
             m.surface = surface_errors(rec, alignment[0], mesh[0], mesh[1], m.gt.scene_size)

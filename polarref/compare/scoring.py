@@ -66,8 +66,11 @@ def score(rec, gt, mesh, seed: int = 0) -> Score:
     """Score ``rec`` (polarref Reconstruction) against ``gt`` (or None) and ``mesh`` ((V, F) or None)."""
     from polarref import metrics as M
 
-    m = M.evaluate(rec, gt=gt, mesh=mesh if gt is not None else None, num_images=None)
-    errs, _ = M.observation_errors(rec)
+    errors = M.observation_errors(rec)
+    alignment = M.align_to_gt(rec, gt) if gt is not None and len(rec.images) >= 2 else None
+    m = M.evaluate(rec, gt=gt, mesh=mesh if gt is not None else None, num_images=None,
+                   errors=errors, alignment=alignment)
+    errs = errors[0]
     plot = MethodPlot(reproj_hist=_hist(errs))
     notes = []
     if np.isinf(errs).any():
@@ -76,7 +79,7 @@ def score(rec, gt, mesh, seed: int = 0) -> Score:
     gt_acc = None
     if m.gt is not None:
         g = m.gt
-        sim, _, names, _ = M.align_to_gt(rec, gt)
+        sim, _, names, _ = alignment
         est_by_name = {im.name: im for im in rec.images.values()}
         gt_by_name = {im.name: im for im in gt.images.values()}
         plot.image_names = names
