@@ -15,7 +15,7 @@ import pkgutil
 import sys
 from types import ModuleType
 
-from polarref import __version__, progress
+from polarref import __version__, execution, progress
 from polarref.errors import PolarrefError
 
 log = logging.getLogger("polarref")
@@ -48,6 +48,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output")
     parser.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
     parser.add_argument("--no-progress", action="store_true", help="hide progress bars")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, metavar="N",
+                       help="run per-view/per-image/per-pair tasks on N local Dask worker processes")
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help="run tasks on an existing Dask cluster (default: $POLARREF_SCHEDULER; "
+                            "none: serial, in this process)")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     modules, _ = command_modules()
@@ -68,6 +74,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)  # exits 2 with usage on unknown commands/options
     _setup_logging(args.verbose, args.quiet)
     progress.enable(not args.no_progress and sys.stderr.isatty())
+    if args.workers is not None and args.workers < 1:
+        parser.error(f"--workers must be >= 1, got {args.workers}")
+    execution.configure(args.workers, args.scheduler)  # started on first use, closed at exit
     try:
         return int(args._run(args) or 0)
     except PolarrefError as exc:

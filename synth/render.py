@@ -242,11 +242,16 @@ def render_scene(scene: str, out: str | os.PathLike, config: SceneConfig | None 
     if same and not overwrite and _is_complete(out, cfg.views):
         return SceneResult(out, 0, cfg.views, 0.0, time.perf_counter() - t_start, None)
 
-    from synth.mitsuba_variant import load_mitsuba
+    from polarref import execution
+    from synth.mitsuba_variant import load_mitsuba, selected_variant
 
     geo = build_geometry(cfg)
     camera = PinholeCamera(cfg.width, cfg.height, pinhole_params(cfg.width, cfg.height, cfg.fov_deg))
-    mi, variant = load_mitsuba()
+    executor = execution.current()
+    if executor.in_process:
+        _, variant = load_mitsuba()
+    else:  # the workers load Mitsuba; they must pick this very variant (checked per task)
+        variant = selected_variant()
     meta = _scene_json(cfg, digest, geo, camera, variant, names)
     atomic_write_bytes(out / SCENE_JSON, (json.dumps(meta, indent=1) + "\n").encode())
     meshes.write_ply(out / "mesh.ply", geo.vertices, geo.faces,
@@ -255,31 +260,99 @@ def render_scene(scene: str, out: str | os.PathLike, config: SceneConfig | None 
     (out / "images").mkdir(exist_ok=True)
     (out / "depth").mkdir(exist_ok=True)
 
-    dists = np.array([np.linalg.norm(p.center - geo.center) for p in geo.poses])
-    near = max(1e-3 * geo.radius, 0.5 * float((dists - geo.radius).min()))
-    far = 4.0 * float(dists.max() + geo.radius)
-    scenes, rgb_sensor, depth_sensor, aov = _mitsuba_scene(mi, geo, camera, near, far, cfg)
-    exposure = np.pi * 0.95 / (WHITE_ALBEDO * max(irr for _, irr in geo.lights))
-    rgb_params, depth_params = mi.traverse(rgb_sensor), mi.traverse(depth_sensor)
-
     todo = [i for i, nm in enumerate(names) if overwrite or not (
         (out / "images" / nm).is_file() and (out / "depth" / (nm[:-4] + ".npy")).is_file())]
     t0 = time.perf_counter()
-    for i in progress.track(todo, desc=f"render {scene}", total=len(todo)):
-        pose = geo.poses[i]
-        to_world = mi.ScalarTransform4f(mitsuba_to_world(pose).tolist())
-        for params in (rgb_params, depth_params):
-            params["to_world"] = to_world
-            params.update()
-        aovs = np.array(mi.render(scenes[0], sensor=depth_sensor, integrator=aov, seed=0, spp=1))
-        pos, hit = aovs[..., :3].astype(np.float64), aovs[..., 3] > 0
-        depth = np.where(hit, pos @ pose.R[2] + pose.t[2], 0.0).astype(np.float32)
-        img = sum(np.array(mi.render(sc, sensor=rgb_sensor, seed=cfg.seed * 100003 + i, spp=cfg.spp))
-                  for sc in scenes)
-        stem = names[i][:-4]
-        atomic_write_bytes(out / "depth" / f"{stem}.npy", _encode_npy(depth))
-        atomic_write_bytes(out / "images" / names[i], _encode_png(_srgb8(img[..., :3] * exposure)))
+    if executor.in_process:
+        _view_renderer(cfg, geo)  # reuse the geometry built above
+    try:
+        executor.map(render_view, [ViewTask(str(out), cfg, i, variant.variant) for i in todo],
+                     desc=f"render {scene}")
+    finally:
+        if executor.in_process:
+            _RENDERERS.clear()  # free the Mitsuba scene as before; workers keep theirs for the next task
     seconds = time.perf_counter() - t0
     log.info("rendered %d views in %.1f s (%s)", len(todo), seconds, variant.variant)
     return SceneResult(out, len(todo), cfg.views - len(todo), seconds, time.perf_counter() - t_start,
                        variant.variant)
+
+
+# ---- one view: the task unit of polarref.execution ---------------------------------------------
+@dataclass(frozen=True)
+class ViewTask:
+    """Render view ``index`` of the scene ``config`` into folder ``out`` (scene.json already there)."""
+
+    out: str
+    config: SceneConfig
+    index: int
+    variant: str  # Mitsuba variant recorded in scene.json; a worker using another one refuses
+
+
+@dataclass(frozen=True)
+class ViewDone:
+    index: int
+    seconds: float
+    pid: int  # process that rendered it (tests and logs: which worker did the work)
+
+
+class _ViewRenderer:
+    """The Mitsuba scene of one configuration, built once per process and reused per view."""
+
+    def __init__(self, cfg: SceneConfig, geo=None):
+        from synth.mitsuba_variant import load_mitsuba
+
+        from polarref import execution
+
+        geo = geo if geo is not None else build_geometry(cfg)
+        self.cfg, self.poses = cfg, geo.poses
+        camera = PinholeCamera(cfg.width, cfg.height, pinhole_params(cfg.width, cfg.height, cfg.fov_deg))
+        self.mi, variant = load_mitsuba()
+        self.variant = variant.variant
+        if execution.on_worker():  # one core per worker process
+            import drjit
+
+            drjit.set_thread_count(1)
+        dists = np.array([np.linalg.norm(p.center - geo.center) for p in geo.poses])
+        near = max(1e-3 * geo.radius, 0.5 * float((dists - geo.radius).min()))
+        far = 4.0 * float(dists.max() + geo.radius)
+        self.scenes, self.rgb_sensor, self.depth_sensor, self.aov = _mitsuba_scene(
+            self.mi, geo, camera, near, far, cfg)
+        self.exposure = np.pi * 0.95 / (WHITE_ALBEDO * max(irr for _, irr in geo.lights))
+        self.params = (self.mi.traverse(self.rgb_sensor), self.mi.traverse(self.depth_sensor))
+
+    def render(self, i: int, out: Path) -> None:
+        mi, pose, cfg = self.mi, self.poses[i], self.cfg
+        to_world = mi.ScalarTransform4f(mitsuba_to_world(pose).tolist())
+        for params in self.params:
+            params["to_world"] = to_world
+            params.update()
+        aovs = np.array(mi.render(self.scenes[0], sensor=self.depth_sensor, integrator=self.aov, seed=0, spp=1))
+        pos, hit = aovs[..., :3].astype(np.float64), aovs[..., 3] > 0
+        depth = np.where(hit, pos @ pose.R[2] + pose.t[2], 0.0).astype(np.float32)
+        img = sum(np.array(mi.render(sc, sensor=self.rgb_sensor, seed=cfg.seed * 100003 + i, spp=cfg.spp))
+                  for sc in self.scenes)
+        stem = view_names(cfg.views)[i][:-4]
+        atomic_write_bytes(out / "depth" / f"{stem}.npy", _encode_npy(depth))
+        atomic_write_bytes(out / "images" / f"{stem}.png", _encode_png(_srgb8(img[..., :3] * self.exposure)))
+
+
+_RENDERERS: dict[str, _ViewRenderer] = {}
+
+
+def _view_renderer(cfg: SceneConfig, geo=None) -> _ViewRenderer:
+    key = cfg.digest(code_version())
+    if key not in _RENDERERS:
+        _RENDERERS.clear()  # one scene per process is enough; a new one frees the old one
+        _RENDERERS[key] = _ViewRenderer(cfg, geo)
+    return _RENDERERS[key]
+
+
+def render_view(task: ViewTask) -> ViewDone:
+    """Render one view (a task; the process-wide scene cache makes later views cheap)."""
+    t0 = time.perf_counter()
+    renderer = _view_renderer(task.config)
+    if renderer.variant != task.variant:
+        raise PolarrefError(f"this process renders with Mitsuba variant {renderer.variant}, but the scene was "
+                            f"started with {task.variant}; give every worker the same Mitsuba/LLVM set-up")
+    renderer.render(task.index, Path(task.out))
+    return ViewDone(task.index, time.perf_counter() - t0, os.getpid())

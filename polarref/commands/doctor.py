@@ -70,8 +70,24 @@ def collect() -> dict[str, object]:
     return report
 
 
+def execution_info() -> dict[str, object]:
+    """The execution mode in use (``--workers``/``--scheduler``) and the workers it sees.
+
+    Kept out of :func:`collect` (recorded in reports) so that asking for versions never starts
+    or contacts a cluster.
+    """
+    import dataclasses
+
+    from polarref import execution
+
+    desc = execution.current().describe()
+    return {"execution": desc.mode, "execution_detail": desc.detail,
+            "workers": [dataclasses.asdict(w) for w in desc.workers]}
+
+
 def run(args: argparse.Namespace) -> int:
     report = collect()
+    report.update(execution_info())
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
@@ -79,5 +95,8 @@ def run(args: argparse.Namespace) -> int:
     for key, value in report.items():
         if key == "broken_commands":
             value = ", ".join(f"{k} ({v})" for k, v in value.items()) or "none"
+        if key == "workers":
+            value = f"{len(value)}: " + ", ".join(f"{w['address']} (pid {w['pid']}, {w['nthreads']} thread)"
+                                                 for w in value) if value else "none (serial)"
         print(f"{key:<{width}}  {value}")
     return 0

@@ -10,16 +10,17 @@ import dataclasses
 import hashlib
 import json
 import logging
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from polarref import execution
 from polarref.data import cache_root
 from polarref.errors import PolarrefError
 from polarref.geometry import Rigid3
-from polarref.progress import track
 from polarref.reconstruction import Reconstruction
 from polarref.sfm import features as F
 from polarref.sfm import rays as R_
@@ -176,14 +177,7 @@ def load_images_and_features(image_dir: Path, config: SfMConfig, timings: dict) 
         skipped = json.loads(skipped_file.read_text())
         timings["features_cached"] = True
     else:
-        feats, skipped = [], []
-        for p in track(paths, desc="features", total=len(paths)):
-            img = F.read_image(p)
-            if img is None:
-                log.warning("skipping unreadable image %s", p)
-                skipped.append({"name": p.name, "reason": "unreadable (OpenCV could not decode it)"})
-                continue
-            feats.append(F.extract(img, p.name, config.features))
+        feats, skipped = _extract_all(paths, config, key)
         if config.use_cache:
             F.save(cache, feats)
             skipped_file.write_text(json.dumps(skipped))
@@ -211,17 +205,76 @@ def match_and_verify(feats: list[F.Features], cameras: list, camera_of_image: np
         timings["matches_cached"] = True
     else:
         pairs = select_pairs(len(feats), config.matching, centers)
-        putative = match_pairs([f.descriptors for f in feats], pairs, config.matching)
-        timings["matching"] = time.perf_counter() - t0
-        t1 = time.perf_counter()
-        xy = [R_.normalized(R_.bearings(cameras[camera_of_image[i]], f.keypoints)) for i, f in enumerate(feats)]
         focal = float(np.mean([R_.mean_focal(c) for c in cameras]))
-        geoms = verify_pairs(xy, putative, focal, config.verification)
-        timings["verification"] = time.perf_counter() - t1
+        executor = execution.current()
+        if executor.in_process:
+            putative = match_pairs([f.descriptors for f in feats], pairs, config.matching)
+            timings["matching"] = time.perf_counter() - t0
+            t1 = time.perf_counter()
+            xy = [R_.normalized(R_.bearings(cameras[camera_of_image[i]], f.keypoints)) for i, f in enumerate(feats)]
+            geoms = verify_pairs(xy, putative, focal, config.verification)
+            timings["verification"] = time.perf_counter() - t1
+        else:
+            putative, geoms = _match_on_cluster(executor, feats, pairs, cameras, camera_of_image, focal, config,
+                                                key, timings, t0)
         if config.use_cache:
             _save_matches(cache, putative, geoms)
         timings["matches_cached"] = False
     return Matches([f.name for f in feats], feats, putative, geoms)
+
+
+def _extract_all(paths: list[Path], config: SfMConfig, key: str) -> tuple[list[F.Features], list[dict]]:
+    """One task per image; on a cluster each writes its features to a file in the cache folder."""
+    from polarref.sfm.tasks import ExtractTask, extract_image
+
+    executor = execution.current()
+    parts = None if executor.in_process else _cache_dir(config) / "parts"
+    if parts is not None:
+        parts.mkdir(parents=True, exist_ok=True)
+    tasks = [ExtractTask(str(p), config.features, None if parts is None else str(parts / f"features-{key}-{os.getpid()}-{i:05d}.npz"))
+             for i, p in enumerate(paths)]
+    feats, skipped = [], []
+    for done in executor.map(extract_image, tasks, desc="features"):
+        if done.skipped:
+            log.warning("skipping unreadable image %s", done.name)
+            skipped.append({"name": done.name, "reason": done.skipped})
+        elif done.features is not None:
+            feats.append(done.features)
+        else:
+            feats.append(F.load(Path(done.path))[0])
+            Path(done.path).unlink(missing_ok=True)
+    return feats, skipped
+
+
+def _match_on_cluster(executor, feats: list[F.Features], pairs: list[tuple[int, int]], cameras: list,
+                      camera_of_image: np.ndarray, focal: float, config: SfMConfig, key: str, timings: dict,
+                      t0: float):
+    """Matching + verification as chunk tasks exchanging files; merged in pair order."""
+    from polarref.sfm.tasks import MatchTask, chunks, match_chunk
+
+    parts = _cache_dir(config) / "parts"
+    parts.mkdir(parents=True, exist_ok=True)
+    feat_file = parts / f"features-for-{key}-{os.getpid()}.npz"
+    F.save(feat_file, feats)
+    tasks = [MatchTask(str(feat_file), tuple(c), tuple(cameras), tuple(int(i) for i in camera_of_image), focal,
+                       config.matching, config.verification, str(parts / f"matches-{key}-{os.getpid()}-{k:05d}.npz"))
+             for k, c in enumerate(chunks(pairs, executor.size()))]
+    done = executor.map(match_chunk, tasks, desc="matching")
+    putative_all, geoms_all = {}, {}
+    for d in done:
+        m, g = _load_matches(Path(d.path))
+        putative_all.update(m)
+        geoms_all.update(g)
+        Path(d.path).unlink(missing_ok=True)
+    feat_file.unlink(missing_ok=True)
+    putative = {p: putative_all[p] for p in pairs if p in putative_all}
+    geoms = {p: geoms_all[p] for p in pairs if p in geoms_all}
+    # Matching and verification ran inside the same tasks: split the wall time by their CPU shares.
+    wall = time.perf_counter() - t0
+    m_s, v_s = sum(d.matching_s for d in done), sum(d.verification_s for d in done)
+    share = m_s / (m_s + v_s) if m_s + v_s > 0 else 1.0
+    timings["matching"], timings["verification"] = wall * share, wall * (1.0 - share)
+    return putative, geoms
 
 
 def _prepare_out(out_dir: Path, overwrite: bool) -> None:
