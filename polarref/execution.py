@@ -26,6 +26,7 @@ import atexit
 import functools
 import logging
 import os
+import uuid
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Callable, Iterator, Sequence, TypeVar
@@ -168,8 +169,9 @@ class DaskExecutor:
 
         if not items:
             return []
+        batch = uuid.uuid4().hex  # unique keys: equal keys would share one result on the scheduler
         futures = self.client.map(functools.partial(_in_worker, fn), list(items), pure=False,
-                                  key=[f"{desc}-{os.getpid()}-{id(items)}-{i}" for i in range(len(items))])
+                                  key=[f"{desc}-{batch}-{i}" for i in range(len(items))])
         try:
             for fut in track(as_completed(futures), desc=desc, total=len(futures)):
                 if fut.status == "error":
@@ -285,12 +287,18 @@ def shutdown() -> None:
 
 @contextmanager
 def using(workers: int | None = None, scheduler: str | None = None) -> Iterator[SerialExecutor | DaskExecutor]:
-    """Library/test use: ``with using(workers=2) as ex: render_scene(...)``; restores serial after."""
-    configure(workers, scheduler)
+    """Library/test use: ``with using(workers=2) as ex: render_scene(...)``.
+
+    Nests: the executor chosen outside is kept (not closed) and is the current one again after.
+    """
+    global _SPEC, _CURRENT
+    saved = (_SPEC, _CURRENT)
+    _SPEC, _CURRENT = resolve(workers, scheduler, environ={}), None
     try:
         yield current()
     finally:
-        configure()
+        shutdown()
+        _SPEC, _CURRENT = saved
 
 
 _SERIAL = SerialExecutor()

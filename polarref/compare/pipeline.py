@@ -8,20 +8,26 @@ claims -> metrics.json -> report. Work products (databases, models, logs) live i
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import shlex
 import sys
+import threading
 import time
+from collections import defaultdict
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import Callable
 
+from polarref import execution
 from polarref.compare import claims as claims_mod
 from polarref.compare import scenes
 from polarref.compare.jobs import camera_to_json
 from polarref.compare.methods import METHOD_NAMES, PAIRS, RUN_ORDER, MethodSpec, select
-from polarref.compare.runner import run_isolated
+from polarref.compare.runner import run_isolated, run_isolated_with
 from polarref.compare.schema import (SCHEMA_VERSION, STATUS_FAILED, STATUS_OK, STATUS_TIMEOUT, BATrace,
                                      Environment, MethodResult, MetricsFile, SceneInfo, TracePoint, save)
 from polarref.errors import PolarrefError
@@ -65,6 +71,8 @@ class _Context:
     cache: Path                                      # shared feature/match cache of our SfM
     camera: dict = field(default_factory=dict)
     db_results: dict = field(default_factory=dict)   # shared stage -> (outcome, db path or None)
+    run: Callable = run_isolated                     # how a job runs: here, or as a task on a worker
+    locks: dict = field(default_factory=lambda: defaultdict(threading.Lock))  # shared stage -> its lock
 
 
 def default_out(scene: scenes.PreparedScene, preset: str) -> Path:
@@ -76,6 +84,11 @@ def default_out(scene: scenes.PreparedScene, preset: str) -> Path:
 
 def _shared(ctx: _Context, key: str):
     """Run (once per comparison) a stage several methods share; returns (outcome, extra)."""
+    with ctx.locks[key]:  # methods running concurrently on a cluster wait for one shared run
+        return _shared_once(ctx, key)
+
+
+def _shared_once(ctx: _Context, key: str):
     if key in ctx.db_results:
         return ctx.db_results[key]
     common = dict(image_dir=str(ctx.scene.image_dir), camera=ctx.camera)
@@ -95,7 +108,7 @@ def _shared(ctx: _Context, key: str):
                                                         db_path=str(extra))
     else:
         raise ValueError(key)
-    outcome = run_isolated(job, {**common, **kw}, ctx.timeout, ctx.runs / key, "job")
+    outcome = ctx.run(job, {**common, **kw}, ctx.timeout, ctx.runs / key, "job")
     ctx.db_results[key] = (outcome, extra)
     return ctx.db_results[key]
 
@@ -121,15 +134,15 @@ def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodResult, object |
         for k, v in pre.result.get("stage_runtime_s", {}).items():
             stages[k if key != "db-ours" else f"pycolmap {k}"] = float(v)
     if spec.family == "pycolmap":
-        outcome = run_isolated("polarref.compare.jobs:pycolmap_map",
-                               dict(db_path=str(db), image_dir=str(ctx.scene.image_dir), work_dir=str(work),
-                                    mapper=spec.mapper.split("-")[1], seed=ctx.seed),
-                               ctx.timeout, work, "job")
+        outcome = ctx.run("polarref.compare.jobs:pycolmap_map",
+                          dict(db_path=str(db), image_dir=str(ctx.scene.image_dir), work_dir=str(work),
+                               mapper=spec.mapper.split("-")[1], seed=ctx.seed),
+                          ctx.timeout, work, "job")
     else:
-        outcome = run_isolated("polarref.compare.jobs:ours_sfm",
-                               dict(image_dir=str(ctx.scene.image_dir), camera=ctx.camera, ba=spec.ba,
-                                    work_dir=str(work), preset=ctx.preset, cache_dir=str(ctx.cache)),
-                               ctx.timeout, work, "job")
+        outcome = ctx.run("polarref.compare.jobs:ours_sfm",
+                          dict(image_dir=str(ctx.scene.image_dir), camera=ctx.camera, ba=spec.ba,
+                               work_dir=str(work), preset=ctx.preset, cache_dir=str(ctx.cache)),
+                          ctx.timeout, work, "job")
     res.status, res.reason = outcome.status, outcome.reason
     if outcome.status != STATUS_OK:
         return res, None, {}
@@ -142,6 +155,18 @@ def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodResult, object |
         res.status, res.reason = STATUS_FAILED, f"cannot read the method's model: {exc}"
         return res, None, outcome.result
     return res, rec, outcome.result
+
+
+def _run_methods_on_cluster(executor, ctx: _Context, ordered: list[MethodSpec], timeout: float,
+                            deadline: float | None) -> list[tuple[MethodResult, object | None, dict]]:
+    """Every method as a task on the cluster at once (shared stages run once, first come).
+
+    One thread per method waits for its task(s); the methods' own processes run on the workers.
+    """
+    ctx.run = functools.partial(run_isolated_with, executor)
+    ctx.timeout = timeout if deadline is None else min(timeout, max(deadline - time.perf_counter(), 2.0))
+    with ThreadPoolExecutor(max_workers=len(ordered) or 1) as pool:
+        return list(pool.map(lambda spec: _run_method(ctx, spec), ordered))
 
 
 def _score_into(res: MethodResult, rec, scene: scenes.PreparedScene, mesh, seed: int,
@@ -228,6 +253,14 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
     results: list[MethodResult] = []
     job_results: dict[str, dict] = {}
     ordered = sorted(specs, key=lambda m: RUN_ORDER.index(m.name))
+    executor = execution.current()
+    if not executor.in_process:
+        for res, rec, job in _run_methods_on_cluster(executor, ctx, ordered, timeout, deadline):
+            if rec is not None:
+                _score_into(res, rec, scene, mesh, cfg.seed, notes)
+            job_results[res.name] = job
+            results.append(res)
+        ordered = []
     for k, spec in enumerate(track(ordered, desc="methods", total=len(ordered))):
         ctx.timeout = timeout
         if deadline is not None:

@@ -98,3 +98,35 @@ def run_isolated(job: str, kwargs: dict, timeout_s: float, work_dir: Path, tag: 
     if not payload.get("ok"):
         return JobOutcome(STATUS_FAILED, payload.get("error", "unknown error"), wall)
     return JobOutcome(STATUS_OK, "", wall, payload.get("result") or {})
+
+
+# ---- one isolated job as a task of polarref.execution -----------------------------------------
+@dataclass(frozen=True)
+class IsolatedTask:
+    """:func:`run_isolated` arguments as a small picklable record (paths as str)."""
+
+    job: str
+    kwargs: dict
+    timeout_s: float
+    work_dir: str
+    tag: str
+
+
+def isolated_task(task: IsolatedTask) -> JobOutcome:
+    """Run one job in its own process on whichever worker takes this task.
+
+    A daemonic worker process may not start children; Dask workers are daemonic unless started
+    with ``DASK_DISTRIBUTED__WORKER__DAEMON=False`` (``--workers`` sets it).
+    """
+    if mp.current_process().daemon:
+        return JobOutcome(STATUS_FAILED, "this Dask worker is a daemonic process and cannot start the job's "
+                          "isolated process; start workers with DASK_DISTRIBUTED__WORKER__DAEMON=False")
+    return run_isolated(task.job, task.kwargs, task.timeout_s, Path(task.work_dir), task.tag)
+
+
+def run_isolated_with(executor, job: str, kwargs: dict, timeout_s: float, work_dir: Path, tag: str) -> JobOutcome:
+    """:func:`run_isolated` through ``executor`` (a polarref.execution executor); blocks until done."""
+    if executor.in_process:
+        return run_isolated(job, kwargs, timeout_s, work_dir, tag)
+    return executor.map(isolated_task, [IsolatedTask(job, kwargs, timeout_s, str(work_dir), tag)],
+                        desc=f"job-{tag}")[0]
