@@ -166,8 +166,8 @@ def test_dask_cluster_render_and_sfm_equal_serial(tmp_path, dask_cluster, comet_
 
 @pytest.mark.slow
 def test_killed_worker_mid_render_completes_on_the_other(tmp_path):
-    cluster = SubprocessCluster(tmp_path / "cluster", n=2, nanny=False) if (tmp_path / "cluster").mkdir() is None \
-        else None
+    (tmp_path / "cluster").mkdir()
+    cluster = SubprocessCluster(tmp_path / "cluster", n=2, nanny=False)  # no nanny: a killed worker stays dead
     try:
         victim_addr, victim_pid = sorted(cluster.worker_pids().items())[0]
         out = tmp_path / "dask"
