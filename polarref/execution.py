@@ -165,7 +165,8 @@ class DaskExecutor:
             raise ValueError(f"DaskExecutor needs mode local or remote, not {spec.mode!r}")
 
     def map(self, fn: Callable[[T], R], items: Sequence[T], *, desc: str = "tasks") -> list[R]:
-        from distributed import as_completed
+        from distributed import KilledWorker, as_completed
+        from distributed.comm.core import CommClosedError
 
         if not items:
             return []
@@ -177,13 +178,27 @@ class DaskExecutor:
                 if fut.status == "error":
                     fut.result()  # raises the task's own exception here
             return [f.result() for f in futures]
+        except KilledWorker as exc:
+            self._cancel(futures)
+            raise PolarrefError(f"{desc}: a task was lost with every worker that ran it ({exc}); the workers "
+                                f"may run out of memory or be killed: see their logs") from None
+        except CommClosedError:
+            self._cancel(futures)
+            raise PolarrefError(f"{desc}: lost the connection to the Dask scheduler "
+                                f"{self.spec.address or '(local)'}") from None
         except BaseException:
-            self.client.cancel(futures)
+            self._cancel(futures)
             raise
+
+    def _cancel(self, futures) -> None:
+        try:
+            self.client.cancel(futures)
+        except Exception:  # the scheduler may be gone; the error being raised matters more
+            pass
 
     def size(self) -> int:
         """Number of workers now (chunking hint only: results never depend on it)."""
-        return max(1, len(self.client.scheduler_info().get("workers", {})))
+        return max(1, len(self.client.nthreads()))
 
     def workers(self) -> list[WorkerInfo]:
         info = self.client.scheduler_info(n_workers=-1) if _accepts_n_workers(self.client) \
