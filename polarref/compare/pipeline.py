@@ -71,8 +71,11 @@ class _Context:
     cache: Path                                      # shared feature/match cache of our SfM
     camera: dict = field(default_factory=dict)
     db_results: dict = field(default_factory=dict)   # shared stage -> (outcome, db path or None)
-    run: Callable = run_isolated                     # how a job runs: here, or as a task on a worker
+    run: Callable | None = None                      # how a job runs; None: run_isolated, here
     locks: dict = field(default_factory=lambda: defaultdict(threading.Lock))  # shared stage -> its lock
+
+    def job(self, *args):
+        return (self.run or run_isolated)(*args)
 
 
 def default_out(scene: scenes.PreparedScene, preset: str) -> Path:
@@ -108,7 +111,7 @@ def _shared_once(ctx: _Context, key: str):
                                                         db_path=str(extra))
     else:
         raise ValueError(key)
-    outcome = ctx.run(job, {**common, **kw}, ctx.timeout, ctx.runs / key, "job")
+    outcome = ctx.job(job, {**common, **kw}, ctx.timeout, ctx.runs / key, "job")
     ctx.db_results[key] = (outcome, extra)
     return ctx.db_results[key]
 
@@ -134,12 +137,12 @@ def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodResult, object |
         for k, v in pre.result.get("stage_runtime_s", {}).items():
             stages[k if key != "db-ours" else f"pycolmap {k}"] = float(v)
     if spec.family == "pycolmap":
-        outcome = ctx.run("polarref.compare.jobs:pycolmap_map",
+        outcome = ctx.job("polarref.compare.jobs:pycolmap_map",
                           dict(db_path=str(db), image_dir=str(ctx.scene.image_dir), work_dir=str(work),
                                mapper=spec.mapper.split("-")[1], seed=ctx.seed),
                           ctx.timeout, work, "job")
     else:
-        outcome = ctx.run("polarref.compare.jobs:ours_sfm",
+        outcome = ctx.job("polarref.compare.jobs:ours_sfm",
                           dict(image_dir=str(ctx.scene.image_dir), camera=ctx.camera, ba=spec.ba,
                                work_dir=str(work), preset=ctx.preset, cache_dir=str(ctx.cache)),
                           ctx.timeout, work, "job")
