@@ -9,10 +9,14 @@ progress bars are set up here and nowhere else.
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import logging
 import pkgutil
+import signal
 import sys
+import threading
+import traceback
 from types import ModuleType
 
 from polarref import __version__, progress
@@ -54,25 +58,99 @@ def build_parser() -> argparse.ArgumentParser:
     for module in modules:
         p = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP)
         module.add_arguments(p)
-        p.set_defaults(_run=module.run)
+        p.set_defaults(_run=module.run, _positionals=[a.dest for a in p._actions
+                                                      if not a.option_strings and a.dest != "help"])
     return parser
 
 
 def _setup_logging(verbose: int, quiet: bool) -> None:
     level = logging.WARNING if quiet else (logging.DEBUG if verbose > 0 else logging.INFO)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    # Python warnings (numpy RuntimeWarnings, ...) go through logging, as one line each.
+    logging.captureWarnings(True)
+
+
+class _Interrupts:
+    """Record SIGINT before raising KeyboardInterrupt, so an interrupt that a C extension
+    (drjit, pycolmap) turns into another exception still ends as 'interrupted' (exit 130)."""
+
+    def __init__(self) -> None:
+        self.seen = False
+        self._previous = None
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGINT, self._handler)
+
+    def _handler(self, signum, frame) -> None:
+        self.seen = True
+        raise KeyboardInterrupt
+
+    def restore(self) -> None:
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+
+
+def _primary_input(args: argparse.Namespace) -> str | None:
+    """The first positional argument of the subcommand (what the user gave it to work on)."""
+    for action in getattr(args, "_positionals", ()):
+        value = getattr(args, action, None)
+        if value not in (None, [], ""):
+            return " ".join(map(str, value)) if isinstance(value, list) else str(value)
+    return None
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def describe(exc: BaseException, args: argparse.Namespace) -> str:
+    """One line ``<input>: <what went wrong> (<what to do>)`` for any exception."""
+    if isinstance(exc, PolarrefError):
+        text = _one_line(exc)
+        if exc.option:
+            text += f" (use --{exc.option.replace('_', '-')})"
+        return text
+    if isinstance(exc, MemoryError):
+        where = _primary_input(args)
+        return (f"{where + ': ' if where else ''}out of memory"
+                " (use a smaller input or preset, or free memory)")
+    if isinstance(exc, OSError):
+        name = exc.filename or _primary_input(args) or ""
+        what = _one_line(exc.strerror or exc)
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            todo = "free disk space or choose another output folder; nothing half-written was kept"
+        elif exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+            todo = "check permissions or choose another output path"
+        elif exc.errno in (errno.ENOTDIR, errno.EISDIR, errno.EEXIST):
+            todo = "a file stands where a folder is needed or the reverse; choose another path"
+        elif exc.errno == errno.ENOENT:
+            todo = "check the path"
+        else:
+            todo = "check the path and the disk"
+        return f"{name + ': ' if name else ''}{what} ({todo})"
+    where = _primary_input(args)
+    return (f"{where + ': ' if where else ''}unexpected {type(exc).__name__}: {_one_line(exc)} "
+            f"(rerun with -v for the traceback and report it)")
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one subcommand. Every failure ends here as one stderr line and an exit code:
+    1 for errors, 2 for usage (argparse), 130 for Ctrl-C; tracebacks only with -v."""
     parser = build_parser()
-    args = parser.parse_args(argv)  # exits 2 with usage on unknown commands/options
+    args = parser.parse_args(argv)  # exits 2 with usage on unknown commands/options/bad values
     _setup_logging(args.verbose, args.quiet)
     progress.enable(not args.no_progress and sys.stderr.isatty())
+    interrupts = _Interrupts()
     try:
         return int(args._run(args) or 0)
-    except PolarrefError as exc:
-        print(f"polarref {args.command}: error: {exc}", file=sys.stderr)
+    except SystemExit:
+        raise
+    except BaseException as exc:  # the one boundary: nothing escapes as a traceback
+        if args.verbose:
+            traceback.print_exception(exc, file=sys.stderr)
+        if isinstance(exc, KeyboardInterrupt) or interrupts.seen:
+            print(f"polarref {args.command}: interrupted; finished outputs were kept", file=sys.stderr)
+            return 130
+        print(f"polarref {args.command}: {describe(exc, args)}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print(f"polarref {args.command}: interrupted; finished outputs were kept", file=sys.stderr)
-        return 130
+    finally:
+        interrupts.restore()

@@ -181,7 +181,7 @@ class Reconstruction:
             rgb = " ".join(str(int(v)) for v in p.color)
             track = " ".join(f"{int(a)} {int(b)}" for a, b in p.track)
             pts.append(f"{pid} {xyz} {rgb} {float(p.error)!r} {track}")
+        from polarref.atomic import atomic_write
+
         for name, lines in (("cameras.txt", cams), ("images.txt", imgs), ("points3D.txt", pts)):
-            tmp = path / f".{name}.tmp"
-            tmp.write_text("\n".join(lines) + "\n")
-            tmp.replace(path / name)
+            atomic_write(path / name, "\n".join(lines) + "\n")

@@ -8,6 +8,7 @@ leaves a half-written file behind.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
@@ -21,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from polarref import progress
+from polarref.atomic import publish_dir
 from polarref.errors import PolarrefError
 from synth import meshes
 from synth.config import SceneConfig, preset
@@ -90,12 +92,13 @@ def _prepare_out(out: Path, digest: str, overwrite: bool) -> bool:
             return True
         if not overwrite:
             raise PolarrefError(f"{out} holds a scene rendered with other parameters or code "
-                                f"(digest {old} != {digest}); pass --overwrite or choose another --out")
+                                f"(digest {old} != {digest}); choose another output folder or replace it",
+                                option="overwrite")
         return False
     foreign = sorted(p.name for p in out.iterdir() if not p.name.startswith(".") and p.name not in _KNOWN_ENTRIES)
     if foreign and not overwrite:
         raise PolarrefError(f"{out} is not empty and is not a rendered scene (found {foreign[0]!r}); "
-                            f"choose a new folder or pass --overwrite")
+                            f"choose a new folder or replace it", option="overwrite")
     return False
 
 
@@ -213,6 +216,44 @@ def _encode_npy(a: np.ndarray) -> bytes:
     return bio.getvalue()
 
 
+def _render_views(out: Path, scene: str, cfg: SceneConfig, digest: str, geo, camera, mi, variant,
+                  names: list[str], overwrite: bool) -> tuple[list[int], float]:
+    """Write scene.json, mesh, GT and every missing view into ``out``; (rendered views, start time)."""
+    meta = _scene_json(cfg, digest, geo, camera, variant, names)
+    atomic_write_bytes(out / SCENE_JSON, (json.dumps(meta, indent=1) + "\n").encode())
+    meshes.write_ply(out / "mesh.ply", geo.vertices, geo.faces,
+                     np.repeat(np.round(geo.albedo * 255).astype(np.uint8)[:, None], 3, 1))
+    write_gt(out, camera, names, geo.poses)
+    (out / "images").mkdir(exist_ok=True)
+    (out / "depth").mkdir(exist_ok=True)
+
+    dists = np.array([np.linalg.norm(p.center - geo.center) for p in geo.poses])
+    near = max(1e-3 * geo.radius, 0.5 * float((dists - geo.radius).min()))
+    far = 4.0 * float(dists.max() + geo.radius)
+    scenes, rgb_sensor, depth_sensor, aov = _mitsuba_scene(mi, geo, camera, near, far, cfg)
+    exposure = np.pi * 0.95 / (WHITE_ALBEDO * max(irr for _, irr in geo.lights))
+    rgb_params, depth_params = mi.traverse(rgb_sensor), mi.traverse(depth_sensor)
+
+    todo = [i for i, nm in enumerate(names) if overwrite or not (
+        (out / "images" / nm).is_file() and (out / "depth" / (nm[:-4] + ".npy")).is_file())]
+    t0 = time.perf_counter()
+    for i in progress.track(todo, desc=f"render {scene}", total=len(todo)):
+        pose = geo.poses[i]
+        to_world = mi.ScalarTransform4f(mitsuba_to_world(pose).tolist())
+        for params in (rgb_params, depth_params):
+            params["to_world"] = to_world
+            params.update()
+        aovs = np.array(mi.render(scenes[0], sensor=depth_sensor, integrator=aov, seed=0, spp=1))
+        pos, hit = aovs[..., :3].astype(np.float64), aovs[..., 3] > 0
+        depth = np.where(hit, pos @ pose.R[2] + pose.t[2], 0.0).astype(np.float32)
+        img = sum(np.array(mi.render(sc, sensor=rgb_sensor, seed=cfg.seed * 100003 + i, spp=cfg.spp))
+                  for sc in scenes)
+        stem = names[i][:-4]
+        atomic_write_bytes(out / "depth" / f"{stem}.npy", _encode_npy(depth))
+        atomic_write_bytes(out / "images" / names[i], _encode_png(_srgb8(img[..., :3] * exposure)))
+    return todo, t0
+
+
 def render_scene(scene: str, out: str | os.PathLike, config: SceneConfig | None = None, *,
                  overwrite: bool = False) -> SceneResult:
     """Render ``scene`` into folder ``out`` (resumable; see the module docstring).
@@ -247,38 +288,13 @@ def render_scene(scene: str, out: str | os.PathLike, config: SceneConfig | None 
     geo = build_geometry(cfg)
     camera = PinholeCamera(cfg.width, cfg.height, pinhole_params(cfg.width, cfg.height, cfg.fov_deg))
     mi, variant = load_mitsuba()
-    meta = _scene_json(cfg, digest, geo, camera, variant, names)
-    atomic_write_bytes(out / SCENE_JSON, (json.dumps(meta, indent=1) + "\n").encode())
-    meshes.write_ply(out / "mesh.ply", geo.vertices, geo.faces,
-                     np.repeat(np.round(geo.albedo * 255).astype(np.uint8)[:, None], 3, 1))
-    write_gt(out, camera, names, geo.poses)
-    (out / "images").mkdir(exist_ok=True)
-    (out / "depth").mkdir(exist_ok=True)
-
-    dists = np.array([np.linalg.norm(p.center - geo.center) for p in geo.poses])
-    near = max(1e-3 * geo.radius, 0.5 * float((dists - geo.radius).min()))
-    far = 4.0 * float(dists.max() + geo.radius)
-    scenes, rgb_sensor, depth_sensor, aov = _mitsuba_scene(mi, geo, camera, near, far, cfg)
-    exposure = np.pi * 0.95 / (WHITE_ALBEDO * max(irr for _, irr in geo.lights))
-    rgb_params, depth_params = mi.traverse(rgb_sensor), mi.traverse(depth_sensor)
-
-    todo = [i for i, nm in enumerate(names) if overwrite or not (
-        (out / "images" / nm).is_file() and (out / "depth" / (nm[:-4] + ".npy")).is_file())]
-    t0 = time.perf_counter()
-    for i in progress.track(todo, desc=f"render {scene}", total=len(todo)):
-        pose = geo.poses[i]
-        to_world = mi.ScalarTransform4f(mitsuba_to_world(pose).tolist())
-        for params in (rgb_params, depth_params):
-            params["to_world"] = to_world
-            params.update()
-        aovs = np.array(mi.render(scenes[0], sensor=depth_sensor, integrator=aov, seed=0, spp=1))
-        pos, hit = aovs[..., :3].astype(np.float64), aovs[..., 3] > 0
-        depth = np.where(hit, pos @ pose.R[2] + pose.t[2], 0.0).astype(np.float32)
-        img = sum(np.array(mi.render(sc, sensor=rgb_sensor, seed=cfg.seed * 100003 + i, spp=cfg.spp))
-                  for sc in scenes)
-        stem = names[i][:-4]
-        atomic_write_bytes(out / "depth" / f"{stem}.npy", _encode_npy(depth))
-        atomic_write_bytes(out / "images" / names[i], _encode_png(_srgb8(img[..., :3] * exposure)))
+    # Replacing a folder: render into a hidden sibling and swap it in whole at the end, so no
+    # image or depth map of the old scene (more views, other size) survives beside the new ones.
+    replacing = overwrite and any(out.iterdir())
+    staging = publish_dir(out, overwrite=True, owned=tuple(_KNOWN_ENTRIES)) if replacing else contextlib.nullcontext(out)
+    with staging as root:
+        todo, t0 = _render_views(root, scene, cfg, digest, geo, camera, mi, variant, names,
+                                 overwrite)
     seconds = time.perf_counter() - t0
     log.info("rendered %d views in %.1f s (%s)", len(todo), seconds, variant.variant)
     return SceneResult(out, len(todo), cfg.views - len(todo), seconds, time.perf_counter() - t_start,

@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 import polarref
+from polarref.atomic import atomic_write
 from polarref.errors import PolarrefError
 
 NAME = "derive"
@@ -72,10 +73,10 @@ def _write_if_changed(target: Path, text: str, overwrite: bool) -> bool:
         if target.read_text() == text:
             return False
         if not overwrite:
-            raise PolarrefError(f"{target} exists and differs from the regenerated text; "
-                                "rerun with --overwrite to replace it")
+            raise PolarrefError(f"{target} exists and differs from the regenerated text",
+                                option="overwrite")
     target.parent.mkdir(parents=True, exist_ok=True)
-    target.write_text(text)
+    atomic_write(target, text)
     return True
 
 
