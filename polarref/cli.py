@@ -135,22 +135,26 @@ def describe(exc: BaseException, args: argparse.Namespace) -> str:
 def main(argv: list[str] | None = None) -> int:
     """Run one subcommand. Every failure ends here as one stderr line and an exit code:
     1 for errors, 2 for usage (argparse), 130 for Ctrl-C; tracebacks only with -v."""
-    parser = build_parser()
-    args = parser.parse_args(argv)  # exits 2 with usage on unknown commands/options/bad values
-    _setup_logging(args.verbose, args.quiet)
-    progress.enable(not args.no_progress and sys.stderr.isatty())
-    interrupts = _Interrupts()
+    interrupts = _Interrupts()  # first: Ctrl-C while the commands are still importing counts too
+    args = argparse.Namespace(command=None, verbose=0)
     try:
-        return int(args._run(args) or 0)
+        args = build_parser().parse_args(argv)  # exits 2 with usage on bad commands/options/values
+        _setup_logging(args.verbose, args.quiet)
+        progress.enable(not args.no_progress and sys.stderr.isatty())
+        code = int(args._run(args) or 0)
+        if interrupts.seen:  # an extension swallowed the KeyboardInterrupt; Ctrl-C still wins
+            raise KeyboardInterrupt
+        return code
     except SystemExit:
         raise
     except BaseException as exc:  # the one boundary: nothing escapes as a traceback
+        name = f"polarref {args.command}" if args.command else "polarref"
         if args.verbose:
             traceback.print_exception(exc, file=sys.stderr)
         if isinstance(exc, KeyboardInterrupt) or interrupts.seen:
-            print(f"polarref {args.command}: interrupted; finished outputs were kept", file=sys.stderr)
+            print(f"{name}: interrupted; finished outputs were kept", file=sys.stderr)
             return 130
-        print(f"polarref {args.command}: {describe(exc, args)}", file=sys.stderr)
+        print(f"{name}: {describe(exc, args)}", file=sys.stderr)
         return 1
     finally:
         interrupts.restore()

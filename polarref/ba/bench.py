@@ -193,7 +193,6 @@ def run_bench(problems, out_dir: Path, options: BAOptions = BAOptions(),
               merge: bool = False) -> list[dict]:
     """Run the problems; with ``merge`` keep the other problems of an existing bench.json
     (a problem run again replaces its old entry)."""
-    out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / "bench.json"
     results = json.loads(path.read_text()) if merge and path.exists() else []
     for spec in problems:
@@ -202,6 +201,7 @@ def run_bench(problems, out_dir: Path, options: BAOptions = BAOptions(),
         log.info("bench %s done in %.1f s", spec, time.perf_counter() - t)
         results = [r for r in results if r["problem"] != spec] + [res]
         # written after every problem so an interrupted bench keeps what it measured
+        out_dir.mkdir(parents=True, exist_ok=True)
         atomic_write(path, json.dumps(results, indent=1, default=float))
         atomic_write(out_dir / "bench.md", markdown(results))
     return results
