@@ -52,6 +52,10 @@ def atomic_open(path: str | os.PathLike, mode: str = "wb", *, encoding: str | No
             yield fh
             fh.flush()
         os.replace(tmp, path)
+    except OSError as exc:
+        _remove(tmp)
+        # name the output the user asked for, not our temporary name
+        raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from exc
     except BaseException:
         _remove(tmp)
         raise

@@ -278,6 +278,17 @@ def render_scene(scene: str, out: str | os.PathLike, config: SceneConfig | None 
         cfg = dataclasses.replace(cfg, mesh=str(Path(cfg.mesh).expanduser().resolve()))
     out = Path(out)
     digest = cfg.digest(code_version())
+    created = not out.exists()
+    try:
+        return _render(scene, out, cfg, digest, overwrite, t_start)
+    except BaseException:
+        if created and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()  # a failed run leaves no empty folder behind
+        raise
+
+
+def _render(scene: str, out: Path, cfg: SceneConfig, digest: str, overwrite: bool,
+            t_start: float) -> SceneResult:
     same = _prepare_out(out, digest, overwrite)
     names = view_names(cfg.views)
     if same and not overwrite and _is_complete(out, cfg.views):
@@ -291,7 +302,8 @@ def render_scene(scene: str, out: str | os.PathLike, config: SceneConfig | None 
     # Replacing a folder: render into a hidden sibling and swap it in whole at the end, so no
     # image or depth map of the old scene (more views, other size) survives beside the new ones.
     replacing = overwrite and any(out.iterdir())
-    staging = publish_dir(out, overwrite=True, owned=tuple(_KNOWN_ENTRIES)) if replacing else contextlib.nullcontext(out)
+    staging = (publish_dir(out, overwrite=True, owned=tuple(_KNOWN_ENTRIES)) if replacing
+               else contextlib.nullcontext(out))
     with staging as root:
         todo, t0 = _render_views(root, scene, cfg, digest, geo, camera, mi, variant, names,
                                  overwrite)

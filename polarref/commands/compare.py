@@ -50,6 +50,12 @@ def run(args: argparse.Namespace) -> int:
     from polarref.compare.pipeline import CompareConfig, command_line, run_compare
     from polarref.compare.schema import STATUS_OK
 
+    if args.out is not None:  # before rendering, not after it
+        from polarref.atomic import check_writable_parent
+
+        if args.out.exists() and not args.out.is_dir():
+            raise PolarrefError(f"{args.out} exists and is not a folder (choose another report folder)")
+        check_writable_parent(args.out / "metrics.json")
     if args.method_timeout is not None and not args.method_timeout > 0:
         raise PolarrefError(f"--method-timeout must be > 0, got {args.method_timeout}")
     cfg = CompareConfig(scene=args.scene, preset=args.preset, out=args.out,
