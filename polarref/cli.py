@@ -12,6 +12,7 @@ import argparse
 import errno
 import importlib
 import logging
+import os
 import pkgutil
 import signal
 import sys
@@ -82,11 +83,19 @@ class _Interrupts:
 
     def _handler(self, signum, frame) -> None:
         self.seen = True
+        # What follows an interrupt (an extension's import failing half-way, a fallback warning)
+        # is its consequence, not news: only the one 'interrupted' line is printed.
+        logging.disable(logging.WARNING)
         raise KeyboardInterrupt
 
-    def restore(self) -> None:
-        if self._previous is not None:
-            signal.signal(signal.SIGINT, self._previous)
+    def restore(self, exiting: bool) -> None:
+        if self.seen:
+            logging.disable(logging.NOTSET)
+        if self._previous is None:
+            return
+        # A process about to exit after Ctrl-C ignores further SIGINTs (drjit re-raises one
+        # from its own handler): they would kill it with -SIGINT after the exit line.
+        signal.signal(signal.SIGINT, signal.SIG_IGN if exiting and self.seen else self._previous)
 
 
 def _primary_input(args: argparse.Namespace) -> str | None:
@@ -132,6 +141,13 @@ def describe(exc: BaseException, args: argparse.Namespace) -> str:
             f"(rerun with -v for the traceback and report it)")
 
 
+def _exit_now(code: int) -> None:
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one subcommand. Every failure ends here as one stderr line and an exit code:
     1 for errors, 2 for usage (argparse), 130 for Ctrl-C; tracebacks only with -v."""
@@ -153,8 +169,10 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exception(exc, file=sys.stderr)
         if isinstance(exc, KeyboardInterrupt) or interrupts.seen:
             print(f"{name}: interrupted; finished outputs were kept", file=sys.stderr)
+            if argv is None:  # a real process: skip finalization, where an interrupted drjit/LLVM
+                _exit_now(130)  # can abort (SIGABRT) after the line above; every output is closed
             return 130
         print(f"{name}: {describe(exc, args)}", file=sys.stderr)
         return 1
     finally:
-        interrupts.restore()
+        interrupts.restore(exiting=argv is None)
