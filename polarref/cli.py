@@ -18,6 +18,7 @@ import signal
 import sys
 import threading
 import traceback
+import warnings
 from types import ModuleType
 
 from polarref import __version__, progress
@@ -59,8 +60,9 @@ def build_parser() -> argparse.ArgumentParser:
     for module in modules:
         p = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP)
         module.add_arguments(p)
-        p.set_defaults(_run=module.run, _positionals=[a.dest for a in p._actions
-                                                      if not a.option_strings and a.dest != "help"])
+        # the inputs a message can name: positionals that are not a fixed choice ("bench ba")
+        inputs = [a.dest for a in p._actions if not a.option_strings and a.choices is None]
+        p.set_defaults(_run=module.run, _positionals=inputs)
     return parser
 
 
@@ -68,7 +70,12 @@ def _setup_logging(verbose: int, quiet: bool) -> None:
     level = logging.WARNING if quiet else (logging.DEBUG if verbose > 0 else logging.INFO)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
     # Python warnings (numpy RuntimeWarnings, ...) go through logging, as one line each.
-    logging.captureWarnings(True)
+    warnings.showwarning = _log_warning
+
+
+def _log_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    logging.getLogger("py.warnings").warning("%s: %s (%s:%s)", category.__name__,
+                                             _one_line(message), filename, lineno)
 
 
 class _Interrupts:

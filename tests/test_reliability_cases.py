@@ -283,3 +283,18 @@ def test_library_error_names_option_cli_adds_flag(tmp_path, capsys):
     out.write_text("{}")
     assert main(["ba", "synth-20", "--out", str(out)]) == 1
     assert _err_lines(capsys) == [f"polarref ba: {out} exists (use --overwrite)"]
+
+
+def test_memory_error_and_warnings_are_one_line(monkeypatch, capsys, tmp_path):
+    import warnings
+
+    import polarref.commands.ba as ba_cmd
+
+    def hungry(args):
+        warnings.warn("overflow encountered in square\nsecond line", RuntimeWarning)
+        raise MemoryError()
+
+    monkeypatch.setattr(ba_cmd, "run", hungry)
+    assert main(["ba", "p.txt", "--out", str(tmp_path / "o.json")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == "polarref ba: p.txt: out of memory (use a smaller input or preset, or free memory)"
