@@ -79,7 +79,7 @@
   var tx = data.tan_half_fov[0], ty = data.tan_half_fov[1];
 
   var view;
-  function reset() { view = { yaw: 0.6, pitch: 0.45, dist: 2.6 * radius, target: centre0.slice() }; }
+  function reset() { view = { yaw: 0.6, pitch: 0.45, dist: 1.8 * radius, target: centre0.slice() }; }
   reset();
   var F = (H / 2) / Math.tan(25 * Math.PI / 180);
 
