@@ -195,9 +195,11 @@ def _html(blocks: list, fig_dir: Path, parts: list[str]) -> None:
             parts.append(b.html)
 
 
-def to_html(blocks: list, fig_dir: Path, title: str) -> str:
+def to_html(blocks: list, fig_dir: Path, title: str, layout: int = 0) -> str:
+    """The page; ``layout`` (a report layout version) goes into a <meta> tag when > 0."""
     parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
              '<meta name="viewport" content="width=device-width, initial-scale=1">',
+             *([f'<meta name="polarref-report-layout" content="{layout}">'] if layout else []),
              f"<title>{html.escape(title)}</title><style>{CSS}</style></head><body>"]
     _html(blocks, fig_dir, parts)
     parts.append("</body></html>")

@@ -3,7 +3,7 @@
 Everything is expressed in the ground-truth frame: each method's model is mapped by the same
 Sim3 that ``polarref.metrics`` uses for its scores. To keep report.html small, every cloud is
 subsampled to a cap by a seeded random choice, and its coordinates are quantized to 16 bits per
-axis over the cloud's own box (the 0.5-99.5 percentile box grown by 25% of its span on each side;
+axis over the cloud's own box (the 0.5-99.5 percentile box grown by its own span on each side;
 the few far outliers outside it are counted and left out). The data lives in ``metrics.json``
 (``view3d``), so ``polarref report DIR`` redraws the view from that file alone.
 
@@ -26,7 +26,7 @@ MAX_POINTS = 2000          # per sparse cloud (one per method)
 MAX_DENSE_POINTS = 30000   # per dense cloud
 MAX_REFERENCE_POINTS = 3000  # GT surface (mesh vertices)
 _BOX_PERCENTILES = (0.5, 99.5)
-_BOX_GROW = 0.25
+_BOX_GROW = 1.0
 
 
 def _subsample(n: int, cap: int, seed: int) -> np.ndarray:
@@ -133,7 +133,8 @@ def describe(view: View3D) -> str:
                        for c in view.clouds)
     return (f"Points drawn per cloud: at most {view.max_points:,} sparse / {view.max_dense_points:,} dense, "
             f"a seeded random subset (seed {view.seed}); coordinates quantized to 16 bits per axis over each "
-            f"cloud's box (0.5-99.5 percentile box grown by 25% per side). Drawn: {clouds or 'no clouds'}.")
+            "cloud's box (the 0.5-99.5 percentile box grown by its span on each side; far outliers outside "
+            f"it are left out). Drawn: {clouds or 'no clouds'}.")
 
 
 _JS = Path(__file__).with_name("viewer.js")
