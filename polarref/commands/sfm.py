@@ -93,5 +93,6 @@ def run(args: argparse.Namespace) -> int:
         line += (f"; vs GT: rotation error mean {m['gt']['rotation_error_deg_mean']:.3f} deg, "
                  f"centre error mean {m['gt']['center_error_rel_mean']:.2e} of scene size")
     print(line)
-    print(f"wrote {args.out / 'model'} ({args.model_format} + points3D.ply) and {args.out / 'metrics.json'} in {m['runtime_s']['total']:.1f} s")
+    print(f"wrote {args.out / 'model'} ({args.model_format} + points3D.ply) and {args.out / 'metrics.json'} "
+          f"in {m['runtime_s']['total']:.1f} s")
     return 0

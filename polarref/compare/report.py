@@ -12,7 +12,6 @@ base64, and the 3D view's data and script are inlined, so the page works offline
 from __future__ import annotations
 
 import dataclasses
-import re
 from pathlib import Path
 
 from polarref.compare import figures as figs
