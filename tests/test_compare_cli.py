@@ -211,6 +211,7 @@ def test_default_output_is_gitignored_polarref_out(tmp_path, monkeypatch, isolat
                                     capture_output=True, text=True, check=True).stdout
     reports = sorted((p.relative_to(REPO_ROOT), p.stat().st_mtime_ns) for p in (REPO_ROOT / "reports").rglob("*"))
     before = status()
+    had_out_root = (REPO_ROOT / "polarref-out").exists()
     monkeypatch.chdir(REPO_ROOT)
     out = None
     try:
@@ -221,5 +222,8 @@ def test_default_output_is_gitignored_polarref_out(tmp_path, monkeypatch, isolat
     finally:
         if out is not None and out.is_dir():
             shutil.rmtree(out)
+        if not had_out_root and (REPO_ROOT / "polarref-out").is_dir() and \
+                not any((REPO_ROOT / "polarref-out").iterdir()):
+            (REPO_ROOT / "polarref-out").rmdir()
     assert sorted((p.relative_to(REPO_ROOT), p.stat().st_mtime_ns)
                   for p in (REPO_ROOT / "reports").rglob("*")) == reports
