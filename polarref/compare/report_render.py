@@ -152,7 +152,7 @@ CSS = ("body{font-family:system-ui,sans-serif;max-width:1180px;margin:1em auto;p
        ".v-supported{background:#2e7d32}.v-not-supported{background:#c62828}"
        ".v-inconclusive{background:#b26a00}.v-not-tested{background:#757575}"
        "details{margin:0.3em 0;border-left:3px solid #ddd;padding-left:0.7em}"
-       "summary{cursor:pointer;font-weight:600}"
+       "summary{cursor:pointer;font-weight:600}.badges .line{color:#555;font-size:0.93em}"
        ".view3d canvas{width:100%;max-width:960px;border:1px solid #ccc;background:#fcfcfc;cursor:grab}"
        ".view3d-controls label{margin-right:0.9em;font-size:0.85em;white-space:nowrap}"
        ".view3d-controls .swatch{display:inline-block;width:0.8em;height:0.8em;margin:0 0.25em;"
