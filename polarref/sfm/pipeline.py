@@ -266,7 +266,8 @@ SFM_OUTPUTS = ("model", "metrics.json")  # what a run writes into its folder (th
 
 def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig = SfMConfig(),
             camera=None, gt: Reconstruction | None = None,
-            mesh: tuple[np.ndarray, np.ndarray] | None = None, overwrite: bool = False) -> SfMResult:
+            mesh: tuple[np.ndarray, np.ndarray] | None = None, overwrite: bool = False,
+            model_format: str = "text") -> SfMResult:
     """Run the whole pipeline on ``image_dir`` and write ``out_dir/model`` and ``out_dir/metrics.json``.
 
     Args:
@@ -278,6 +279,7 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         overwrite: replace a non-empty ``out_dir``. The new folder is built in a hidden
             sibling and swapped in whole when complete, so ``out_dir`` always holds one run's
             outputs: the old ones until the new ones are written, never a mix.
+        model_format: COLMAP ``text``, ``binary`` or ``both``; ``model/points3D.ply`` is always written.
     Raises:
         PolarrefError: no images, unknown intrinsics, no initial pair, < 2 registered images.
             metrics.json is still written with what was done. A failure after the
@@ -301,7 +303,9 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
             if rec is not None:
                 t0 = time.perf_counter()
                 _update_point_errors(rec)
-                rec.write_text(out / "model")
+                from polarref.sfm.model_files import write_model
+
+                write_model(rec, out / "model", model_format)
                 timings["export"] = time.perf_counter() - t0
             timings["total"] = time.perf_counter() - t_start
             result["runtime_s"] = timings
