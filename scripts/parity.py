@@ -8,8 +8,10 @@ Ceres/Nielsen damping with the gauge held or free, Gauss-Newton) on the fake pil
 configuration before issue 20 as the baseline (parallax with world-frame azimuth/elevation).
 With ``--parallaxba-bin`` (the original C++, built from a snapshot outside the repo) it runs
 ParallaxBA's LM and GN in the same process run, from its own start and from our start (our DLT
-points passed with ``-xyz``). Writes ``OUT.md`` and ``OUT.json`` (with provenance). Iteration
-counts are the robust figures; wall times are single runs on a shared machine (load recorded).
+points passed with ``-xyz``). With ``--evidence`` it also runs the LM modes on the problems
+behind each form's default (Ladybug-49, synth-20/60, a forward rig at baseline/depth 3e-4).
+Writes ``OUT.md`` and ``OUT.json`` (with provenance). Iteration counts are the robust figures;
+wall times are single runs on a shared machine (load recorded).
 """
 
 from __future__ import annotations
@@ -73,6 +75,26 @@ def run_ours(label: str, base, form: str, mode: str, overrides: dict, baseline=F
             "rejected": s.rejected_iterations, "wall_s": round(wall, 3),
             "initial_cost": s.initial_cost, "final_cost": s.final_cost,
             "final_pixel_cost": s.final_pixel_cost, "termination": s.termination}
+
+
+EVIDENCE_MODES = MODES[1:5]
+
+
+def evidence_problems(data: Path):
+    """(label, prepared problem, max_iterations) behind the defaults (options.DEFAULT_*)."""
+    from polarref.ba.adapter import problem_from_reconstruction
+    from polarref.compare.experiment_problems import low_parallax_problem
+    out = []
+    for label, spec in (("Ladybug-49", str(data / "bal" / "problem-49-7776-pre.txt")),
+                        ("synth-20", "synth-20"), ("synth-60", "synth-60")):
+        p, _ = load_problem(spec)
+        out.append((label, p, 100))
+    init, _ = low_parallax_problem(8, 60, 3e-4, seed=0)
+    out.append(("forward rig, baseline/depth 3e-4 (seed 0)", problem_from_reconstruction(init),
+                300))
+    for _, p, _ in out:
+        prepare(p)
+    return out
 
 
 def run_parallaxba(binary: Path, folder: Path, mode: str, xyz: np.ndarray | None) -> dict:
@@ -140,9 +162,12 @@ def main(argv=None) -> int:
     ap.add_argument("--extra", action="append", default=[], help="LABEL=FOLDER (ParallaxBA set)")
     ap.add_argument("--out", default=str(ROOT / "reports" / "bench-ba" / "parallaxba-parity"))
     ap.add_argument("--overwrite", action="store_true")
+    ap.add_argument("--evidence", action="store_true",
+                    help="also the problems behind each form's default strategy")
     args = ap.parse_args(argv)
+    prov = provenance(args.parallaxba_bin)  # before the runs: the tree they ran from
     out = Path(args.out)
-    if not args.overwrite and (out.with_suffix(".md").exists() or out.with_suffix(".json").exists()):
+    if not args.overwrite and any(out.with_suffix(x).exists() for x in (".md", ".json")):
         print(f"{out}.md/.json exist; pass --overwrite", file=sys.stderr)
         return 1
     fake = Path(args.data) / "parallaxba_fakepile"
@@ -166,7 +191,14 @@ def main(argv=None) -> int:
                 for mode in ("LM", "GN"):
                     rows.append(run_parallaxba(args.parallaxba_bin, fake, mode, xyz))
                     print(fmt_row(rows[-1]), flush=True)
-    prov = provenance(args.parallaxba_bin)
+    if args.evidence:
+        for label, p, max_it in evidence_problems(Path(args.data)):
+            for form in FORMS:
+                if form == "euclidean" and label != "Ladybug-49":
+                    continue
+                for mode, over in EVIDENCE_MODES:
+                    rows.append(run_ours(label, p, form, mode, {**over, "max_iterations": max_it}))
+                    print(fmt_row(rows[-1]), flush=True)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.with_suffix(".json").write_text(json.dumps(
         {"provenance": prov, "rows": rows, "quoted_from_issue_20": [

@@ -36,8 +36,9 @@ class BAOptions:
     # (H + mu I), mu0 = nielsen_tau * max diag(H), Nielsen's update; None = the form's default
     damping: str | None = None
     nielsen_tau: float = 1e-6  # ParallaxBA's tau
-    # LM only (None = the form's default): "free" releases the 7 gauge DoF during the solve (damped, not held) and maps the
-    # result back into the held gauge (ba/gauge.py); "fixed" holds them. Gauss-Newton holds them.
+    # LM only (None = the form's default): "free" releases the 7 gauge DoF during the solve
+    # (damped, not held) and maps the result back into the held gauge (ba/gauge.py); "fixed"
+    # holds them. Gauss-Newton always holds them.
     lm_gauge: str | None = None
     function_tolerance: float = 1e-6  # stop when |d cost| / cost < this after an accepted step
     gradient_tolerance: float = 1e-10  # stop when max |gradient| < this
@@ -87,7 +88,7 @@ class IterationRecord:
     iteration: int
     cost: float  # objective after the iteration (the new one if accepted)
     accepted: bool
-    trust_radius: float  # radius used for this step (mu = 1 / radius)
+    trust_radius: float  # Ceres: radius used for this step (mu = 1 / radius); Nielsen / GN: 0
     step_norm: float
     gradient_max_norm: float
     wall_s: float  # since the start of the solve

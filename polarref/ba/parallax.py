@@ -4,11 +4,11 @@ Binding definition: ``d = F_p direction_from_azimuth_elevation(alpha, beta)`` is
 direction from the main anchor centre ``C_m`` to the point, with ``F_p`` a fixed per-point
 rotation whose first column is the initial direction (``direction_frames``): every point starts
 at (alpha, beta) = (0, 0), 90 degrees from the poles of the azimuth/elevation chart. With world
-azimuth/elevation (pole along world z) the ParallaxBA fake pile, a forward-moving camera looking
-along +z, put its points near the pole, where azimuth is ill-defined and the Jacobian
-near-singular: LM needed 74 iterations (Gauss-Newton 21) instead of 23 (GN 7) with these frames.
-ParallaxBA itself has its pole along world y (up), which suits its vehicle data only. ``e = C_a - C_m``;
-``phi_a = angle(d, e)``; the unnormalized ray from camera centre ``C_i`` is
+azimuth/elevation (pole along world z) the ParallaxBA fake pile, a camera moving and looking
+along +z, started half its points above 50 degrees elevation, where ``d d / d alpha`` shrinks
+with cos(beta): LM needed 74 iterations (Gauss-Newton 21), with these frames 23 (GN 7).
+ParallaxBA puts its pole along world y, across the viewing direction of its datasets.
+``e = C_a - C_m``; ``phi_a = angle(d, e)``; the unnormalized ray from camera centre ``C_i`` is
 ``v_i = sin(w) (C_m - C_i) + |e| sin(w + phi_a) d``. We write
 ``|e| sin(w + phi_a) = sin(w) (d.e) + cos(w) |d x e|``, which has no inverse trigonometry,
 so ``v_i = sin(w) (P - C_i)`` for a finite point and ``|d x e| d`` at infinity (w = 0).

@@ -222,6 +222,9 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     identity_damping = gn or damping == "nielsen"
     radius, decrease_factor = options.initial_trust_radius, 2.0
     mu_n, nu = None, 2.0  # Nielsen: absolute damping (set from the first normal matrix), growth
+
+    def rec_radius() -> float:  # the trace's trust radius: Ceres' only (Nielsen / GN: 0)
+        return radius if not identity_damping else 0.0
     trace: list[IterationRecord] = []
     termination = "max_iterations"
     accepted_n = 0
@@ -290,7 +293,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             x = st.solve(S, b)
         times["solve"] += time.perf_counter() - tic
         if x is None:
-            trace.append(IterationRecord(it, cost, False, radius, 0.0, gmax,
+            trace.append(IterationRecord(it, cost, False, rec_radius(), 0.0, gmax,
                                          time.perf_counter() - t0, mu))
             if gn:
                 termination = "linear_solver_failure"
@@ -327,7 +330,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         x_norm = float(np.sqrt((C**2).sum() + (pts**2).sum()))
         if step_norm <= options.parameter_tolerance * (x_norm + options.parameter_tolerance):
             termination = "parameter_tolerance"
-            trace.append(IterationRecord(it, cost, False, radius, step_norm, gmax,
+            trace.append(IterationRecord(it, cost, False, rec_radius(), step_norm, gmax,
                                          time.perf_counter() - t0, mu))
             break
         R_new = R.copy()
@@ -349,7 +352,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         else:  # Ceres rejects gains <= 1e-3, Nielsen / ParallaxBA only gains <= 0
             accepted = bool(np.isfinite(new_cost) and gain > (
                 0.0 if damping == "nielsen" else _MIN_RELATIVE_DECREASE))
-        trace.append(IterationRecord(it, new_cost if accepted else cost, accepted, radius,
+        trace.append(IterationRecord(it, new_cost if accepted else cost, accepted, rec_radius(),
                                      step_norm, gmax, time.perf_counter() - t0, mu, gain))
         if gn and not accepted:
             termination = "non_finite_cost"
