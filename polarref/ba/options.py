@@ -63,12 +63,8 @@ class BAOptions:
             raise ValueError(f"unknown BA parameterization {self.param!r}; choose {', '.join(PARAMS)}")
         if self.loss not in LOSSES:
             raise ValueError(f"unknown loss {self.loss!r}; choose {', '.join(LOSSES)}")
-<<<<<<< HEAD
         if not 0 < self.loss_scale < float("inf"):
             raise ValueError(f"loss_scale must be finite and > 0, got {self.loss_scale}")
-=======
-        if not self.loss_scale > 0:
-            raise ValueError(f"loss_scale must be > 0, got {self.loss_scale}")
         if self.solver not in SOLVERS:
             raise ValueError(f"unknown solver {self.solver!r}; choose {', '.join(SOLVERS)}")
         if self.damping is not None and self.damping not in DAMPINGS:
@@ -77,7 +73,6 @@ class BAOptions:
             raise ValueError(f"unknown lm_gauge {self.lm_gauge!r}; choose free or fixed")
         if not self.nielsen_tau > 0:
             raise ValueError(f"nielsen_tau must be > 0, got {self.nielsen_tau}")
->>>>>>> main
         if self.axis_residual not in ("chart", "theta"):
             raise ValueError(f"unknown axis_residual {self.axis_residual!r}; choose chart or theta")
         if self.blas_threads is not None and self.blas_threads < 1:

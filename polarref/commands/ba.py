@@ -21,13 +21,9 @@ def add_arguments(parser) -> None:
                         "or synth-20 / synth-60 / synth-200")
     parser.add_argument("--param", choices=PARAMS, default="euclidean")
     parser.add_argument("--loss", choices=LOSSES, default="trivial")
-<<<<<<< HEAD
     parser.add_argument("--loss-scale", type=float_range(0.0, lo_open=True), default=1.0,
                         help="robust loss scale [px], finite and > 0")
     parser.add_argument("--max-iterations", type=positive_int, default=100)
-=======
-    parser.add_argument("--loss-scale", type=float, default=1.0, help="robust loss scale [px]")
-    parser.add_argument("--max-iterations", type=int, default=100)
     parser.add_argument("--solver", choices=SOLVERS, default="lm",
                         help="lm: Levenberg-Marquardt; gn: Gauss-Newton (undamped, gauge held)")
     parser.add_argument("--damping", choices=DAMPINGS, default=None,
@@ -36,7 +32,6 @@ def add_arguments(parser) -> None:
     parser.add_argument("--lm-gauge", choices=("free", "fixed"), default=None,
                         help="LM: release the 7 gauge DoF during the solve (result mapped back) "
                         "or hold them; default: the form's measured best")
->>>>>>> main
     parser.add_argument("--staged", action="store_true", help="angular: theta first, then joint")
     parser.add_argument("--out", required=True, help="output JSON path")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing --out")
