@@ -8,6 +8,7 @@ leaves a half-written file behind.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
@@ -20,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref import progress
+from polarref.atomic import publish_dir
 from polarref.errors import PolarrefError
 from synth import meshes
 from synth.config import SceneConfig, preset
@@ -90,12 +91,13 @@ def _prepare_out(out: Path, digest: str, overwrite: bool) -> bool:
             return True
         if not overwrite:
             raise PolarrefError(f"{out} holds a scene rendered with other parameters or code "
-                                f"(digest {old} != {digest}); pass --overwrite or choose another --out")
+                                f"(digest {old} != {digest}); choose another output folder or replace it",
+                                option="overwrite")
         return False
     foreign = sorted(p.name for p in out.iterdir() if not p.name.startswith(".") and p.name not in _KNOWN_ENTRIES)
     if foreign and not overwrite:
         raise PolarrefError(f"{out} is not empty and is not a rendered scene (found {foreign[0]!r}); "
-                            f"choose a new folder or pass --overwrite")
+                            f"choose a new folder or replace it", option="overwrite")
     return False
 
 
@@ -213,6 +215,35 @@ def _encode_npy(a: np.ndarray) -> bytes:
     return bio.getvalue()
 
 
+def _render_views(out: Path, scene: str, cfg: SceneConfig, digest: str, geo, camera, executor, variant,
+                  names: list[str], overwrite: bool) -> tuple[list[int], float]:
+    """Write scene.json, mesh, GT and every missing view into ``out``; (rendered views, start time).
+
+    One task per view through ``executor`` (polarref.execution): in this process, or on Dask workers
+    that each build the Mitsuba scene once.
+    """
+    meta = _scene_json(cfg, digest, geo, camera, variant, names)
+    atomic_write_bytes(out / SCENE_JSON, (json.dumps(meta, indent=1) + "\n").encode())
+    meshes.write_ply(out / "mesh.ply", geo.vertices, geo.faces,
+                     np.repeat(np.round(geo.albedo * 255).astype(np.uint8)[:, None], 3, 1))
+    write_gt(out, camera, names, geo.poses)
+    (out / "images").mkdir(exist_ok=True)
+    (out / "depth").mkdir(exist_ok=True)
+
+    todo = [i for i, nm in enumerate(names) if overwrite or not (
+        (out / "images" / nm).is_file() and (out / "depth" / (nm[:-4] + ".npy")).is_file())]
+    t0 = time.perf_counter()
+    if executor.in_process:
+        _view_renderer(cfg, geo)  # reuse the geometry built above
+    try:
+        executor.map(render_view, [ViewTask(str(out), cfg, i, variant.variant) for i in todo],
+                     desc=f"render {scene}")
+    finally:
+        if executor.in_process:
+            _RENDERERS.clear()  # free the Mitsuba scene as before; workers keep theirs for the next task
+    return todo, t0
+
+
 def render_scene(scene: str, out: str | os.PathLike, config: SceneConfig | None = None, *,
                  overwrite: bool = False) -> SceneResult:
     """Render ``scene`` into folder ``out`` (resumable; see the module docstring).
@@ -237,6 +268,17 @@ def render_scene(scene: str, out: str | os.PathLike, config: SceneConfig | None 
         cfg = dataclasses.replace(cfg, mesh=str(Path(cfg.mesh).expanduser().resolve()))
     out = Path(out)
     digest = cfg.digest(code_version())
+    created = not out.exists()
+    try:
+        return _render(scene, out, cfg, digest, overwrite, t_start)
+    except BaseException:
+        if created and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()  # a failed run leaves no empty folder behind
+        raise
+
+
+def _render(scene: str, out: Path, cfg: SceneConfig, digest: str, overwrite: bool,
+            t_start: float) -> SceneResult:
     same = _prepare_out(out, digest, overwrite)
     names = view_names(cfg.views)
     if same and not overwrite and _is_complete(out, cfg.views):
@@ -252,25 +294,14 @@ def render_scene(scene: str, out: str | os.PathLike, config: SceneConfig | None 
         _, variant = load_mitsuba()
     else:  # the workers load Mitsuba; they must pick this very variant (checked per task)
         variant = selected_variant()
-    meta = _scene_json(cfg, digest, geo, camera, variant, names)
-    atomic_write_bytes(out / SCENE_JSON, (json.dumps(meta, indent=1) + "\n").encode())
-    meshes.write_ply(out / "mesh.ply", geo.vertices, geo.faces,
-                     np.repeat(np.round(geo.albedo * 255).astype(np.uint8)[:, None], 3, 1))
-    write_gt(out, camera, names, geo.poses)
-    (out / "images").mkdir(exist_ok=True)
-    (out / "depth").mkdir(exist_ok=True)
-
-    todo = [i for i, nm in enumerate(names) if overwrite or not (
-        (out / "images" / nm).is_file() and (out / "depth" / (nm[:-4] + ".npy")).is_file())]
-    t0 = time.perf_counter()
-    if executor.in_process:
-        _view_renderer(cfg, geo)  # reuse the geometry built above
-    try:
-        executor.map(render_view, [ViewTask(str(out), cfg, i, variant.variant) for i in todo],
-                     desc=f"render {scene}")
-    finally:
-        if executor.in_process:
-            _RENDERERS.clear()  # free the Mitsuba scene as before; workers keep theirs for the next task
+    # Replacing a folder: render into a hidden sibling and swap it in whole at the end, so no
+    # image or depth map of the old scene (more views, other size) survives beside the new ones.
+    replacing = overwrite and any(out.iterdir())
+    staging = (publish_dir(out, overwrite=True, owned=tuple(_KNOWN_ENTRIES)) if replacing
+               else contextlib.nullcontext(out))
+    with staging as root:
+        todo, t0 = _render_views(root, scene, cfg, digest, geo, camera, executor, variant, names,
+                                 overwrite)
     seconds = time.perf_counter() - t0
     log.info("rendered %d views in %.1f s (%s)", len(todo), seconds, variant.variant)
     return SceneResult(out, len(todo), cfg.views - len(todo), seconds, time.perf_counter() - t_start,
