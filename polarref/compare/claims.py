@@ -44,6 +44,7 @@ ROT_EQUIV_DEG = 0.01
 ROT_EQUIV_REL = 0.10
 DERIVATION_SAMPLES = 100_000
 MIN_EXPERIMENT_BUDGET_S = 5.0
+NO_DEADLINE_TIMEOUT_S = 900.0   # claim experiments without a budget (every seed) are still killed after this
 CANDIDATE = "ours-polar"
 BASELINES = ("ours-euclidean", "pycolmap-incremental-sift")
 
@@ -244,9 +245,11 @@ def evaluate_into(metrics: MetricsFile, job_results: dict, runs: Path, seed: int
         exp, why = None, (f"skipped: {budget_s:.0f} s of the run's time budget were left "
                           f"(< {MIN_EXPERIMENT_BUDGET_S:.0f} s); run with --preset small or --budget 0")
     else:
+        limit = (NO_DEADLINE_TIMEOUT_S if not np.isfinite(budget_s)
+                 else min(max(timeout_s, 3 * budget_s), 2 * budget_s + 10))
         e = run_isolated("polarref.compare.jobs:claim_experiments",
                          dict(seed=seed, budget_s=budget_s, out_json=str(runs / "claims" / "experiments.json")),
-                         min(max(timeout_s, 3 * budget_s), 2 * budget_s + 10), runs / "claims", "experiments")
+                         limit, runs / "claims", "experiments")
         exp, why = (e.result if e.status == STATUS_OK else None), e.reason
     claims = equation_claims(evidence, d.reason)
     claims += scene_claims(metrics, exp)
