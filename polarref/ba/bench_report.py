@@ -85,5 +85,28 @@ def readme_table(doc: dict) -> str:
     return "\n".join(out) + "\n"
 
 
+BEGIN = "<!-- bench-table: generated from reports/bench-ba/bench.json, do not edit by hand -->"
+END = "<!-- /bench-table -->"
+
+
+def readme_block(text: str) -> str | None:
+    """The generated table between the README's markers (None without markers)."""
+    if BEGIN not in text or END not in text:
+        return None
+    return text.split(BEGIN, 1)[1].split(END, 1)[0].strip("\n")
+
+
+def update_readme(readme: Path, doc: dict) -> None:
+    text = readme.read_text()
+    if readme_block(text) is None:
+        raise SystemExit(f"{readme}: no {BEGIN!r} ... {END!r} block")
+    head, rest = text.split(BEGIN, 1)
+    readme.write_text(head + BEGIN + "\n" + readme_table(doc) + END + rest.split(END, 1)[1])
+
+
 if __name__ == "__main__":
-    print(readme_table(json.loads(Path(sys.argv[1]).read_text())))
+    bench = json.loads(Path(sys.argv[1]).read_text())
+    if len(sys.argv) == 4 and sys.argv[2] == "--readme":
+        update_readme(Path(sys.argv[3]), bench)
+    else:
+        print(readme_table(bench))

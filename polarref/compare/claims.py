@@ -186,20 +186,20 @@ def _scene_only(metrics: MetricsFile) -> list[ClaimResult]:
     return [res3, res4, res5]
 
 
-def _merge(res: ClaimResult, controlled: tuple, problem: str) -> ClaimResult:
+def _merge(res: ClaimResult, controlled: tuple, problem: str, unit: str = "seeds x 1 problem size") -> ClaimResult:
     """Put the controlled (multi-seed) result first; it decides, the single scene run is reported."""
     verdict, figs, text, n = controlled
     if verdict == "not tested":
         res.rationale += f" Controlled BA experiment: not run ({text})."
         return res
     scene_part = res.rationale if res.verdict != "not tested" else res.rationale.replace("Not tested: ", "not available: ")
-    rationale = (f"{text}. The verdict rests on this controlled experiment ({n} seeds). Single scene run "
+    rationale = (f"{text}. The verdict rests on this controlled experiment ({n} {'seeds' if unit.startswith('seeds') else 'paired runs'}). Single scene run "
                  f"(1 run per method; the single-run rule alone gives: {res.verdict}): {scene_part}")
     scene_size = res.sample_size if res.verdict != "not tested" else "no scene run"
     return ClaimResult(res.claim_id, res.claim, res.source,
                        res.test + " Controlled: BA only on seeded synthetic problems, every parameterization "
                        "side by side in one process (single-thread BLAS), paired by seed.",
-                       figs + res.figures, f"controlled: {n} seeds x 1 problem size ({problem}); scene: {scene_size}",
+                       figs + res.figures, f"controlled: {n} {unit} ({problem}); scene: {scene_size}",
                        verdict, rationale)
 
 
@@ -214,7 +214,8 @@ def scene_claims(metrics: MetricsFile, exp: dict | None = None) -> list[ClaimRes
         res4 = _merge(res4, cx.speedup(timing), problem)
     rob = (exp or {}).get("robustness")
     if rob is not None:
-        res5 = _merge(res5, cx.more_tie_points(rob), rob.get("outlier_problem", rob.get("error", "")))
+        res5 = _merge(res5, cx.more_tie_points(rob), rob.get("outlier_problem", rob.get("error", "")),
+                      "paired runs (seeds x outlier levels)")
     return [res3, res4, res5]
 
 

@@ -248,6 +248,10 @@ def _env_section(m: MetricsFile) -> list:
             ["per-method timeout", fmt_s(e.method_timeout_s)],
             ["run budget", "none" if e.run_budget_s is None else fmt_s(e.run_budget_s)],
             ["total runtime (rendering included)", fmt_s(e.total_runtime_s)]]
+    if e.git_commit:
+        rows += [["git commit", e.git_commit + (" (dirty)" if e.git_dirty else "")],
+                 ["CPU", f"{e.cpu_model} ({e.machine})"],
+                 ["threads", ", ".join(f"{k}={v}" for k, v in sorted(e.threads.items()))]]
     rows += [[k, str(v)] for k, v in sorted(e.versions.items())]
     return [Heading(2, "Environment"), Table(["item", "value"], rows)]
 
