@@ -47,6 +47,9 @@ def test_bench_records_settings_repeats_and_time_to_common_cost(tmp_path):
     k = rows["ceres-our-tol-1t"]["iterations_limit_to_target"]
     cs = CeresSettings("c", opts.function_tolerance, opts.gradient_tolerance, opts.parameter_tolerance, k - 1, 1, 1)
     assert run_pycolmap(base.copy(), opts, cs).final_cost > target
+    # iteration counts are LM steps, as ours: a limit of 2 gives 2 (Ceres' iteration 0 is not a step)
+    two = run_pycolmap(base.copy(), opts, cs.with_iterations(2))
+    assert two.iterations == two.accepted_iterations + two.rejected_iterations == 2
     # our Euclidean LM and Ceres end at the same minimum (independent solver)
     assert rows["euclidean"]["final_cost"] == pytest.approx(rows["ceres-our-tol-1t"]["final_cost"], rel=1e-4)
     fastest = res["fastest_ceres"]

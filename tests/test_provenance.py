@@ -33,3 +33,21 @@ def test_library_does_not_import_the_cli():
             "polarref.provenance.collect(); assert 'polarref.cli' not in sys.modules, 'cli imported'")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO_ROOT)
     assert proc.returncode == 0, proc.stderr
+
+
+def test_sfm_metrics_json_records_the_environment(tmp_path):
+    """Even a failed `polarref sfm` run writes metrics.json with its provenance."""
+    import json
+
+    import pytest
+
+    from polarref.camera import Camera
+    from polarref.errors import PolarrefError
+    from polarref.sfm import run_sfm
+
+    (tmp_path / "images").mkdir()
+    with pytest.raises(PolarrefError):
+        run_sfm(tmp_path / "images", tmp_path / "out", camera=Camera("PINHOLE", 100, 100, [100, 100, 50, 50]))
+    env = json.loads((tmp_path / "out" / "metrics.json").read_text())["environment"]
+    assert env == {**env, **{k: provenance.collect()[k] for k in ("git_commit", "cpu_count", "cpu_model", "machine")}}
+    assert env["seeds"]["verification"] >= 0 and "registration" in env["seeds"]

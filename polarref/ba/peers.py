@@ -121,7 +121,8 @@ def run_pycolmap(problem: BAProblem, options: BAOptions, ceres: CeresSettings = 
             "preconditioner_used": str(cs.preconditioner_type_used).split(".")[-1],
             "num_threads_used": int(cs.num_threads_used), "jacobi_scaling": bool(so.jacobi_scaling),
             "trust_region_strategy": str(so.trust_region_strategy_type).split(".")[-1]}
-    acc, rej = int(cs.num_successful_steps), int(cs.num_unsuccessful_steps)
+    # Ceres counts its iteration 0 (the initial evaluation) as a successful step: not an LM step.
+    acc, rej = max(int(cs.num_successful_steps) - 1, 0), int(cs.num_unsuccessful_steps)
     return PeerResult(ceres.name, c0, c1, rms, acc + rej, wall, str(cs.termination_type).split(".")[-1],
                       float(cs.final_cost), _behind(problem, R, C, X), acc, rej, used)
 

@@ -155,7 +155,9 @@ def more_tie_points(rob: dict | None) -> tuple[str, list[Figure], str, int]:
     figs, outcomes, parts = [], [], []
     n = 0
     for key, name in (("tie_points", "tie points"), ("inlier_observations", "observations within 4 px")):
-        rel, base, start = [], [], []
+        rel, base = [], []
+        start = [r[key] for forms in rob["outliers"].values() for r in forms.get("start", {}).get("runs", [])
+                 if r.get(key) is not None]
         for forms in rob["outliers"].values():
             c = {r["seed"]: r.get(key) for r in forms.get(PAPER_FORM, {}).get("runs", [])}
             b = {r["seed"]: r.get(key) for r in forms.get("euclidean", {}).get("runs", [])}
@@ -170,12 +172,14 @@ def more_tie_points(rob: dict | None) -> tuple[str, list[Figure], str, int]:
         d, lo, hi, o = tost(np.array(rel), margin)
         k = "tp" if key == "tie_points" else "obs"
         outcomes.append({"higher": "more", "lower": "fewer"}.get(o, o))
-        figs += [fig(f"c5_{k}_eu", f"controlled: euclidean mean {name}", np.mean(base), "count"),
+        figs += [fig(f"c5_{k}_start", f"controlled: start point (no BA) mean {name}",
+                     np.mean(start) if start else None, "count"),
+                 fig(f"c5_{k}_eu", f"controlled: euclidean mean {name}", np.mean(base), "count"),
                  fig(f"c5_{k}_d", f"controlled: mean relative difference polar - euclidean, {name}", 100 * d, "%"),
                  fig(f"c5_{k}_ci_lo", f"controlled: {1 - 2 * ALPHA:.0%} CI lower, {name}", 100 * lo, "%"),
                  fig(f"c5_{k}_ci_hi", f"controlled: {1 - 2 * ALPHA:.0%} CI upper, {name}", 100 * hi, "%"),
                  fig(f"c5_{k}_margin", f"controlled: margin (declared before the run), {name}", 100 * margin, "%")]
-        parts.append(f"{name}: euclidean {{c5_{k}_eu}}, polar {{c5_{k}_d}} ({1 - 2 * ALPHA:.0%} CI {{c5_{k}_ci_lo}} to "
+        parts.append(f"{name}: start {{c5_{k}_start}}, euclidean {{c5_{k}_eu}}, polar {{c5_{k}_d}} ({1 - 2 * ALPHA:.0%} CI {{c5_{k}_ci_lo}} to "
                      f"{{c5_{k}_ci_hi}}, margin {{c5_{k}_margin}}): {outcomes[-1]}")
     verdict = ("supported" if all(o == "more" for o in outcomes) else
                "not supported" if any(o in ("equal", "fewer") for o in outcomes) else "inconclusive")

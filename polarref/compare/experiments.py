@@ -248,7 +248,8 @@ def _rms_px(rec) -> float:
 def _run_forms(init, truth, opts: dict, sink: dict, seed: int, check_rms: bool = True) -> None:
     from polarref.ba.synthetic import clone
 
-    sink["start"]["runs"].append(_score_state(init, truth, _rms_px(init), check_rms) | {"seed": seed})
+    start = _score_state(init, truth, _rms_px(init), check_rms) | {"seed": seed}
+    sink["start"]["runs"].append(start | (inlier_counts(init) if check_rms is False else {}))
     for p in _params():
         rec = clone(init)
         try:

@@ -233,7 +233,9 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
                      "intrinsics divided by the same factor (exact with the corner pixel origin).")
     budget = TOTAL_BUDGET_S[cfg.preset] if cfg.budget_s == -1.0 else cfg.budget_s
     claims_budget = CLAIMS_BUDGET_S[cfg.preset] if cfg.claims else 0.0
-    deadline = None if budget is None else t_start + budget - claims_budget - REPORT_RESERVE_S
+    # an unbounded claims budget (small preset) under an explicit --budget keeps the default's reserve
+    reserve = claims_budget if claims_budget < float("inf") else CLAIMS_BUDGET_S["default"]
+    deadline = None if budget is None else t_start + budget - reserve - REPORT_RESERVE_S
     results: list[MethodResult] = []
     job_results: dict[str, dict] = {}
     ordered = sorted(specs, key=lambda m: RUN_ORDER.index(m.name))
