@@ -31,6 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="what to do with a track holding two keypoints of one image")
     parser.add_argument("--seed", type=int, help="RANSAC seed")
     parser.add_argument("--no-cache", action="store_true", help="recompute features and matches")
+    parser.add_argument("--format", dest="model_format", choices=("text", "binary", "both"), default="both",
+                        help="COLMAP model format in OUT/model (default: both); points3D.ply is always written")
     parser.add_argument("--overwrite", action="store_true", help="write into a non-empty --out")
 
 
@@ -82,7 +84,8 @@ def run(args: argparse.Namespace) -> int:
         if first is not None:
             camera = parse_camera(args.camera, first.shape[1], first.shape[0])
     cfg = _config(args)
-    res = run_sfm(image_dir, args.out, cfg, camera=camera, gt=gt, mesh=mesh, overwrite=args.overwrite)
+    res = run_sfm(image_dir, args.out, cfg, camera=camera, gt=gt, mesh=mesh, overwrite=args.overwrite,
+                  model_format=args.model_format)
     m = res.metrics
     line = (f"registered {m['registered_images']}/{m['num_images']} images, {m['tie_points']} tie points, "
             f"{m['reprojected_px']} observations, mean reprojection error {m['mean_reprojection_error_px']:.3f} px")
@@ -90,5 +93,6 @@ def run(args: argparse.Namespace) -> int:
         line += (f"; vs GT: rotation error mean {m['gt']['rotation_error_deg_mean']:.3f} deg, "
                  f"centre error mean {m['gt']['center_error_rel_mean']:.2e} of scene size")
     print(line)
-    print(f"wrote {args.out / 'model'} and {args.out / 'metrics.json'} in {m['runtime_s']['total']:.1f} s")
+    print(f"wrote {args.out / 'model'} ({args.model_format} + points3D.ply) and {args.out / 'metrics.json'} "
+          f"in {m['runtime_s']['total']:.1f} s")
     return 0
