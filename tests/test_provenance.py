@@ -51,3 +51,20 @@ def test_sfm_metrics_json_records_the_environment(tmp_path):
     env = json.loads((tmp_path / "out" / "metrics.json").read_text())["environment"]
     assert env == {**env, **{k: provenance.collect()[k] for k in ("git_commit", "cpu_count", "cpu_model", "machine")}}
     assert env["seeds"]["verification"] >= 0 and "registration" in env["seeds"]
+
+
+def test_report_shows_the_stored_commit(tmp_path):
+    """compare's Environment carries the provenance fields; the report's summary line shows them."""
+    import dataclasses
+
+    from test_report_build import synthetic_metrics
+
+    from polarref.compare import schema
+    from polarref.compare.report import commit_text
+
+    m = schema.from_dict(synthetic_metrics())
+    m.environment = dataclasses.replace(m.environment, git_commit="0123456789abcdef" * 2 + "01234567",
+                                        git_dirty=True, cpu_model="cpu", machine="x86_64", threads={"pycolmap": 1})
+    assert commit_text(m) == "0123456789 (dirty)"
+    back = schema.from_dict(schema.to_dict(m))          # the new fields round-trip through metrics.json
+    assert back.environment == m.environment
