@@ -59,7 +59,8 @@ def test_committed_small_report_verdicts_match_a_fresh_run(two_runs):
     """The committed reports/comet-small against a fresh run: same verdicts, key figures close.
 
     Active once the committed report carries provenance (regenerated after issue 12):
-    ``polarref --no-progress compare comet --preset small --out reports/comet-small``.
+    ``bash scripts/regen-reports.sh`` (or ``polarref --no-progress -q compare comet --preset small
+    --out reports/comet-small --overwrite``).
     """
     path = REPO_ROOT / "reports" / "comet-small" / "metrics.json"
     if not path.is_file():
@@ -67,7 +68,7 @@ def test_committed_small_report_verdicts_match_a_fresh_run(two_runs):
     old = json.loads(path.read_text())
     if not old["environment"].get("git_commit"):
         pytest.skip("the committed comet-small report predates provenance (issue 12); regenerate it with "
-                    "`polarref --no-progress compare comet --preset small --out reports/comet-small`")
+                    "`bash scripts/regen-reports.sh`")
     fresh = two_runs[0]
     verdicts = lambda m: {c["claim_id"]: c["verdict"] for c in m["claims"]}   # noqa: E731
     assert verdicts(fresh) == verdicts(old)

@@ -21,7 +21,6 @@ C8 = ("C8", "Angular/parallax forms are more robust to outliers (Sec. 1.2.1) and
       "geometry.")
 
 
-
 # ---- C8 -------------------------------------------------------------------------------------
 
 def _rate(v: dict):

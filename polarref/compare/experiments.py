@@ -238,11 +238,12 @@ def _score_state(rec, truth, rms_px: float, check_rms: bool) -> dict:
 
 
 def _rms_px(rec) -> float:
+    """RMS per pixel coordinate, as ``BASummary.final_rms_px`` (the 2D error norm over sqrt(2))."""
     from polarref.metrics import observation_errors
 
     e = observation_errors(rec)[0]
     e = e[np.isfinite(e)]
-    return float(np.sqrt(np.mean(e**2))) if len(e) else float("nan")
+    return float(np.sqrt(np.mean(e**2) / 2)) if len(e) else float("nan")
 
 
 def _run_forms(init, truth, opts: dict, sink: dict, seed: int, check_rms: bool = True) -> None:

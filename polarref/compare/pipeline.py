@@ -199,7 +199,6 @@ def _environment(cfg: CompareConfig, scene: scenes.PreparedScene, timeout: float
 def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
     """Run the comparison and write OUT/metrics.json, OUT/report.md, OUT/report.html, OUT/figures/."""
     from polarref.compare.report import build_report
-
     from polarref.provenance import collect
 
     t_start = time.perf_counter()
