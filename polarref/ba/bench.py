@@ -28,9 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
+from polarref.atomic import atomic_write
 from polarref.ba.options import PARAMS, BAOptions
 from polarref.ba.problem import prepare
 from polarref.ba.solver import solve
+from polarref.errors import PolarrefError
 
 log = logging.getLogger(__name__)
 
@@ -45,10 +47,18 @@ PIXEL_FORMS = ("euclidean", "parallax")   # forms whose objective is the pixel c
 
 
 def _resolve(spec: str) -> str:
+    """A path that exists, ``synth-*``, or an item of the reference data (``bal/...``)."""
     if spec.startswith("synth-") or Path(spec).exists():
         return spec
     from polarref.data import data_path
-    return str(data_path(*spec.split("/")))
+    from polarref.errors import DataNotFoundError
+    if Path(spec).is_absolute() or spec.startswith((".", "~")):
+        raise PolarrefError(f"BA problem not found: {spec}")
+    try:
+        return str(data_path(*spec.split("/")))
+    except DataNotFoundError as exc:
+        raise PolarrefError(f"BA problem not found: {spec} (neither a path here nor an item of "
+                            f"the reference data: {exc})") from exc
 
 
 class _Solver:
@@ -224,7 +234,6 @@ def run_bench(problems, out_dir: Path, options: BAOptions = BAOptions(),
     from polarref.ba.bench_report import markdown
     from polarref.provenance import collect
 
-    out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / "bench.json"
     old = json.loads(path.read_text()) if merge and path.exists() else {}
     results = old.get("problems", []) if isinstance(old, dict) else []
@@ -239,6 +248,7 @@ def run_bench(problems, out_dir: Path, options: BAOptions = BAOptions(),
         log.info("bench %s done in %.1f s", spec, time.perf_counter() - t)
         doc["problems"] = [r for r in doc["problems"] if r["problem"] != spec] + [res]
         # written after every problem so an interrupted bench keeps what it measured
-        path.write_text(json.dumps(doc, indent=1, default=float))
-        (out_dir / "bench.md").write_text(markdown(doc))
+        out_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write(path, json.dumps(doc, indent=1, default=float))
+        atomic_write(out_dir / "bench.md", markdown(doc))
     return doc["problems"]
