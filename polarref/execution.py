@@ -146,7 +146,7 @@ class DaskExecutor:
             # start its own isolated child process (polarref.compare.runner).
             with dask.config.set({"distributed.worker.daemon": False}), _quiet_dask():
                 self.cluster = LocalCluster(n_workers=spec.workers, threads_per_worker=1, processes=True,
-                                            dashboard_address=None, env=dict(THREAD_ENV),
+                                            dashboard_address=":0", env=dict(THREAD_ENV),
                                             silence_logs=logging.ERROR)
                 self.client = Client(self.cluster, timeout=CONNECT_TIMEOUT_S * 6)
         elif spec.mode == "remote":
