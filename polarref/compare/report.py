@@ -10,11 +10,13 @@ from __future__ import annotations
 
 import base64
 import html
+import logging
 import re
 from dataclasses import dataclass
 from pathlib import Path
 
 from polarref.compare import figures as figs
+from polarref.compare.dense_section import dense_blocks, draw_dense_figure
 from polarref.compare.schema import (STATUS_OK, ClaimResult, MethodPair, MethodResult,
                                      MetricsFile, load, write_text_atomic)
 
@@ -270,6 +272,7 @@ def build_blocks(m: MetricsFile, figure_keys: set[str]) -> list:
     blocks += _pairs_section(m)
     blocks += _methods_section(m)
     blocks += _gt_section(m)
+    blocks += dense_blocks(m, figure_keys)
     blocks.append(Heading(2, "Figures"))
     for key, caption, _ in figs.FIGURES:
         if key in figure_keys:
@@ -352,6 +355,10 @@ def build_report(out_dir: str | Path, metrics: MetricsFile | None = None) -> dic
         metrics = load(out_dir / "metrics.json")
     fig_dir = out_dir / "figures"
     drawn = figs.draw_all(metrics, fig_dir)
+    try:
+        drawn.update(draw_dense_figure(metrics, out_dir, fig_dir))
+    except Exception as exc:  # a broken plot must not lose the tables
+        logging.getLogger(__name__).warning("figure dense failed: %s: %s", type(exc).__name__, exc)
     blocks = build_blocks(metrics, set(drawn))
     md, page = out_dir / "report.md", out_dir / "report.html"
     write_text_atomic(md, to_markdown(blocks))

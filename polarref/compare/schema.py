@@ -17,6 +17,7 @@ import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from polarref.compare.dense_section import DenseSection
 from polarref.errors import PolarrefError
 
 SCHEMA_VERSION = 1
@@ -194,6 +195,7 @@ class MetricsFile:
     claims: list[ClaimResult]
     ba_traces: list[BATrace] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    dense: DenseSection | None = None  # compare --dense (polarref.compare.dense_section)
 
     def method(self, name: str) -> MethodResult | None:
         return next((m for m in self.methods if m.name == name), None)

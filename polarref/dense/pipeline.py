@@ -53,7 +53,8 @@ class DenseMetrics:
     voxel: float = 0.0                           # model units
     mesh_vertices: int = 0
     mesh_faces: int = 0
-    runtime_s: dict[str, float] = field(default_factory=dict)
+    runtime_s: dict[str, float] = field(default_factory=dict)     # wall clock per stage
+    cpu_s: dict[str, float] = field(default_factory=dict)         # process CPU time per stage (all threads)
     peak_memory_mb: float = 0.0
     warnings: list[str] = field(default_factory=list)
     gt: scoring.GTScores | None = None
@@ -101,9 +102,10 @@ def run_dense(scene_dir: Path, model: str, out: Path, cfg: DenseConfig = DenseCo
     return m
 
 
-def _timed(m: DenseMetrics, stage: str, t0: float) -> float:
-    t = time.perf_counter()
-    m.runtime_s[stage] = m.runtime_s.get(stage, 0.0) + t - t0
+def _timed(m: DenseMetrics, stage: str, t0: tuple[float, float]) -> tuple[float, float]:
+    t = (time.perf_counter(), time.process_time())
+    m.runtime_s[stage] = m.runtime_s.get(stage, 0.0) + t[0] - t0[0]
+    m.cpu_s[stage] = m.cpu_s.get(stage, 0.0) + t[1] - t0[1]
     return t
 
 
@@ -128,8 +130,7 @@ def _load(scene_dir: Path, model: str):
 
 
 def _run(scene_dir: Path, model: str, out: Path, cfg: DenseConfig, m: DenseMetrics) -> None:
-    t = time.perf_counter()
-    t_all = t
+    t = t_all = (time.perf_counter(), time.process_time())
     image_dir, rec, gt, synth_scene = _load(scene_dir, model)
     m.num_views = len(rec.images)
     if m.num_views < views_mod.MIN_VIEWS:
@@ -188,7 +189,8 @@ def _run(scene_dir: Path, model: str, out: Path, cfg: DenseConfig, m: DenseMetri
 
     write_ply(out / "mesh.ply", mesh.vertices, mesh.faces, mesh.colors)
     t = _timed(m, "meshing", t)
-    m.runtime_s["dense_total"] = t - t_all
+    m.runtime_s["dense_total"] = t[0] - t_all[0]
+    m.cpu_s["dense_total"] = t[1] - t_all[1]
 
     if gt is not None:
         _score_gt(rec, gt, synth_scene, views, filtered, cloud, mesh, model, out, cfg, m)
