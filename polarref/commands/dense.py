@@ -17,10 +17,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", required=True,
                         help="'gt' (the scene's exact cameras) or a COLMAP model folder (e.g. OUT/model of polarref sfm)")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
-    parser.add_argument("--scale", type=float, default=0.5, help="working resolution / image resolution (default 0.5)")
+    parser.add_argument("--scale", type=float, default=None,
+                        help="working resolution / image resolution (default: images ~320 px wide)")
     parser.add_argument("--sources", type=int, default=4, help="neighbouring views per depth map (default 4)")
     parser.add_argument("--tau", type=float, default=0.005, help="F-score tolerance / GT scene diameter (default 0.005)")
-    parser.add_argument("--poisson-depth", type=int, default=9, help="octree depth of the Poisson mesh (default 9)")
+    parser.add_argument("--poisson-depth", type=int, default=8, help="octree depth of the Poisson mesh (default 8)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the GT surface sampling")
     parser.add_argument("--overwrite", action="store_true", help="write into a non-empty --out")
 
@@ -29,7 +30,7 @@ def run(args: argparse.Namespace) -> int:
     from polarref.compare.pipeline import command_line
     from polarref.dense.pipeline import DenseConfig, run_dense
 
-    if not 0.05 <= args.scale <= 1.0:
+    if args.scale is not None and not 0.05 <= args.scale <= 1.0:
         raise PolarrefError(f"--scale {args.scale}: must lie in [0.05, 1]")
     if args.sources < 2:
         raise PolarrefError(f"--sources {args.sources}: need >= 2")

@@ -82,11 +82,13 @@ def load_views(image_dir: Path, rec, scale: float = 1.0) -> list[DenseView]:
     return views
 
 
-def scene_points(rec, views: list[DenseView], bounds: tuple[np.ndarray, float] | None,
-                 max_points: int = 4000, seed: int = 0) -> np.ndarray:
-    """(P, 3) points sampling the scene: the sparse points, else the bounding sphere ``bounds``."""
+def scene_points(rec, views: list[DenseView], bounds, max_points: int = 4000, seed: int = 0) -> np.ndarray:
+    """(P, 3) points sampling the scene: the sparse points, else ``bounds``: surface points (N, 3)
+    or a bounding sphere (centre (3,), radius)."""
     _, X = rec.points_array()
     rng = np.random.default_rng(seed)
+    if len(X) < 20 and isinstance(bounds, np.ndarray):
+        X = bounds
     if len(X) >= 20:
         return X if len(X) <= max_points else X[rng.choice(len(X), max_points, replace=False)]
     if bounds is None:
