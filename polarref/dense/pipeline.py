@@ -49,6 +49,7 @@ class DenseMetrics:
     scene: str
     model: str                                   # "gt" or the model folder
     config: DenseConfig
+    scale: float = 0.0                           # working resolution used
     num_views: int = 0
     num_views_with_depth: int = 0
     neighbors: dict[str, list[str]] = field(default_factory=dict)
@@ -141,6 +142,7 @@ def _run(scene_dir: Path, model: str, out: Path, cfg: DenseConfig, m: DenseMetri
                             f"{views_mod.MIN_VIEWS}")
     width = max(c.width for c in rec.cameras.values())
     scale = cfg.scale if cfg.scale is not None else min(1.0, WORK_WIDTH / width)
+    m.scale = scale
     views = views_mod.load_views(image_dir, rec, scale)
     t = _timed(m, "load", t)
 
