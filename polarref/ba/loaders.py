@@ -4,15 +4,29 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from polarref.ba.problem import BAProblem
 from polarref.errors import PolarrefError
 
 
 def load_problem(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]:
+    """See :func:`_load`; numeric failures of a parsed but degenerate problem (singular
+    triangulation, a value that breaks a conversion) become a PolarrefError naming it."""
+    try:
+        return _load(spec, seed=seed)
+    except PolarrefError:
+        raise
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError, UnicodeError) as exc:
+        raise PolarrefError(f"{spec}: not a usable BA problem ({type(exc).__name__}: {exc})") from exc
+
+
+def _load(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]:
     """(problem, truth Reconstruction or None) for a path or ``synth-20``/``synth-60``/``synth-200``.
 
     BAL: a ``.txt`` file (RADIAL cameras via ``polarref.io.bal``); ParallaxBA: a folder with
-    ``Cam.txt`` and ``Feature.pmba`` (points by DLT triangulation, PINHOLE); PVL-BA: a folder with
+    ``Cam.txt`` + ``Feature.pmba`` or ``Cam<N>.txt`` + ``Feature<N>.txt`` + ``cal<N>.txt`` (points
+    from ``XYZ.txt`` if present, else by DLT triangulation; PINHOLE); PVL-BA: a folder with
     ``cal.txt`` + ``XYZ.txt`` + ``Feature.txt``, or a ContextCapture BlocksExchange ``.xml``
     (observations undistorted by ``polarref.io.pvlba``); COLMAP: a model folder.
     """
@@ -28,10 +42,11 @@ def load_problem(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]
     path = Path(spec)
     if not path.exists():
         raise PolarrefError(f"BA problem not found: {path}")
-    if path.is_dir() and (path / "Cam.txt").exists() and (path / "Feature.pmba").exists():
+    from polarref.io.parallaxba import find_parallaxba_files
+    if find_parallaxba_files(path) is not None:
         from polarref.io.parallaxba import read_parallaxba, triangulate_dlt
         pb = read_parallaxba(path)
-        X = triangulate_dlt(pb)
+        X = triangulate_dlt(pb) if pb.points is None else pb.points.copy()
         cam = pb.camera()
         N = pb.num_cameras
         return BAProblem(cameras=[cam] * N, R=pb.R.copy(), C=pb.centers.copy(), X=X,
@@ -47,7 +62,7 @@ def load_problem(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]
     from polarref.io.bal import bal_to_reconstruction, read_bal
     try:
         bal = read_bal(path)
-    except (ValueError, OSError) as exc:
-        raise PolarrefError(f"cannot read BAL problem {path}: {exc}") from exc
+    except OSError as exc:
+        raise PolarrefError(f"cannot read BAL problem {path}: {exc.strerror or exc}") from exc
     return problem_from_reconstruction(bal_to_reconstruction(bal)), None
 

@@ -6,23 +6,25 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from polarref.errors import PolarrefError
-
 NAME = "dense"
 HELP = "plane-sweep stereo -> fused coloured cloud (fused.ply) + Poisson mesh (mesh.ply), scored vs GT"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from polarref.commands._types import SEED, float_range, int_range
+
     parser.add_argument("dir", type=Path, help="scene folder holding images/ (and gt/, mesh.ply, depth/ if synthetic)")
     parser.add_argument("--model", required=True,
                         help="'gt' (the scene's exact cameras) or a COLMAP model folder (e.g. OUT/model of polarref sfm)")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
-    parser.add_argument("--scale", type=float, default=None,
-                        help="working resolution / image resolution (default: images ~320 px wide)")
-    parser.add_argument("--sources", type=int, default=4, help="neighbouring views per depth map (default 4)")
-    parser.add_argument("--tau", type=float, default=0.005, help="F-score tolerance / GT scene diameter (default 0.005)")
-    parser.add_argument("--poisson-depth", type=int, default=8, help="octree depth of the Poisson mesh (default 8)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the GT surface sampling")
+    parser.add_argument("--scale", type=float_range(0.05, 1.0), default=None,
+                        help="working resolution / image resolution, in [0.05, 1] (default: images ~320 px wide)")
+    parser.add_argument("--sources", type=int_range(2, 16), default=4, help="neighbouring views per depth map (default 4)")
+    parser.add_argument("--tau", type=float_range(0.0, 1.0, lo_open=True), default=0.005,
+                        help="F-score tolerance / GT scene diameter (default 0.005)")
+    parser.add_argument("--poisson-depth", type=int_range(5, 12), default=8,
+                        help="octree depth of the Poisson mesh (default 8)")
+    parser.add_argument("--seed", type=SEED, default=0, help="seed of the GT surface sampling")
     parser.add_argument("--overwrite", action="store_true", help="write into a non-empty --out")
 
 
@@ -30,14 +32,6 @@ def run(args: argparse.Namespace) -> int:
     from polarref.compare.pipeline import command_line
     from polarref.dense.pipeline import DenseConfig, run_dense
 
-    if args.scale is not None and not 0.05 <= args.scale <= 1.0:
-        raise PolarrefError(f"--scale {args.scale}: must lie in [0.05, 1]")
-    if args.sources < 2:
-        raise PolarrefError(f"--sources {args.sources}: need >= 2")
-    if not 0 < args.tau < 1:
-        raise PolarrefError(f"--tau {args.tau}: must lie in (0, 1)")
-    if not 5 <= args.poisson_depth <= 12:
-        raise PolarrefError(f"--poisson-depth {args.poisson_depth}: must lie in [5, 12]")
     base = DenseConfig()
     cfg = dataclasses.replace(base, scale=args.scale, num_sources=args.sources, tau_rel=args.tau, seed=args.seed,
                               mesh=dataclasses.replace(base.mesh, depth=args.poisson_depth))

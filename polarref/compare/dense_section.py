@@ -83,7 +83,7 @@ def _f(v, nd=3) -> str:
 
 def dense_blocks(metrics, figure_keys: set[str]) -> list:
     """Report blocks for ``metrics.dense`` (empty when the dense stage did not run)."""
-    from polarref.compare.report import Fig, Heading, Para, Table
+    from polarref.compare.report_render import Fig, Heading, Para, Table
 
     sec = getattr(metrics, "dense", None)
     if sec is None or not sec.runs:

@@ -17,6 +17,7 @@ import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from polarref.atomic import atomic_write
 from polarref.compare.dense_section import DenseSection
 from polarref.errors import PolarrefError
 
@@ -106,6 +107,8 @@ class MethodPlot:
     reproj_hist: Histogram | None = None
     rotation_err_hist: Histogram | None = None
     surface_err_hist: Histogram | None = None
+    rotation_err_deg: list[float] = field(default_factory=list)   # per image, image_names order
+    track_length_hist: Histogram | None = None                    # observations per 3D point
 
 
 @dataclass
@@ -165,6 +168,7 @@ class ClaimResult:
     sample_size: str          # e.g. "10^5 random angles", "1 scene x 2 methods"
     verdict: str              # one of VERDICTS
     rationale: str            # template: "{key}" placeholders filled from figures at report time
+    summary: str = ""         # one-line template for the scorecard; "" = first clause of the rationale
 
 
 @dataclass
@@ -184,6 +188,43 @@ class Environment:
 
 
 @dataclass
+class ViewCloud:
+    """One point cloud of the 3D view, subsampled and quantized (see ``polarref.compare.view3d``)."""
+
+    key: str                  # method name, "gt-surface" or "dense:<method>"
+    label: str
+    kind: str                 # "sparse" | "dense" | "reference"
+    total: int                # points before subsampling
+    count: int                # points stored
+    dropped: int              # far outliers outside the quantization box, left out
+    origin: list[float]       # (3,) box corner, GT frame
+    step: list[float]         # (3,) scene units per quantization step
+    xyz_u16: str              # base64, (count, 3) uint16 little-endian
+    rgb_u8: str               # base64, (count, 3) uint8
+
+
+@dataclass
+class ViewCameras:
+    """Registered cameras of one method (or the ground truth) in the GT frame."""
+
+    key: str                  # method name or "gt"
+    label: str
+    poses: list[list[float]]  # (N, 7): centre x y z, world_from_cam quaternion w x y z
+
+
+@dataclass
+class View3D:
+    """Data of the interactive 3D view: estimates Sim3-aligned to the ground truth."""
+
+    seed: int                 # subsampling seed
+    max_points: int           # cap per sparse cloud
+    max_dense_points: int     # cap per dense cloud
+    tan_half_fov: list[float]  # (2,) frustum shape: width / (2 fx), height / (2 fy)
+    cameras: list[ViewCameras]
+    clouds: list[ViewCloud]
+
+
+@dataclass
 class MetricsFile:
     """Everything a report shows."""
 
@@ -195,6 +236,7 @@ class MetricsFile:
     claims: list[ClaimResult]
     ba_traces: list[BATrace] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    view3d: View3D | None = None
     dense: DenseSection | None = None  # compare --dense (polarref.compare.dense_section)
 
     def method(self, name: str) -> MethodResult | None:
@@ -249,11 +291,12 @@ def _build(tp, value, where: str):
             raise PolarrefError(f"metrics.json: {where} should be an object, got {type(value).__name__}")
         return {k: _build(inner, v, f"{where}.{k}") for k, v in value.items()}
     if tp is float:
-        if not isinstance(value, (int, float)):
-            raise PolarrefError(f"metrics.json: {where} should be a number, got {value!r}")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise PolarrefError(f"metrics.json: {where} should be a finite number, got {value!r}")
         return float(value)
     if tp is int:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+                or value != int(value):
             raise PolarrefError(f"metrics.json: {where} should be an integer, got {value!r}")
         return int(value)
     return value
@@ -278,9 +321,7 @@ def dumps(metrics: MetricsFile) -> str:
 
 def write_text_atomic(path: Path, text: str) -> None:
     """Write UTF-8 ``text`` beside ``path`` and rename it into place (never a truncated file)."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    tmp.replace(path)
+    atomic_write(path, text)
 
 
 def save(metrics: MetricsFile, path: str | Path) -> Path:
@@ -296,7 +337,14 @@ def load(path: str | Path) -> MetricsFile:
     if not path.is_file():
         raise PolarrefError(f"metrics file not found: {path}")
     try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
+        # utf-8-sig skips a byte-order mark; NaN/Infinity are not JSON (we write missing as null)
+        data = json.loads(path.read_text(encoding="utf-8-sig"), parse_constant=_reject_constant)
+    except UnicodeDecodeError as exc:
+        raise PolarrefError(f"{path} is not UTF-8 text ({exc.reason} at byte {exc.start})") from exc
+    except (json.JSONDecodeError, ValueError) as exc:
         raise PolarrefError(f"{path} is not valid JSON: {exc}") from exc
     return from_dict(data)
+
+
+def _reject_constant(name: str):
+    raise ValueError(f"{name} is not a JSON number (a missing value is null)")
