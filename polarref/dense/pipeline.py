@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from polarref.atomic import atomic_open
 from polarref.dense import consistency, depth as depth_mod, fusion, meshing, scoring, views as views_mod
 from polarref.dense.provenance import Provenance, collect
 from polarref.errors import PolarrefError
@@ -178,7 +179,8 @@ def _run(scene_dir: Path, model: str, out: Path, cfg: DenseConfig, m: DenseMetri
     filtered = []
     for i in track(range(len(views)), desc="consistency", total=len(views)):
         f = consistency.filter_view(i, views, maps, sel.neighbors[i], cfg.consistency)
-        np.save(out / "depth" / (Path(views[i].name).stem + ".npy"), f.depth)
+        with atomic_open(out / "depth" / (Path(views[i].name).stem + ".npy")) as fh:
+            np.save(fh, f.depth)
         filtered.append(f)
     m.num_views_with_depth = sum(1 for f in filtered if len(f.points))
     t = _timed(m, "consistency", t)
