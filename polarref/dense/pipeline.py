@@ -94,7 +94,7 @@ def run_dense(scene_dir: Path, model: str, out: Path, cfg: DenseConfig = DenseCo
         raise PolarrefError(f"scene folder not found: {scene_dir}")
     _prepare_out(out, overwrite)
     m = DenseMetrics("failed", "", str(scene_dir), model, cfg,
-                     provenance=collect(command, {"dense": cfg.seed}))
+                     provenance=collect(command, {"dense": cfg.seed}, {"poisson": cfg.mesh.threads}))
     try:
         _run(scene_dir, model, out, cfg, m)
         m.status = "ok"

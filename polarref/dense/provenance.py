@@ -1,53 +1,34 @@
-"""Minimal provenance record for dense outputs (git commit and dirty flag, machine, versions).
-
-Issue 12 adds a project-wide provenance helper; until it lands this is the dense stage's own.
-"""
+"""The dense stage's provenance record: :func:`polarref.provenance.collect` as a typed record."""
 
 from __future__ import annotations
 
-import os
-import platform
-import subprocess
-import sys
 from dataclasses import dataclass, field
 from importlib import metadata
-from pathlib import Path
-
-PACKAGES = ("numpy", "scipy", "opencv-python-headless", "open3d-cpu", "open3d", "pycolmap")
 
 
 @dataclass
 class Provenance:
     git_commit: str | None
     git_dirty: bool | None
-    machine: str
     cpu_count: int
+    cpu_model: str | None
+    machine: str
+    platform: str
     python: str
-    versions: dict[str, str] = field(default_factory=dict)
+    versions: dict = field(default_factory=dict)
+    threads: dict = field(default_factory=dict)
+    seeds: dict = field(default_factory=dict)
     command: str = ""
-    seeds: dict[str, int] = field(default_factory=dict)
 
 
-def _git(args: list[str], cwd: Path) -> str | None:
-    try:
-        out = subprocess.run(["git", *args], cwd=cwd, capture_output=True, text=True, timeout=10)
-    except (OSError, subprocess.SubprocessError):
-        return None
-    return out.stdout.strip() if out.returncode == 0 else None
+def collect(command: str = "", seeds: dict[str, int] | None = None, threads: dict[str, int] | None = None) -> Provenance:
+    from polarref.provenance import collect as collect_env
 
-
-def collect(command: str = "", seeds: dict[str, int] | None = None) -> Provenance:
-    from polarref import __version__
-
-    repo = Path(__file__).resolve().parents[2]
-    commit = _git(["rev-parse", "HEAD"], repo)
-    status = _git(["status", "--porcelain", "--untracked-files=no"], repo)
-    versions = {"polarref": __version__}
-    for name in PACKAGES:
+    env = collect_env(seeds, threads)
+    for dist in ("open3d-cpu", "open3d"):  # the dense stage's one extra dependency
         try:
-            versions[name] = metadata.version(name)
+            env["versions"][dist] = metadata.version(dist)
         except metadata.PackageNotFoundError:
             pass
-    return Provenance(commit, None if status is None else bool(status),
-                      f"{platform.node()} {platform.machine()} {platform.platform()}",
-                      int(os.cpu_count() or 0), sys.version.split()[0], versions, command, dict(seeds or {}))
+    names = {f for f in Provenance.__dataclass_fields__ if f != "command"}
+    return Provenance(**{k: v for k, v in env.items() if k in names}, command=command)
