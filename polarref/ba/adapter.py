@@ -72,6 +72,9 @@ def problem_from_reconstruction(rec, *, variable_image_ids=None, fixed_image_ids
                         cam_fixed=cam_fixed, image_ids=image_ids,
                         point_ids=np.array(pids, np.int64))
     problem.exclusions["observations_unknown_image"] = int((~known).sum())
+    # images of one camera id share intrinsics when they are refined
+    cam_ids = np.array([im.camera_id for im in imgs])
+    problem.camera_group = np.unique(cam_ids, return_inverse=True)[1].astype(np.int64)
     return problem
 
 
@@ -83,6 +86,10 @@ def write_back(rec, problem: BAProblem) -> None:
             rec.images[int(i)].cam_from_world = Rigid3(problem.R[k], t[k])
     for k, p in enumerate(problem.point_ids):
         rec.points3D[int(p)].xyz = problem.X[k].copy()
+    for k, i in enumerate(problem.image_ids):  # refined intrinsics (unchanged when held fixed)
+        cid = rec.images[int(i)].camera_id
+        if rec.cameras[cid] != problem.cameras[k]:
+            rec.cameras[cid] = problem.cameras[k]
 
 
 def problem_to_reconstruction(problem: BAProblem):
@@ -109,7 +116,7 @@ def problem_to_reconstruction(problem: BAProblem):
 
 def adjust(rec, options: BAOptions = BAOptions(), *, variable_image_ids=None,
            fixed_image_ids=None, variable_point_ids=None) -> BASummary:
-    """Bundle-adjust a Reconstruction in place (poses and points; intrinsics fixed).
+    """Bundle-adjust a Reconstruction in place (poses, points; intrinsics if ``options.refine``).
 
     Args:
         rec: ``polarref.reconstruction.Reconstruction``.
