@@ -22,6 +22,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--loss-scale", type=float, default=1.0, help="robust loss scale [px]")
     parser.add_argument("--max-iterations", type=int, default=100)
     parser.add_argument("--staged", action="store_true", help="angular: theta first, then joint")
+    parser.add_argument("--refine", default="", metavar="GROUPS",
+                        help="self-calibration: refine intrinsics groups focal,pp,dist (default none)")
     parser.add_argument("--out", required=True, help="output JSON path")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing --out")
 
@@ -35,7 +37,8 @@ def run(args) -> int:
         raise PolarrefError(f"{out} exists; pass --overwrite to replace it")
     try:
         options = BAOptions(param=args.param, loss=args.loss, loss_scale=args.loss_scale,
-                            max_iterations=args.max_iterations, staged=args.staged)
+                            max_iterations=args.max_iterations, staged=args.staged,
+                            refine=args.refine)
     except ValueError as exc:
         raise PolarrefError(str(exc)) from exc
     problem, _ = load_problem(args.problem)
