@@ -92,9 +92,20 @@ def write_back(rec, problem: BAProblem) -> None:
             rec.cameras[cid] = problem.cameras[k]
 
 
-def problem_to_reconstruction(problem: BAProblem):
-    """A Reconstruction holding the problem's cameras, poses, points and observations."""
+def problem_to_reconstruction(problem: BAProblem, shared_cameras: bool = False):
+    """A Reconstruction holding the problem's cameras, poses, points and observations.
+
+    Camera id = image id = index + 1; with ``shared_cameras`` one camera per intrinsics group
+    instead (camera id = group + 1, ``problem.camera_group`` or equal intrinsics).
+    """
     from polarref.reconstruction import Image, Point3D, Reconstruction
+
+    cam_id = np.arange(problem.num_cameras) + 1
+    if shared_cameras:
+        from polarref.ba.intrinsics import default_groups
+        groups = (default_groups(problem.cameras) if problem.camera_group is None
+                  else np.asarray(problem.camera_group))
+        cam_id = groups + 1
 
     rec = Reconstruction()
     order = np.argsort(problem.obs_cam, kind="stable")
@@ -104,8 +115,8 @@ def problem_to_reconstruction(problem: BAProblem):
     for i in range(problem.num_cameras):
         obs = order[starts[i]:starts[i + 1]]
         p2d[obs] = np.arange(len(obs))
-        rec.cameras[i + 1] = problem.cameras[i]
-        rec.images[i + 1] = Image(i + 1, f"img_{i:05d}", i + 1, Rigid3(problem.R[i], t[i]),
+        rec.cameras[int(cam_id[i])] = problem.cameras[i]
+        rec.images[i + 1] = Image(i + 1, f"img_{i:05d}", int(cam_id[i]), Rigid3(problem.R[i], t[i]),
                                   problem.obs_uv[obs].copy(), problem.obs_pt[obs] + 1)
     tracks = np.stack([problem.obs_cam + 1, p2d], axis=1)
     starts = np.searchsorted(problem.obs_pt, np.arange(problem.num_points + 1))

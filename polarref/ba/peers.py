@@ -41,7 +41,7 @@ def _behind(problem: BAProblem, R, C, X) -> int:
 
 
 def run_pycolmap(problem: BAProblem, options: BAOptions) -> PeerResult:
-    """Ceres via pycolmap: intrinsics fixed, gauge TWO_CAMS_FROM_WORLD, same robust loss,
+    """Ceres via pycolmap: intrinsics fixed (or ``options.refine``), gauge TWO_CAMS_FROM_WORLD, same robust loss,
     pycolmap's default solver settings otherwise (max 100 iterations, gradient_tolerance 1e-4,
     function_tolerance 0)."""
     import pycolmap
@@ -49,9 +49,12 @@ def run_pycolmap(problem: BAProblem, options: BAOptions) -> PeerResult:
     from polarref.ba.adapter import problem_to_reconstruction
 
     # image id = camera index + 1, point id = point index + 1 (kept by to_pycolmap)
-    rec = problem_to_reconstruction(problem).to_pycolmap()
+    rec = problem_to_reconstruction(problem, shared_cameras=bool(options.refine)).to_pycolmap()
     opts = pycolmap.BundleAdjustmentOptions()
-    opts.refine_focal_length = opts.refine_principal_point = opts.refine_extra_params = False
+    # the same intrinsics groups as ours (options.refine, issue 19); none by default
+    opts.refine_focal_length = "focal" in options.refine
+    opts.refine_principal_point = "pp" in options.refine
+    opts.refine_extra_params = "dist" in options.refine
     opts.refine_sensor_from_rig = False
     opts.print_summary = False
     opts.ceres.loss_function_type = {"trivial": pycolmap.LossFunctionType.TRIVIAL,
@@ -78,6 +81,12 @@ def run_pycolmap(problem: BAProblem, options: BAOptions) -> PeerResult:
         R[i] = pose.rotation.matrix()
         C[i] = -R[i].T @ np.asarray(pose.translation)
     X = np.array([rec.points3D[j + 1].xyz for j in range(problem.num_points)])
+    if options.refine:  # final cost with the refined intrinsics
+        from polarref.camera import Camera
+        refined = problem.copy()
+        refined.cameras = [Camera.from_pycolmap(rec.cameras[rec.images[i + 1].camera_id])
+                           for i in range(N)]
+        e = Euclidean(refined)
     c1, rms = _cost_of(e, R, C, X, options)
     return PeerResult("pycolmap", c0, c1, rms, int(cs.num_successful_steps + cs.num_unsuccessful_steps),
                       wall, str(cs.termination_type).split(".")[-1], float(cs.final_cost),
