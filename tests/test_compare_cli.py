@@ -68,7 +68,7 @@ def _toy_scene(tmp_path: Path):
     return scene, model, truth
 
 
-def test_failed_method_is_reported_and_others_still_report(tmp_path, monkeypatch, isolated_cache):
+def test_failed_method_is_reported_and_others_still_report(tmp_path, monkeypatch, isolated_cache, capsys):
     scene, model, truth = _toy_scene(tmp_path)
     calls = []
 
@@ -101,9 +101,15 @@ def test_failed_method_is_reported_and_others_still_report(tmp_path, monkeypatch
     md = (out / "report.md").read_text()
     assert "registered no images" in md and "| failed |" in md
     assert (out / "user-notes.md").read_text() == "mine"             # updated, not wiped
-    # A second run into the same folder updates it in place.
+    # A finished folder is refused without --overwrite (one line, exit 1, nothing touched) ...
+    before = (out / "metrics.json").read_bytes()
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert "--overwrite" in err and len(err.strip().splitlines()) == 1
+    assert (out / "metrics.json").read_bytes() == before
+    # ... and updated in place with it.
     (out / "figures" / "extra.png").write_bytes(b"x")
-    assert main(args) == 0
+    assert main(args + ["--overwrite"]) == 0
     assert (out / "user-notes.md").exists() and (out / "figures" / "extra.png").exists()
 
 
@@ -185,3 +191,39 @@ def test_compare_on_strecha_fountain(tmp_path, isolated_cache, shared_data):
         assert r["status"] == "ok", (r["name"], r["reason"])
         assert r["registered_images"] == 11
         assert 0.0 < r["gt"]["rotation_error_deg_mean"] < 0.2
+
+
+def test_default_output_is_gitignored_polarref_out(tmp_path, monkeypatch, isolated_cache):
+    """Without --out the job writes ./polarref-out/<scene>/, which git ignores: the tree stays clean."""
+    import subprocess
+    import uuid
+
+    from polarref.data import REPO_ROOT
+
+    if not (REPO_ROOT / ".git").exists():
+        pytest.skip(f"{REPO_ROOT} is not a git checkout")
+    toy, model, _ = _toy_scene(tmp_path)
+    scene = toy.rename(tmp_path / f"toy{uuid.uuid4().hex[:8]}")  # a name no user folder has
+    monkeypatch.setattr(pipeline, "run_isolated", lambda job, kw, t, w, tag: JobOutcome(
+        "ok", "", 1.0, {"model_dir": str(model), "stage_runtime_s": {"mapping": 1.0}}
+        if job.endswith("ours_sfm") else {"stage_runtime_s": {}}))
+    status = lambda: subprocess.run(["git", "status", "--porcelain", "--untracked-files=all"], cwd=REPO_ROOT,
+                                    capture_output=True, text=True, check=True).stdout
+    reports = sorted((p.relative_to(REPO_ROOT), p.stat().st_mtime_ns) for p in (REPO_ROOT / "reports").rglob("*"))
+    before = status()
+    had_out_root = (REPO_ROOT / "polarref-out").exists()
+    monkeypatch.chdir(REPO_ROOT)
+    out = None
+    try:
+        assert main(["compare", str(scene), "--no-claims", "--methods", "ours-euclidean"]) == 0
+        out = REPO_ROOT / "polarref-out" / f"{scene.name}-default"
+        assert (out / "metrics.json").is_file() and (out / "report.html").is_file()
+        assert status() == before
+    finally:
+        if out is not None and out.is_dir():
+            shutil.rmtree(out)
+        if not had_out_root and (REPO_ROOT / "polarref-out").is_dir() and \
+                not any((REPO_ROOT / "polarref-out").iterdir()):
+            (REPO_ROOT / "polarref-out").rmdir()
+    assert sorted((p.relative_to(REPO_ROOT), p.stat().st_mtime_ns)
+                  for p in (REPO_ROOT / "reports").rglob("*")) == reports

@@ -1,6 +1,7 @@
 """ParallaxBA files: reading, the verified Euler convention, writing, bad input."""
 
 import itertools
+import json
 
 import numpy as np
 import pytest
@@ -121,3 +122,75 @@ def test_to_reconstruction(fakepile):
     # main anchors survive: the first track element of each point is its main anchor image
     first = np.array([rec.points3D[j + 1].track[0, 0] - 1 for j in range(fakepile.num_points)])
     np.testing.assert_array_equal(first, fakepile.main_anchor)
+
+
+def _numbered(tmp_path, n="90", xyz=None, K="100 0 50\n0 100 40\n0 0 1\n"):
+    """A folder named like ParallaxBA's distributed datasets (README: Cam90.txt, Feature90.txt,
+    cal90.txt): two cameras one unit apart along x, K fx = fy = 100, one point at (0.5, 0, 5)."""
+    (tmp_path / f"Cam{n}.txt").write_text("0 0 0 0 0 0\n0 0 0 1 0 0\n")
+    # u = 100 x / z + 50, v = 40: from C0 (0.5, 0, 5) -> 60; from C1 (-0.5, 0, 5) -> 40
+    (tmp_path / f"Feature{n}.txt").write_text("2 0 60 40 1 40 40\n")
+    (tmp_path / f"cal{n}.txt").write_text(K)
+    if xyz is not None:
+        (tmp_path / "XYZ.txt").write_text(xyz)
+    return tmp_path
+
+
+def test_distributed_naming_is_read(tmp_path):
+    from polarref.io.parallaxba import find_parallaxba_files
+    folder = _numbered(tmp_path)
+    files = find_parallaxba_files(folder)
+    assert (files.cam.name, files.feature.name, files.intrinsics.name, files.xyz) == (
+        "Cam90.txt", "Feature90.txt", "cal90.txt", None)
+    p = read_parallaxba(folder)
+    assert (p.num_cameras, p.num_points, p.points) == (2, 1, None)
+    np.testing.assert_allclose(triangulate_dlt(p), [[0.5, 0.0, 5.0]], atol=1e-9)
+
+
+def test_distributed_naming_with_xyz_start_and_one_line_K(tmp_path):
+    folder = _numbered(tmp_path, n="7", xyz="0.4 0.1 4.5\n", K="100 0 50 0 100 40 0 0 1\n")
+    p = read_parallaxba(folder)
+    np.testing.assert_array_equal(p.points, [[0.4, 0.1, 4.5]])
+    np.testing.assert_array_equal(p.K, [[100, 0, 50], [0, 100, 40], [0, 0, 1]])
+    e = reprojection_errors(p, p.points)
+    assert e.min() > 1.0  # the start is not the solution: it comes from XYZ.txt, not DLT
+
+
+def test_loader_and_cli_accept_the_distributed_naming(tmp_path):
+    from polarref.ba.loaders import load_problem
+    (tmp_path / "pb").mkdir()
+    folder = _numbered(tmp_path / "pb", xyz="0.4 0.1 4.5\n")
+    problem, truth = load_problem(str(folder))
+    assert truth is None and problem.num_cameras == 2
+    np.testing.assert_array_equal(problem.X, [[0.4, 0.1, 4.5]])
+    from polarref.cli import main
+    out = tmp_path / "ba.json"
+    assert main(["ba", str(folder), "--param", "parallax", "--damping", "nielsen", "--out",
+                 str(out)]) == 0
+    data = json.loads(out.read_text())
+    assert data["solver"] == "lm" and data["damping"] == "nielsen"
+    assert data["accepted_iterations"] + data["rejected_iterations"] == data["iterations"] >= 1
+    assert all(r["damping"] > 0 and "gain" in r for r in data["trace"])
+    # two views, one point (underdetermined): an exact fit from a start > 1 px off
+    assert data["initial_rms_px"] > 1.0 and data["final_rms_px"] < 1e-3
+
+
+@pytest.mark.parametrize("files, match", [
+    ({"Cam1.txt": "0 0 0 0 0 0\n", "Feature1.txt": "1 0 1 2\n"}, "no cal1.txt"),
+    ({"Cam1.txt": "", "Feature1.txt": "", "cal1.txt": "", "Cam2.txt": "", "Feature2.txt": ""},
+     "several ParallaxBA problems"),
+])
+def test_distributed_naming_incomplete_or_ambiguous(tmp_path, files, match):
+    from polarref.errors import PolarrefError
+    from polarref.io.parallaxba import find_parallaxba_files
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+    with pytest.raises(PolarrefError, match=match):
+        find_parallaxba_files(tmp_path)
+
+
+def test_xyz_with_wrong_count_names_the_file(tmp_path):
+    folder = _numbered(tmp_path, xyz="0.4 0.1 4.5\n1 2 3\n")
+    with pytest.raises(FormatError, match="2 points for 1 features") as info:
+        read_parallaxba(folder)
+    assert info.value.path.name == "XYZ.txt"

@@ -47,6 +47,10 @@ def test_cli_writes_model_and_refuses_existing_out(small_copy, tmp_path, monkeyp
     assert m["gt"]["num_matched"] == 6 and m["gt"]["rotation_error_deg_mean"] < 1.0
     rec = pycolmap.Reconstruction(str(out / "model"))
     assert rec.num_reg_images() == 6 and rec.num_points3D() == m["tie_points"]
+    # default --format both: text and binary model plus a coloured PLY with one vertex per point
+    assert {"cameras.txt", "images.bin", "points3D.bin", "points3D.ply"} <= {p.name for p in (out / "model").iterdir()}
+    head = (out / "model" / "points3D.ply").read_bytes()[:300].decode("ascii", "replace")
+    assert "binary_little_endian" in head and f"element vertex {m['tie_points']}\n" in head
     before = (out / "metrics.json").read_bytes()
     (out / "notes.txt").write_text("mine")
     assert main(["sfm", str(small_copy), "--out", str(out)]) == 1

@@ -12,7 +12,8 @@ def load_problem(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]
     """(problem, truth Reconstruction or None) for a path or ``synth-20``/``synth-60``/``synth-200``.
 
     BAL: a ``.txt`` file (RADIAL cameras via ``polarref.io.bal``); ParallaxBA: a folder with
-    ``Cam.txt`` and ``Feature.pmba`` (points by DLT triangulation, PINHOLE); PVL-BA: a folder with
+    ``Cam.txt`` + ``Feature.pmba`` or ``Cam<N>.txt`` + ``Feature<N>.txt`` + ``cal<N>.txt`` (points
+    from ``XYZ.txt`` if present, else by DLT triangulation; PINHOLE); PVL-BA: a folder with
     ``cal.txt`` + ``XYZ.txt`` + ``Feature.txt``, or a ContextCapture BlocksExchange ``.xml``
     (observations undistorted by ``polarref.io.pvlba``); COLMAP: a model folder.
     """
@@ -28,10 +29,11 @@ def load_problem(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]
     path = Path(spec)
     if not path.exists():
         raise PolarrefError(f"BA problem not found: {path}")
-    if path.is_dir() and (path / "Cam.txt").exists() and (path / "Feature.pmba").exists():
+    from polarref.io.parallaxba import find_parallaxba_files
+    if find_parallaxba_files(path) is not None:
         from polarref.io.parallaxba import read_parallaxba, triangulate_dlt
         pb = read_parallaxba(path)
-        X = triangulate_dlt(pb)
+        X = triangulate_dlt(pb) if pb.points is None else pb.points.copy()
         cam = pb.camera()
         N = pb.num_cameras
         return BAProblem(cameras=[cam] * N, R=pb.R.copy(), C=pb.centers.copy(), X=X,

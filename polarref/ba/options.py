@@ -7,6 +7,17 @@ from dataclasses import dataclass, field
 from polarref.ba.losses import LOSSES
 
 PARAMS = ("euclidean", "parallax", "polar", "angular")
+SOLVERS = ("lm", "gn")  # Levenberg-Marquardt | Gauss-Newton (every step taken, no damping)
+DAMPINGS = ("ceres", "nielsen")
+# LM strategy per form where BAOptions leaves it None, measured (reports/bench-ba/
+# parallaxba-parity.md, iterations to the common optimum): Ceres' Jacobi-scaled trust region with
+# the gauge held for every form. Nielsen's (H + mu I) ties it on the fake pile in the free gauge
+# (14) but needs 2-3x the iterations on a forward rig at baseline/depth 3e-4 (parallax 189 vs 80,
+# polar 153 vs 45), where unscaled damping suits the tiny parallax angles badly; the free gauge
+# saves 40 % on the fake pile (14 vs 23) and 0-1 on synthetic problems but costs 1.1-1.5x on that
+# rig, and the Euclidean form keeps Ceres (Ladybug-49: 7 vs 24-27 with Nielsen).
+DEFAULT_DAMPING = {"euclidean": "ceres", "parallax": "ceres", "polar": "ceres", "angular": "ceres"}
+DEFAULT_LM_GAUGE = {"euclidean": "fixed", "parallax": "fixed", "polar": "fixed", "angular": "fixed"}
 
 
 @dataclass(frozen=True)
@@ -20,6 +31,15 @@ class BAOptions:
     loss: str = "trivial"  # robust loss on each residual block: trivial | huber | cauchy
     loss_scale: float = 1.0  # loss scale a [px-equivalent]: Huber/Cauchy knee at |r| = a
     max_iterations: int = 100  # LM iterations, accepted and rejected steps both count (Ceres)
+    solver: str = "lm"  # "lm" or "gn" (Gauss-Newton: undamped, every finite step taken)
+    # LM damping: "ceres" = trust region, (H + diag(H) / radius); "nielsen" = ParallaxBA's
+    # (H + mu I), mu0 = nielsen_tau * max diag(H), Nielsen's update; None = the form's default
+    damping: str | None = None
+    nielsen_tau: float = 1e-6  # ParallaxBA's tau
+    # LM only (None = the form's default): "free" releases the 7 gauge DoF during the solve
+    # (damped, not held) and maps the result back into the held gauge (ba/gauge.py); "fixed"
+    # holds them. Gauss-Newton always holds them.
+    lm_gauge: str | None = None
     function_tolerance: float = 1e-6  # stop when |d cost| / cost < this after an accepted step
     gradient_tolerance: float = 1e-10  # stop when max |gradient| < this
     parameter_tolerance: float = 1e-8  # stop when |step| < this * (|x| + this)
@@ -48,6 +68,14 @@ class BAOptions:
             raise ValueError(f"unknown loss {self.loss!r}; choose {', '.join(LOSSES)}")
         if not self.loss_scale > 0:
             raise ValueError(f"loss_scale must be > 0, got {self.loss_scale}")
+        if self.solver not in SOLVERS:
+            raise ValueError(f"unknown solver {self.solver!r}; choose {', '.join(SOLVERS)}")
+        if self.damping is not None and self.damping not in DAMPINGS:
+            raise ValueError(f"unknown damping {self.damping!r}; choose {', '.join(DAMPINGS)}")
+        if self.lm_gauge is not None and self.lm_gauge not in ("free", "fixed"):
+            raise ValueError(f"unknown lm_gauge {self.lm_gauge!r}; choose free or fixed")
+        if not self.nielsen_tau > 0:
+            raise ValueError(f"nielsen_tau must be > 0, got {self.nielsen_tau}")
         if self.axis_residual not in ("chart", "theta"):
             raise ValueError(f"unknown axis_residual {self.axis_residual!r}; choose chart or theta")
         if self.blas_threads is not None and self.blas_threads < 1:
@@ -66,10 +94,12 @@ class IterationRecord:
     iteration: int
     cost: float  # objective after the iteration (the new one if accepted)
     accepted: bool
-    trust_radius: float  # radius used for this step (mu = 1 / radius)
+    trust_radius: float  # Ceres: radius used for this step (mu = 1 / radius); Nielsen / GN: 0
     step_norm: float
     gradient_max_norm: float
     wall_s: float  # since the start of the solve
+    damping: float = float("nan")  # mu of this step: (H + mu D) dx = -g (0 in Gauss-Newton)
+    gain: float = float("nan")  # actual / predicted (model) cost decrease of this step
 
 
 @dataclass
@@ -95,6 +125,9 @@ class BASummary:
     gauge: str  # which 7 DoF were fixed, in words
     exclusions: dict = field(default_factory=dict)  # what was left out and how many
     linear_solver: str = ""
+    rejected_iterations: int = 0  # iterations - accepted_iterations
+    solver: str = "lm"  # lm | gn
+    damping: str = ""  # ceres | nielsen (LM), none (Gauss-Newton)
     trace: list[IterationRecord] = field(default_factory=list)
     time_in: dict = field(default_factory=dict)  # seconds per solver phase (profiling)
     # seconds before the first LM iteration (validation, landmarks, index structures, first

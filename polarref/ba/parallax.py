@@ -1,8 +1,14 @@
 """ParallaxBA landmarks (Zhao et al. 2015): main/associate anchors, azimuth, elevation, parallax.
 
-Binding definition: ``d = direction_from_azimuth_elevation(alpha, beta)`` is the world
-direction from the main anchor centre ``C_m`` to the point; ``e = C_a - C_m``;
-``phi_a = angle(d, e)``; the unnormalized ray from camera centre ``C_i`` is
+Binding definition: ``d = F_p direction_from_azimuth_elevation(alpha, beta)`` is the world
+direction from the main anchor centre ``C_m`` to the point, with ``F_p`` a fixed per-point
+rotation whose first column is the initial direction (``direction_frames``): every point starts
+at (alpha, beta) = (0, 0), 90 degrees from the poles of the azimuth/elevation chart. With world
+azimuth/elevation (pole along world z) the ParallaxBA fake pile, a camera moving and looking
+along +z, started half its points above 50 degrees elevation, where ``d d / d alpha`` shrinks
+with cos(beta): LM needed 74 iterations (Gauss-Newton 21), with these frames 23 (GN 7).
+ParallaxBA puts its pole along world y, across the viewing direction of its datasets.
+``e = C_a - C_m``; ``phi_a = angle(d, e)``; the unnormalized ray from camera centre ``C_i`` is
 ``v_i = sin(w) (C_m - C_i) + |e| sin(w + phi_a) d``. We write
 ``|e| sin(w + phi_a) = sin(w) (d.e) + cos(w) |d x e|``, which has no inverse trigonometry,
 so ``v_i = sin(w) (P - C_i)`` for a finite point and ``|d x e| d`` at infinity (w = 0).
@@ -70,6 +76,18 @@ def choose_anchors(problem: BAProblem) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return main, assoc, omega
 
 
+def direction_frames(v: np.ndarray) -> np.ndarray:
+    """Per-point rotations (P, 3, 3) whose first column is ``v / |v|`` (v (P, 3)): azimuth and
+    elevation are measured in this fixed frame, so every point starts at (0, 0), 90 degrees
+    from the parameterization's poles (see the module docstring)."""
+    e1 = v / np.linalg.norm(v, axis=1, keepdims=True)
+    # the world axis least aligned with e1 gives a well-conditioned second column
+    ref = np.eye(3)[np.argmin(np.abs(e1), axis=1)]
+    e2 = np.cross(e1, ref)
+    e2 /= np.linalg.norm(e2, axis=1, keepdims=True)
+    return np.stack([e1, e2, np.cross(e1, e2)], axis=2)
+
+
 class Parallax:
     """Parallax-angle landmarks with pixel residuals."""
 
@@ -87,10 +105,12 @@ class Parallax:
         # observing camera: rotation and centre; anchors: centre only (columns 3:6)
         self.slot_cols = ((0, 6), (3, 6), (3, 6))
         self.anchor_cams = (self.main, self.assoc)  # Jc = [J_obs, AnchorJacobian]
+        self.frame = direction_frames(problem.X - problem.C[self.main])
 
     def init_points(self) -> np.ndarray:
         p = self.p
-        a, b = azimuth_elevation_from_direction(p.X - p.C[self.main])
+        a, b = azimuth_elevation_from_direction(
+            np.einsum("pji,pj->pi", self.frame, p.X - p.C[self.main]))
         lo, hi = self.point_bounds()
         return np.stack([a, b, np.clip(self.omega0, lo[2], hi[2])], axis=1)
 
@@ -104,7 +124,8 @@ class Parallax:
         main centre ``C_m`` (P, 3), direction ``d`` (P, 3), baseline ``e`` (P, 3), ``c = d.e``,
         ``s = |d x e|``, ``sin(w)``, ``cos(w)`` and ``h = |e| sin(w + phi_a)`` (P,)."""
         Cm = C[self.main]
-        d = direction_from_azimuth_elevation(pts[:, 0], pts[:, 1])
+        d = np.einsum("pij,pj->pi", self.frame,
+                      direction_from_azimuth_elevation(pts[:, 0], pts[:, 1]))
         e = C[self.assoc] - Cm
         c = np.einsum("pi,pi->p", d, e)
         s = np.linalg.norm(np.cross(d, e), axis=1)
@@ -124,7 +145,7 @@ class Parallax:
         if not jac:
             return Xc, None
         # per point: dv/d(alpha, beta) (excluding the observation-dependent part) and dh/de
-        Dd = direction_jacobian(pts[:, 0], pts[:, 1])  # (P, 3, 2)
+        Dd = self.frame @ direction_jacobian(pts[:, 0], pts[:, 1])  # (P, 3, 2)
         inv_s = 1.0 / s
         e2 = np.einsum("pi,pi->p", e, e)
         dh_dd = sw[:, None] * e + (cw * inv_s)[:, None] * (e2[:, None] * d - c[:, None] * e)

@@ -1,4 +1,5 @@
-"""Levenberg-Marquardt (trust region, Ceres-style) with point blocks eliminated by Schur.
+"""Levenberg-Marquardt (Ceres-style trust region or Nielsen / ParallaxBA damping) and
+Gauss-Newton, with point blocks eliminated by Schur.
 
 Robust losses use IRLS-style reweighting: each residual block and its Jacobian rows are
 scaled by ``sqrt(rho'(s))`` (no Triggs second-order correction), which gives the exact
@@ -8,6 +9,13 @@ Damping follows Ceres' LM: ``(J^T J + mu D) dx = -g`` with ``D = diag(J^T J)`` c
 after a step with gain ratio ``rho > 1e-3`` and shrinks by a doubling factor otherwise.
 With ``D = diag(J^T J)`` the damping is Jacobi-scaled (Ceres' ``jacobi_scaling``), so the
 mixed units of angles, parallax angles and centres do not bias the step.
+
+``damping="nielsen"`` is ParallaxBA's LM (Nielsen 1999, Madsen et al. "Methods for non-linear
+least squares", eq. 3.14-3.16): ``(J^T J + mu I) dx = -g``, ``mu0 = tau * max diag(J^T J)``
+(tau = 1e-6), a step is kept if the gain ratio is > 0, then ``mu *= max(1/3, 1 - (2 rho - 1)^3)``
+and ``nu = 2``; otherwise ``mu *= nu, nu *= 2``. ``solver="gn"`` takes every finite undamped
+step (ParallaxBA's GN mode). Each form's default is in options.py (measured). In LM the gauge
+may be released during the solve (gauge.py). The trace records mu and the gain ratio.
 
 The normal equations are built from per-slot camera Jacobians (schur.py); parallax forms
 hand over their anchors' Jacobians factored (anchor_terms.py).
@@ -35,7 +43,8 @@ import time
 import numpy as np
 
 from polarref.ba.losses import rho as loss_rho
-from polarref.ba.options import BAOptions, BASummary, IterationRecord
+from polarref.ba.options import (DEFAULT_DAMPING, DEFAULT_LM_GAUGE, BAOptions, BASummary,
+                                 IterationRecord)
 from polarref.ba.problem import BAProblem, nonzero_counts, prepare
 from polarref.ba.schur import SchurStructure, gram
 from polarref.geometry import so3_exp
@@ -44,6 +53,22 @@ log = logging.getLogger(__name__)
 
 _MIN_DIAG, _MAX_DIAG = 1e-6, 1e32  # Ceres' min/max_lm_diagonal
 _MIN_RELATIVE_DECREASE = 1e-3
+_MAX_NIELSEN_MU = 1e32  # Nielsen damping above this: no step decreases the cost
+
+
+def resolve_damping(options: BAOptions) -> str:
+    """The LM damping strategy for ``options``: its own, or the form's measured default
+    (``DEFAULT_DAMPING``, see options.py)."""
+    return options.damping or DEFAULT_DAMPING[options.param]
+
+
+def initial_nielsen_mu(tau: float, diag_u: np.ndarray, mask_v: np.ndarray, V: np.ndarray,
+                       pt_fixed: np.ndarray) -> float:
+    """``tau * max diag(J^T J)`` over the free camera columns (diag_u, mask_v (Nv, 6)) and the
+    free points' blocks V (P, 3, 3): Nielsen's / ParallaxBA's initial damping."""
+    dv = np.diagonal(V, axis1=1, axis2=2)[~pt_fixed]
+    top = max(float((diag_u * mask_v).max(initial=0.0)), float(dv.max(initial=0.0)))
+    return tau * top if top > 0 else tau
 
 
 def make_param(problem: BAProblem, options: BAOptions):
@@ -119,6 +144,21 @@ def _solve(problem: BAProblem, options: BAOptions, prepared: bool, param) -> BAS
         prepare(problem)
     if param is None:
         param = make_param(problem, options)
+    held = None
+    if options.solver == "lm" and (options.lm_gauge or DEFAULT_LM_GAUGE[options.param]) == "free":
+        from polarref.ba import gauge
+        held = gauge.release(problem)
+    summary = _stages(problem, options, param, t0)
+    if held is not None:
+        summary.num_variable_cameras = int(held.mask.any(1).sum())
+        if gauge.restore(problem, held):
+            summary.gauge += "; LM ran in the free gauge, result mapped back by a similarity"
+        else:
+            summary.gauge = "free (LM in the free gauge; mapping back needed a scale <= 0)"
+    return summary
+
+
+def _stages(problem: BAProblem, options: BAOptions, param, t0: float) -> BASummary:
     if options.staged and hasattr(param, "set_stage"):
         # Stage 1: theta only (half the iteration budget); stage 2: theta and phi jointly.
         param.set_stage(theta_only=True)
@@ -135,6 +175,7 @@ def _solve(problem: BAProblem, options: BAOptions, prepared: bool, param) -> BAS
         second.initial_rms_px = first.initial_rms_px
         second.iterations += first.iterations
         second.accepted_iterations += first.accepted_iterations
+        second.rejected_iterations += first.rejected_iterations
         second.termination = f"theta-only: {first.termination}; joint: {second.termination}"
         second.wall_s = time.perf_counter() - t0
         second.setup_s = first.setup_s
@@ -179,7 +220,14 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     init_px_cost, init_rms = pixel_cost(param.pixel_residuals(R, C, pts), loss, scale)
     behind0 = behind_camera_xyz(problem.R, problem.C, problem.X, problem.obs_cam, problem.obs_pt)
     setup_s = time.perf_counter() - t0
+    damping = resolve_damping(options)
+    gn = options.solver == "gn"
+    identity_damping = gn or damping == "nielsen"
     radius, decrease_factor = options.initial_trust_radius, 2.0
+    mu_n, nu = None, 2.0  # Nielsen: absolute damping (set from the first normal matrix), growth
+
+    def rec_radius() -> float:  # the trace's trust radius: Ceres' only (Nielsen / GN: 0)
+        return radius if not identity_damping else 0.0
     trace: list[IterationRecord] = []
     termination = "max_iterations"
     accepted_n = 0
@@ -213,8 +261,14 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             diag_u = np.zeros((st.Nv, 6))
             diag_u[st.u_ca[st.u_ca == st.u_cb]] = np.diagonal(
                 U[st.u_ca == st.u_cb], axis1=1, axis2=2)
-            D_c = np.clip(diag_u, _MIN_DIAG, _MAX_DIAG)
-            D_p = np.clip(np.diagonal(V, axis1=1, axis2=2), _MIN_DIAG, _MAX_DIAG)
+            if identity_damping:  # ParallaxBA / Nielsen: (H + mu I)
+                if mu_n is None and not gn:
+                    mu_n = initial_nielsen_mu(options.nielsen_tau, diag_u, mask_v, V,
+                                              problem.pt_fixed)
+                D_c, D_p = np.ones_like(diag_u), np.ones((len(V), 3))
+            else:
+                D_c = np.clip(diag_u, _MIN_DIAG, _MAX_DIAG)
+                D_p = np.clip(np.diagonal(V, axis1=1, axis2=2), _MIN_DIAG, _MAX_DIAG)
             gmax = max(float(np.abs(g_c).max(initial=0.0)), float(np.abs(g_p).max(initial=0.0)))
             times["normal_equations"] += time.perf_counter() - tic
             need_build = False
@@ -222,7 +276,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
                 termination = "gradient_tolerance"
                 break
         it += 1
-        mu = 1.0 / radius
+        mu = 0.0 if gn else (mu_n if damping == "nielsen" else 1.0 / radius)
         tic = time.perf_counter()
         Vd = V.copy()
         Vd[:, [0, 1, 2], [0, 1, 2]] += mu * D_p
@@ -242,8 +296,17 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             x = st.solve(S, b)
         times["solve"] += time.perf_counter() - tic
         if x is None:
-            trace.append(IterationRecord(it, cost, False, radius, 0.0, gmax,
-                                         time.perf_counter() - t0))
+            trace.append(IterationRecord(it, cost, False, rec_radius(), 0.0, gmax,
+                                         time.perf_counter() - t0, mu))
+            if gn:
+                termination = "linear_solver_failure"
+                break
+            if damping == "nielsen":
+                mu_n, nu = mu_n * nu, nu * 2.0
+                if mu_n > _MAX_NIELSEN_MU:
+                    termination = "max_damping"
+                    break
+                continue
             radius /= decrease_factor
             decrease_factor *= 2.0
             if radius < options.min_trust_radius:
@@ -270,8 +333,8 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         x_norm = float(np.sqrt((C**2).sum() + (pts**2).sum()))
         if step_norm <= options.parameter_tolerance * (x_norm + options.parameter_tolerance):
             termination = "parameter_tolerance"
-            trace.append(IterationRecord(it, cost, False, radius, step_norm, gmax,
-                                         time.perf_counter() - t0))
+            trace.append(IterationRecord(it, cost, False, rec_radius(), step_norm, gmax,
+                                         time.perf_counter() - t0, mu))
             break
         R_new = R.copy()
         C_new = C.copy()
@@ -287,21 +350,36 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         times["evaluate"] += time.perf_counter() - tic
         new_cost, w_new = _robust(r_new, param.groups, loss, scale)
         gain = (cost - new_cost) / model if model > 0 else -1.0
-        accepted = bool(np.isfinite(new_cost) and gain > _MIN_RELATIVE_DECREASE)
-        trace.append(IterationRecord(it, new_cost if accepted else cost, accepted, radius,
-                                     step_norm, gmax, time.perf_counter() - t0))
+        if gn:  # Gauss-Newton takes every finite step (ParallaxBA's GN mode)
+            accepted = bool(np.isfinite(new_cost))
+        else:  # Ceres rejects gains <= 1e-3, Nielsen / ParallaxBA only gains <= 0
+            accepted = bool(np.isfinite(new_cost) and gain > (
+                0.0 if damping == "nielsen" else _MIN_RELATIVE_DECREASE))
+        trace.append(IterationRecord(it, new_cost if accepted else cost, accepted, rec_radius(),
+                                     step_norm, gmax, time.perf_counter() - t0, mu, gain))
+        if gn and not accepted:
+            termination = "non_finite_cost"
+            break
         if accepted:
             accepted_n += 1
             clipped_steps += delta is not None
-            rel = (cost - new_cost) / cost if cost > 0 else 0.0
+            rel = abs(cost - new_cost) / cost if cost > 0 else 0.0
             R, C, pts = R_new, C_new, pts_new
             r, Jp, Jc, w, cost = r_new, Jp_new, Jc_new, w_new, new_cost
             radius = min(options.max_trust_radius,
                          radius / max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3))
             decrease_factor = 2.0
+            if damping == "nielsen" and not gn:
+                mu_n *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)
+                nu = 2.0
             need_build = True
             if rel < options.function_tolerance:
                 termination = "function_tolerance"
+                break
+        elif damping == "nielsen":
+            mu_n, nu = mu_n * nu, nu * 2.0
+            if mu_n > _MAX_NIELSEN_MU:
+                termination = "max_damping"
                 break
         else:
             radius /= decrease_factor
@@ -316,7 +394,8 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         param=options.param, loss=loss, initial_cost=initial_cost, final_cost=cost,
         initial_pixel_cost=init_px_cost, final_pixel_cost=final_px_cost,
         initial_rms_px=init_rms, final_rms_px=final_rms, iterations=it,
-        accepted_iterations=accepted_n, wall_s=time.perf_counter() - t0,
+        accepted_iterations=accepted_n, rejected_iterations=it - accepted_n,
+        solver=options.solver, damping="none" if gn else damping, wall_s=time.perf_counter() - t0,
         termination=termination, num_cameras=problem.num_cameras,
         num_points=problem.num_points, num_observations=problem.num_observations,
         num_variable_cameras=st.Nv, gauge=problem.gauge,

@@ -14,13 +14,21 @@ HELP = "bundle-adjust a BAL / ParallaxBA / PVL-BA / COLMAP problem with one para
 
 def add_arguments(parser) -> None:
     from polarref.ba.losses import LOSSES
-    from polarref.ba.options import PARAMS
+    from polarref.ba.options import DAMPINGS, PARAMS, SOLVERS
     parser.add_argument("problem", help="BAL .txt, ParallaxBA folder, PVL-BA folder or BlocksExchange .xml, COLMAP model folder, "
                         "or synth-20 / synth-60 / synth-200")
     parser.add_argument("--param", choices=PARAMS, default="euclidean")
     parser.add_argument("--loss", choices=LOSSES, default="trivial")
     parser.add_argument("--loss-scale", type=float, default=1.0, help="robust loss scale [px]")
     parser.add_argument("--max-iterations", type=int, default=100)
+    parser.add_argument("--solver", choices=SOLVERS, default="lm",
+                        help="lm: Levenberg-Marquardt; gn: Gauss-Newton (undamped, gauge held)")
+    parser.add_argument("--damping", choices=DAMPINGS, default=None,
+                        help="LM damping: ceres (trust region, diag-scaled) or nielsen "
+                        "(ParallaxBA: mu I); default: the form's measured best")
+    parser.add_argument("--lm-gauge", choices=("free", "fixed"), default=None,
+                        help="LM: release the 7 gauge DoF during the solve (result mapped back) "
+                        "or hold them; default: the form's measured best")
     parser.add_argument("--staged", action="store_true", help="angular: theta first, then joint")
     parser.add_argument("--refine", default="", metavar="GROUPS",
                         help="self-calibration: refine intrinsics groups focal,pp,dist (default none)")
@@ -38,6 +46,7 @@ def run(args) -> int:
     try:
         options = BAOptions(param=args.param, loss=args.loss, loss_scale=args.loss_scale,
                             max_iterations=args.max_iterations, staged=args.staged,
+                            solver=args.solver, damping=args.damping, lm_gauge=args.lm_gauge,
                             refine=args.refine)
     except ValueError as exc:
         raise PolarrefError(str(exc)) from exc
@@ -49,6 +58,8 @@ def run(args) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(data, indent=1, default=float))
     print(f"{args.param}: cost {summary.initial_cost:.6g} -> {summary.final_cost:.6g}, "
-          f"RMS {summary.final_rms_px:.4f} px, {summary.iterations} iterations, "
+          f"RMS {summary.final_rms_px:.4f} px, {summary.iterations} iterations "
+          f"({summary.accepted_iterations} accepted, {summary.rejected_iterations} rejected; "
+          f"{summary.solver}, damping {summary.damping}), "
           f"{summary.wall_s:.3f} s ({summary.termination})")
     return 0

@@ -24,8 +24,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--preset", default="default", choices=("small", "default", "large"),
                         help="synthetic scene size / real-image downscaling (default: default)")
     parser.add_argument("--out", type=Path, default=None,
-                        help="report folder (default: reports/<scene>-<preset>); an existing folder is "
-                             "updated, never wiped")
+                        help="report folder (default: ./polarref-out/<scene>-<preset>); a finished one "
+                             "(metrics.json) is refused without --overwrite, and updated, never wiped, with it")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace the results in a finished report folder (other files are kept)")
     parser.add_argument("--methods", nargs="+", default=None, metavar="METHOD", choices=METHOD_NAMES,
                         help="subset of methods (default: all): " + ", ".join(METHOD_NAMES))
     parser.add_argument("--seed", type=int, default=0, help="render seed and every method/experiment seed")
@@ -50,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
                         methods=tuple(args.methods or ()), seed=args.seed,
                         method_timeout_s=args.method_timeout, claims=not args.no_claims,
                         budget_s=None if args.budget == 0 else args.budget,
-                        command=command_line())
+                        command=command_line(), overwrite=args.overwrite)
     t0 = time.perf_counter()
     out, metrics = run_compare(cfg)
     ok = sum(m.status == STATUS_OK for m in metrics.methods)

@@ -38,6 +38,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="what to do with a track holding two keypoints of one image")
     parser.add_argument("--seed", type=int, help="RANSAC seed")
     parser.add_argument("--no-cache", action="store_true", help="recompute features and matches")
+    parser.add_argument("--format", dest="model_format", choices=("text", "binary", "both"), default="both",
+                        help="COLMAP model format in OUT/model (default: both); points3D.ply is always written")
     parser.add_argument("--overwrite", action="store_true", help="write into a non-empty --out")
 
 
@@ -98,7 +100,8 @@ def run(args: argparse.Namespace) -> int:
         if first is not None:
             camera = parse_camera(args.camera, first.shape[1], first.shape[0])
     cfg = _config(args)
-    res = run_sfm(image_dir, args.out, cfg, camera=camera, gt=gt, mesh=mesh, overwrite=args.overwrite)
+    res = run_sfm(image_dir, args.out, cfg, camera=camera, gt=gt, mesh=mesh, overwrite=args.overwrite,
+                  model_format=args.model_format)
     m = res.metrics
     line = (f"registered {m['registered_images']}/{m['num_images']} images, {m['tie_points']} tie points, "
             f"{m['reprojected_px']} observations, mean reprojection error {m['mean_reprojection_error_px']:.3f} px")
@@ -113,5 +116,6 @@ def run(args: argparse.Namespace) -> int:
                       if c.get("focal_error_rel") is not None else "")
             print(f"camera {c['camera_id']} ({c['source']}, {c['num_images']} images): refined "
                   f"{c['model']} {vals}{gt_err}")
-    print(f"wrote {args.out / 'model'} and {args.out / 'metrics.json'} in {m['runtime_s']['total']:.1f} s")
+    print(f"wrote {args.out / 'model'} ({args.model_format} + points3D.ply) and {args.out / 'metrics.json'} "
+          f"in {m['runtime_s']['total']:.1f} s")
     return 0

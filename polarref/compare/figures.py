@@ -18,7 +18,13 @@ log = logging.getLogger(__name__)
 
 DPI = 90
 _PNG_META = {"Software": None}
-_COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf")
+COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd", "#ff7f0e", "#8c564b", "#e377c2", "#17becf")
+
+
+def method_color(metrics: MetricsFile, name: str) -> str:
+    """A method's colour: fixed by its position in metrics.methods (the 3D view uses the same)."""
+    k = next((i for i, m in enumerate(metrics.methods) if m.name == name), 0)
+    return COLORS[k % len(COLORS)]
 
 
 def _figure(width: float, height: float):
@@ -57,7 +63,7 @@ def trajectory(metrics: MetricsFile, path: Path) -> Path | None:
     ax2.scatter(gt[:, 0], gt[:, 1], c="k", s=22, label="ground truth")
     for k, m in enumerate(methods):
         est = np.asarray(m.plot.centers_est_aligned)
-        c = _COLORS[k % len(_COLORS)]
+        c = method_color(metrics, m.name)
         ax3.scatter(*est.T, s=10, marker="x", color=c, label=m.label)
         ax2.scatter(est[:, 0], est[:, 1], s=12, marker="x", color=c, label=m.label)
     ax3.set_title("photographic orbit (3D, GT frame)")
@@ -119,7 +125,8 @@ def convergence(metrics: MetricsFile, path: Path) -> Path | None:
         ax_t = fig.add_subplot(len(problems), 2, 2 * row + 1)
         ax_i = fig.add_subplot(len(problems), 2, 2 * row + 2)
         for k, tr in enumerate(t for t in traces if t.problem == problem):
-            c = _COLORS[k % len(_COLORS)]
+            own = metrics.method(f"ours-{tr.label}")  # our parameterizations keep their method colour
+            c = method_color(metrics, own.name) if own else COLORS[k % len(COLORS)]
             cost = [max(p.cost, 1e-300) for p in tr.points]
             ax_t.plot([p.time_s for p in tr.points], cost, "-o", ms=2.5, color=c, label=tr.label)
             ax_i.plot([p.iteration for p in tr.points], cost, "-o", ms=2.5, color=c, label=tr.label)
@@ -161,7 +168,7 @@ def error_histograms(metrics: MetricsFile, path: Path) -> Path | None:
         for k, m in enumerate(methods):
             h = getattr(m.plot, attr)
             if h is not None:
-                _hist_line(ax, h, m.label, _COLORS[k % len(_COLORS)])
+                _hist_line(ax, h, m.label, method_color(metrics, m.name))
         ax.set_xlabel(title, fontsize=8)
         ax.set_ylabel("fraction <= x", fontsize=8)
         ax.set_ylim(0.0, 1.02)
@@ -186,7 +193,7 @@ def runtimes(metrics: MetricsFile, path: Path) -> Path | None:
     left = np.zeros(len(methods))
     for k, s in enumerate(stages):
         w = np.array([m.stage_runtime_s.get(s, 0.0) for m in methods])
-        ax.barh(y, w, left=left, color=_COLORS[k % len(_COLORS)], label=s)
+        ax.barh(y, w, left=left, color=COLORS[k % len(COLORS)], label=s)
         left += w
     ax.set_yticks(y, [m.label for m in methods], fontsize=7)
     ax.invert_yaxis()
@@ -196,9 +203,76 @@ def runtimes(metrics: MetricsFile, path: Path) -> Path | None:
     return _save(fig, path)
 
 
+def per_image_errors(metrics: MetricsFile, path: Path) -> Path | None:
+    """Rotation and centre error of every image along the trajectory (images in name order)."""
+    methods = [m for m in _ok_with_plot(metrics) if m.plot.image_names and m.plot.centers_gt]
+    if not methods:
+        return None
+    names = sorted({n for m in methods for n in m.plot.image_names})
+    pos = {n: i for i, n in enumerate(names)}
+    extent = metrics.scene.scene_extent or 1.0
+    with_rot = any(m.plot.rotation_err_deg for m in methods)
+    fig = _figure(11, 5.6 if with_rot else 3.2)
+    axes = [fig.add_subplot(2 if with_rot else 1, 1, k + 1) for k in range(2 if with_rot else 1)]
+    for m in methods:
+        x = np.array([pos[n] for n in m.plot.image_names])
+        c = method_color(metrics, m.name)
+        cen = np.linalg.norm(np.asarray(m.plot.centers_est_aligned) - np.asarray(m.plot.centers_gt), axis=1)
+        axes[-1].plot(x, 100 * cen / extent, "-o", ms=2.5, lw=1, color=c, label=m.label)
+        if with_rot and len(m.plot.rotation_err_deg) == len(x):
+            axes[0].plot(x, m.plot.rotation_err_deg, "-o", ms=2.5, lw=1, color=c, label=m.label)
+    if with_rot:
+        axes[0].set_ylabel("rotation error (deg)", fontsize=8)
+        axes[0].legend(fontsize=6, ncols=2)
+    axes[-1].set_ylabel("centre error (% of scene size)", fontsize=8)
+    axes[-1].set_xlabel("image (name order = capture order along the trajectory)", fontsize=8)
+    for ax in axes:
+        ys = np.concatenate([ln.get_ydata() for ln in ax.get_lines()] or [np.zeros(0)])
+        if ys.size and (ys > 0).all():  # errors span decades; exact zeros (a perfect model) stay linear
+            ax.set_yscale("log")
+        ax.grid(alpha=0.3)
+        ax.tick_params(labelsize=7)
+    if not with_rot:
+        axes[0].legend(fontsize=6, ncols=2)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def track_and_reprojection_histograms(metrics: MetricsFile, path: Path) -> Path | None:
+    """Track length (observations per 3D point) and reprojection error, fraction of points/observations."""
+    methods = [m for m in _ok_with_plot(metrics) if m.plot.track_length_hist or m.plot.reproj_hist]
+    if not methods:
+        return None
+    fig = _figure(11, 3.6)
+    ax_t, ax_r = fig.add_subplot(1, 2, 1), fig.add_subplot(1, 2, 2)
+    for m in methods:
+        c = method_color(metrics, m.name)
+        for ax, h in ((ax_t, m.plot.track_length_hist), (ax_r, m.plot.reproj_hist)):
+            if h is None or sum(h.counts) == 0:
+                continue
+            frac = np.asarray(h.counts, float) / sum(h.counts)
+            ax.stairs(frac, np.asarray(h.edges), color=c, label=m.label, lw=1.2)
+    ax_t.set_xlabel("track length (images per 3D point; last bin: that many or more)", fontsize=8)
+    ax_t.set_ylabel("fraction of 3D points", fontsize=8)
+    ax_r.set_xlabel("reprojection error (px; last bin: everything above the 99th percentile)", fontsize=8)
+    ax_r.set_ylabel("fraction of observations", fontsize=8)
+    for ax in (ax_t, ax_r):
+        ax.grid(alpha=0.3)
+        ax.tick_params(labelsize=7)
+    for ax in (ax_t, ax_r):
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=6)
+            break
+    fig.tight_layout()
+    return _save(fig, path)
+
+
 FIGURES = (
     ("trajectory", "Camera trajectory: ground truth vs estimated (the paper's Fig. 6b)", trajectory),
+    ("per_image", "Error of every image along the trajectory, after the Sim3 alignment",
+     per_image_errors),
     ("points", "Sparse point clouds (GT frame after Sim3 alignment)", point_clouds),
+    ("histograms", "Track lengths and reprojection errors per method", track_and_reprojection_histograms),
     ("convergence", "Bundle adjustment convergence per parameterization (each form's own objective: the "
                     "polar form adds view-angle residuals, so its cost is not on the same scale)", convergence),
     ("errors", "Error distributions (cumulative; the last bin holds everything above the 99th percentile)",

@@ -18,7 +18,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 
 from polarref.compare import claims as claims_mod
-from polarref.compare import scenes
+from polarref.compare import scenes, view3d
 from polarref.compare.jobs import camera_to_json
 from polarref.compare.methods import METHOD_NAMES, PAIRS, RUN_ORDER, MethodSpec, select
 from polarref.compare.runner import run_isolated
@@ -46,13 +46,14 @@ class CompareConfig:
 
     scene: str | None = None          # comet | uav | folder; None = comet
     preset: str = "default"           # small | default | large
-    out: Path | None = None           # report folder; None = reports/<scene>-<preset>
+    out: Path | None = None           # report folder; None = ./polarref-out/<scene>-<preset>
     methods: tuple[str, ...] = ()     # empty = all
     seed: int = 0                     # render seed and every method/experiment seed
     method_timeout_s: float | None = None   # None = METHOD_TIMEOUT_S[preset]
     budget_s: float | None = -1.0     # whole-run limit in s; -1 = TOTAL_BUDGET_S[preset], None = none
     claims: bool = True               # run the claim experiments
     command: str = ""                 # exact command line, recorded in the report
+    overwrite: bool = False           # allow replacing a finished report folder (metrics.json present)
 
 
 @dataclass
@@ -68,10 +69,14 @@ class _Context:
 
 
 def default_out(scene: scenes.PreparedScene, preset: str) -> Path:
-    from polarref.data import REPO_ROOT
-
+    """``./polarref-out/<scene>/`` in the working directory (never the committed ``reports/``)."""
     name = scene.name if scene.kind == "real" else scene.name.split("-")[0]
-    return REPO_ROOT / "reports" / f"{name}-{preset}"
+    return Path.cwd() / "polarref-out" / f"{name}-{preset}"
+
+
+def _refuse_finished(out: Path, overwrite: bool) -> None:
+    if (out / "metrics.json").is_file() and not overwrite:
+        raise PolarrefError(f"{out} holds a finished comparison (metrics.json); use --overwrite or another --out")
 
 
 def _shared(ctx: _Context, key: str):
@@ -194,10 +199,14 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
     specs = select(list(cfg.methods) or None)
     if cfg.preset not in METHOD_TIMEOUT_S:
         raise PolarrefError(f"unknown preset {cfg.preset!r} (choose from {', '.join(METHOD_TIMEOUT_S)})")
+    if cfg.out or cfg.scene is None or cfg.scene in scenes.SYNTHETIC:  # refuse before rendering
+        _refuse_finished(Path(cfg.out) if cfg.out else
+                         Path.cwd() / "polarref-out" / f"{cfg.scene or 'comet'}-{cfg.preset}", cfg.overwrite)
     scene = scenes.prepare(cfg.scene, cfg.preset, cfg.seed)
     out = Path(cfg.out) if cfg.out else default_out(scene, cfg.preset)
     if out.exists() and not out.is_dir():
         raise PolarrefError(f"--out {out} exists and is not a directory")
+    _refuse_finished(out, cfg.overwrite)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -227,6 +236,7 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
     deadline = None if budget is None else t_start + budget - claims_budget - REPORT_RESERVE_S
     results: list[MethodResult] = []
     job_results: dict[str, dict] = {}
+    view = view3d.new_view(scene.gt, scene.camera, mesh, cfg.seed) if scene.gt is not None else None
     ordered = sorted(specs, key=lambda m: RUN_ORDER.index(m.name))
     for k, spec in enumerate(track(ordered, desc="methods", total=len(ordered))):
         ctx.timeout = timeout
@@ -239,6 +249,8 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
             res.reason += f" (limit cut from {timeout:.0f} s by the {budget:.0f} s run budget)"
         if rec is not None:
             _score_into(res, rec, scene, mesh, cfg.seed, notes)
+            if view is not None and res.status == STATUS_OK:
+                view3d.add_method(view, res.name, res.label, rec, scene.gt, cfg.seed)
         job_results[spec.name] = job
         log.info("%s: %s %s", spec.name, res.status, res.reason)
         results.append(res)
@@ -253,7 +265,7 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
                           environment=_environment(cfg, scene, timeout, 0.0), methods=results,
                           pairs=[p for p in PAIRS if any(r.name == p.baseline for r in results)
                                  and any(r.name == p.candidate for r in results)],
-                          claims=[], notes=notes)
+                          claims=[], notes=notes, view3d=view)
     for spec in specs:
         trace = (job_results.get(spec.name) or {}).get("final_ba_trace")
         if trace:

@@ -1,22 +1,29 @@
 """``report.md`` and ``report.html`` from ``metrics.json`` alone (no recomputation).
 
-Both files come from one list of blocks, so Markdown and HTML always say the same thing.
-Every number is formatted from the :class:`~polarref.compare.schema.MetricsFile`; the only
-date shown is the one stored in it. Figures are redrawn from the same data, written beside
-the reports in ``figures/`` and embedded in the HTML as base64 so the page is self-contained.
+Answer first: a summary (scene, the main paper-format table, one badge and one short line per
+claim, runtime, commit), then figures and the 3D view, then the details (collapsible in HTML):
+claims, all comparisons, methods, ground-truth accuracy, notes, environment. Both files come
+from one list of blocks (:mod:`polarref.compare.report_render`). Every number is formatted from
+the :class:`~polarref.compare.schema.MetricsFile`; the only date shown is the one stored in it.
+Figures are redrawn from the same data, written to ``figures/`` and embedded in the HTML as
+base64, and the 3D view's data and script are inlined, so the page works offline from one file.
 """
 
 from __future__ import annotations
 
-import base64
-import html
-import re
-from dataclasses import dataclass
+import dataclasses
 from pathlib import Path
 
 from polarref.compare import figures as figs
+from polarref.compare import view3d
+from polarref.compare.report_render import (Badge, Badges, Bullets, Details, Fig, Heading, Para, RawHtml,
+                                            Section, Table, to_html, to_markdown)
 from polarref.compare.schema import (STATUS_OK, ClaimResult, MethodPair, MethodResult,
                                      MetricsFile, load, write_text_atomic)
+
+# Bumped when the page's structure changes, so a committed example built by an older layout is
+# recognised (and regenerated) instead of being diffed against the new one.
+REPORT_LAYOUT = 2
 
 # "Equivalent" accuracy in the paper's table: 0.482 vs 0.481 px. We call two mean reprojection
 # errors equivalent when they differ by at most this many px or this fraction, whichever is larger.
@@ -55,36 +62,6 @@ def fmt_figure(value, unit: str) -> str:
 
 def fmt_s(value) -> str:
     return "n/a" if value is None else f"{float(value):.2f} s"
-
-
-# ---- document model -------------------------------------------------------------------------
-
-@dataclass
-class Heading:
-    level: int
-    text: str
-
-
-@dataclass
-class Para:
-    text: str          # may contain **bold** and `code`
-
-
-@dataclass
-class Table:
-    header: list[str]
-    rows: list[list[str]]
-
-
-@dataclass
-class Fig:
-    key: str
-    caption: str
-
-
-@dataclass
-class Bullets:
-    items: list[str]
 
 
 # ---- paper-format tables ----------------------------------------------------------------------
@@ -156,8 +133,7 @@ def _methods_section(m: MetricsFile) -> list:
                      f"{fmt(r.registered_images)} / {r.num_images}", fmt(r.tie_points), fmt(r.reprojected_px),
                      fmt(r.mean_reprojection_error_px), fmt(r.mean_reprojection_error_per_point_px),
                      fmt_s(r.runtime_s), fmt_s(r.timeout_s), reason or "—"])
-    return [Heading(2, "Methods"),
-            Para("All methods run on the same images with the same fixed intrinsics, one after another "
+    return [Para("All methods run on the same images with the same fixed intrinsics, one after another "
                  "(never in parallel, so runtimes are comparable), each in its own process with a "
                  f"time limit of at most {fmt(m.environment.method_timeout_s, 0)} s (less when the run's "
                  "time budget runs short; see the limit column). "
@@ -169,12 +145,14 @@ def _methods_section(m: MetricsFile) -> list:
                   [[f"`{r.name}`", r.features, r.mapper, r.ba] for r in m.methods])]
 
 
-def _pairs_section(m: MetricsFile) -> list:
-    out: list = [Heading(2, "Paper-format comparisons (Tables 1-3 layout)"),
-                 Para(f"Accuracy is the mean reprojection error over all observations of all tie points; "
-                      f"\"Equivalent\" means the two differ by at most {EQUIVALENT_PX} px or "
-                      f"{EQUIVALENT_REL:.0%}. Efficiency is the wall time of the whole method "
-                      "(features to final bundle adjustment); ×r is baseline/candidate.")]
+_PAIRS_NOTE = (f"Accuracy is the mean reprojection error over all observations of all tie points; "
+               f"\"Equivalent\" means the two differ by at most {EQUIVALENT_PX} px or {EQUIVALENT_REL:.0%}. "
+               "Efficiency is the wall time of the whole method (features to final bundle adjustment); "
+               "×r is baseline/candidate.")
+
+
+def _pairs_blocks(m: MetricsFile) -> list:
+    out: list = [Para(_PAIRS_NOTE)]
     for pair in m.pairs:
         base, cand = m.method(pair.baseline), m.method(pair.candidate)
         if base is None or cand is None:
@@ -198,9 +176,8 @@ def _gt_section(m: MetricsFile) -> list:
                      fmt(g.point_to_surface_median, 4), fmt(g.point_to_surface_p90, 4),
                      fmt(g.points_scored)])
     if not rows:
-        return [Heading(2, "Ground-truth accuracy"), Para("No ground truth for this scene, or no method succeeded.")]
-    return [Heading(2, "Ground-truth accuracy"),
-            Para(f"Each estimate is aligned to the ground truth by a Sim3 (`polarref.metrics`: Umeyama on camera "
+        return [Para("No ground truth for this scene, or no method succeeded.")]
+    return [Para(f"Each estimate is aligned to the ground truth by a Sim3 (`polarref.metrics`: Umeyama on camera "
                  f"centres, rotations first when they are near-collinear), then scored. Scene size (RMS "
                  f"distance of GT camera centres from their centroid): {fmt(m.scene.scene_extent, 4)} scene "
                  "units; centre errors and point-to-surface distances are in scene units."),
@@ -209,137 +186,165 @@ def _gt_section(m: MetricsFile) -> list:
                    "points scored"], rows)]
 
 
-def _claims_section(m: MetricsFile) -> list:
-    if not m.claims:
-        return [Heading(2, "Claims scorecard"), Para("No claim experiments were run.")]
-    rows = [[c.claim_id, c.claim, f"**{c.verdict}**", render_rationale(c), c.sample_size] for c in m.claims]
-    out: list = [Heading(2, "Claims scorecard"),
-                 Para("Each claim of the paper (Tables 1-3 and Discussion 4.1), the test we ran, what we "
-                      "measured and our verdict. Verdicts are *supported*, *not supported* or *inconclusive*; "
-                      "*not tested* means the experiment could not run here (reason given)."),
-                 Table(["#", "claim", "verdict", "measured (the verdict rests on these)", "sample size"], rows)]
-    for c in m.claims:
-        out += [Heading(3, f"{c.claim_id}. {c.claim}"),
-                Para(f"Source: {c.source}. Test: {c.test}"),
-                Table(["figure", "value"], [[f.label, fmt_figure(f.value, f.unit)] for f in c.figures])
-                if c.figures else Para("No figures measured."),
-                Para(f"Verdict: **{c.verdict}** ({c.sample_size}). {render_rationale(c)}")]
-    return out
-
-
 class _Figures(dict):
     def __missing__(self, key):  # an unknown placeholder stays visible instead of crashing
         return "{" + key + "}"
 
 
-def render_rationale(c: ClaimResult) -> str:
+def _fill(template: str, c: ClaimResult) -> str:
     values = _Figures({f.key: fmt_figure(f.value, f.unit) for f in c.figures})
     try:
-        return c.rationale.format_map(values)
+        return template.format_map(values)
     except (ValueError, IndexError):
-        return c.rationale
+        return template
+
+
+def render_rationale(c: ClaimResult) -> str:
+    return _fill(c.rationale, c)
+
+
+SHORT_LINE_CHARS = 120
+
+
+def first_clause(text: str, limit: int = SHORT_LINE_CHARS) -> str:
+    """Text up to the first top-level ';' or sentence end, cut at a word to ``limit`` chars with '…'."""
+    depth, end = 0, len(text)
+    for i, ch in enumerate(text):
+        if ch in "([":
+            depth += 1
+        elif ch in ")]":
+            depth = max(0, depth - 1)
+        elif depth == 0 and (ch == ";" or (ch == "." and text[i + 1:i + 2] == " "
+                                          and text[i + 2:i + 3][:1].isupper())):
+            end = i
+            break
+    line = text[:end].strip().rstrip(":,")
+    if len(line) > limit:
+        cut = line.rfind(" ", 0, limit - 1)
+        line = line[:cut if cut > limit // 2 else limit - 1].rstrip(" ,;:(") + "…"
+    return line
+
+
+def short_line(c: ClaimResult) -> str:
+    """One line for the summary and the scorecard: the claim's own summary, else its rationale's first clause."""
+    summary = getattr(c, "summary", "")
+    return first_clause(_fill(summary, c) if summary else render_rationale(c))
+
+
+def _claims_blocks(m: MetricsFile) -> list:
+    if not m.claims:
+        return [Para("No claim experiments were run.")]
+    out: list = [Para("Each claim of the paper (Tables 1-3 and Discussion 4.1), the test we ran and our verdict "
+                      "(*supported*, *not supported*, *inconclusive*; *not tested* means the experiment could not "
+                      "run here). Open a claim for its test, every measured figure and the full reasoning."),
+                 Table(["#", "claim", "verdict", "measured (short; details below)", "sample size"],
+                       [[c.claim_id, c.claim, f"**{c.verdict}**", short_line(c), c.sample_size] for c in m.claims])]
+    for c in m.claims:
+        out.append(Details(f"{c.claim_id}. {c.claim} — {c.verdict}", [
+            Para(f"Source: {c.source}. Test: {c.test}"),
+            Table(["figure", "value"], [[f.label, fmt_figure(f.value, f.unit)] for f in c.figures])
+            if c.figures else Para("No figures measured."),
+            Para(f"Verdict: **{c.verdict}** ({c.sample_size}). {render_rationale(c)}")]))
+    return out
+
+
+def _flat(prefix: str, value) -> list[tuple[str, str]]:
+    if dataclasses.is_dataclass(value):
+        value = dataclasses.asdict(value)
+    if isinstance(value, dict):
+        return [kv for k, v in sorted(value.items()) for kv in _flat(f"{prefix}.{k}" if prefix else str(k), v)]
+    if isinstance(value, (list, tuple)):
+        return [(prefix, ", ".join(map(str, value)))]
+    return [(prefix, "n/a" if value is None else str(value))]
+
+
+def environment_items(m: MetricsFile) -> list[tuple[str, str]]:
+    """Every field of the stored environment, nested records flattened to ``a.b`` keys, in field order."""
+    e = m.environment
+    return [kv for f in dataclasses.fields(e) for kv in _flat(f.name, getattr(e, f.name))]
+
+
+def commit_text(m: MetricsFile) -> str:
+    """``abc1234`` / ``abc1234 (dirty)`` from any stored ``git_commit`` / ``git_dirty`` field, else n/a."""
+    items = dict(environment_items(m))
+    commit = next((v for k, v in items.items() if k.split(".")[-1] == "git_commit" and v not in ("", "n/a")), None)
+    if commit is None:
+        return "n/a"
+    dirty = next((v for k, v in items.items() if k.split(".")[-1] == "git_dirty"), "False")
+    return commit[:10] + (" (dirty)" if dirty == "True" else "")
 
 
 def _env_section(m: MetricsFile) -> list:
+    rows = []
+    for key, value in environment_items(m):
+        if key in ("method_timeout_s", "total_runtime_s", "run_budget_s") and value != "n/a":
+            value = fmt_s(float(value))
+        rows.append([key, f"`{value}`" if key == "command" else value])
+    return [Table(["item", "value"], rows)]
+
+
+def _scene_line(m: MetricsFile) -> str:
+    s = m.scene
+    cam = ", ".join(fmt(p, 3) for p in s.camera_params)
+    return (f"{s.kind} scene, {s.num_images} images of {s.width}×{s.height} px"
+            + (f" (downscaled ×{fmt(s.downscale, 2)} from the originals)" if s.downscale != 1.0 else "")
+            + f"; camera {s.camera_model} ({cam}) held fixed for every method; "
+            + ("ground truth: yes" if s.has_gt else "ground truth: none")
+            + ("; GT mesh for point-to-surface errors: yes" if s.has_mesh else "")
+            + f". Source: `{s.source}`" + (f", preset `{s.preset}`, seed {s.seed}" if s.preset else "") + ".")
+
+
+def _summary(m: MetricsFile) -> Section:
     e = m.environment
-    rows = [["command", f"`{e.command}`"], ["run date (stored)", e.created],
-            ["CPU count", str(e.cpu_count)], ["Mitsuba variant", e.mitsuba_variant or "n/a"],
-            ["preset", e.preset or "—"], ["seeds", ", ".join(f"{k}={v}" for k, v in sorted(e.seeds.items()))],
-            ["per-method timeout", fmt_s(e.method_timeout_s)],
-            ["run budget", "none" if e.run_budget_s is None else fmt_s(e.run_budget_s)],
-            ["total runtime (rendering included)", fmt_s(e.total_runtime_s)]]
-    rows += [[k, str(v)] for k, v in sorted(e.versions.items())]
-    return [Heading(2, "Environment"), Table(["item", "value"], rows)]
+    ok = sum(r.status == STATUS_OK for r in m.methods)
+    blocks: list = [Para(f"**{m.scene.name}**: {m.scene.num_images} images · {ok}/{len(m.methods)} methods "
+                         f"succeeded · total runtime {fmt_s(e.total_runtime_s)} · commit `{commit_text(m)}` · "
+                         f"run {e.created[:10]}")]
+    main = next((p for p in m.pairs if m.method(p.baseline) and m.method(p.candidate)), None)
+    if main is not None:
+        blocks += [Heading(3, f"Main comparison: {main.title}"),
+                   pair_table(main, m.method(main.baseline), m.method(main.candidate))]
+    if m.claims:
+        blocks += [Heading(3, "Verdicts on the paper's claims"),
+                   Badges([Badge(c.claim_id, c.verdict, c.claim, short_line(c)) for c in m.claims])]
+    return Section("summary", blocks)
+
+
+def _view_blocks(m: MetricsFile) -> list:
+    v = m.view3d
+    if v is None or not (v.clouds or len(v.cameras) > 1):
+        return []
+    main = next(iter(m.pairs), None)
+    on = {"gt", "gt-surface"} | ({main.baseline, main.candidate} if main else {r.name for r in m.methods[:2]})
+    on |= {c.key for c in v.clouds if c.kind == "dense"}
+    colors = {"gt": "#000000", "gt-surface": "#b0b0b0"}
+    colors.update({r.name: figs.COLORS[k % len(figs.COLORS)] for k, r in enumerate(m.methods)})
+    data_note = view3d.describe(v)
+    return [Heading(3, "3D view (drag: orbit, wheel: zoom, shift-drag: pan, double-click: reset)"),
+            RawHtml(view3d.to_html(v, colors, sorted(on)), "*Interactive 3D view of the sparse points and camera "
+                    "frusta (GT vs each method, Sim3-aligned): open `report.html`.*"),
+            Para("Estimates are mapped into the ground-truth frame by the same Sim3 as the scores; frusta are "
+                 "the fixed camera's field of view. " + data_note)]
 
 
 def build_blocks(m: MetricsFile, figure_keys: set[str]) -> list:
-    s = m.scene
-    cam = ", ".join(fmt(p, 3) for p in s.camera_params)
-    blocks: list = [
-        Heading(1, f"polarref compare: {s.name}"),
-        Para(f"{s.kind} scene, {s.num_images} images of {s.width}×{s.height} px"
-             + (f" (downscaled ×{fmt(s.downscale, 2)} from the originals)" if s.downscale != 1.0 else "")
-             + f"; camera {s.camera_model} ({cam}) held fixed for every method; "
-             + ("ground truth: yes" if s.has_gt else "ground truth: none")
-             + ("; GT mesh for point-to-surface errors: yes" if s.has_mesh else "")
-             + f". Source: `{s.source}`" + (f", preset `{s.preset}`, seed {s.seed}" if s.preset else "") + "."),
-        Para("Generated by `polarref compare`; rebuild with `polarref report DIR` "
-             "(every number below is read from `metrics.json`)."),
-    ]
-    blocks += _claims_section(m)
-    blocks += _pairs_section(m)
-    blocks += _methods_section(m)
-    blocks += _gt_section(m)
-    blocks.append(Heading(2, "Figures"))
+    blocks: list = [Heading(1, f"polarref compare: {m.scene.name}"), Para(_scene_line(m)), _summary(m),
+                    Heading(2, "Figures")]
+    blocks += _view_blocks(m)
     for key, caption, _ in figs.FIGURES:
         if key in figure_keys:
             blocks.append(Fig(key, caption))
+    blocks += [Heading(2, "Claims in detail"), *_claims_blocks(m),
+               Heading(2, "Details"),
+               Details("All paper-format comparisons (Tables 1-3 layout)", _pairs_blocks(m)),
+               Details("Methods: status, counts, runtimes, failures", _methods_section(m)),
+               Details("Ground-truth accuracy", _gt_section(m))]
     if m.notes:
-        blocks += [Heading(2, "Notes"), Bullets(list(m.notes))]
-    blocks += _env_section(m)
+        blocks.append(Details("Notes", [Bullets(list(m.notes))]))
+    blocks.append(Details("Environment (provenance)", _env_section(m)))
+    blocks.append(Para("Generated by `polarref compare`; rebuild with `polarref report DIR` "
+                       "(every number is read from `metrics.json`)."))
     return blocks
-
-
-# ---- renderers -------------------------------------------------------------------------------
-
-def _md_cell(text: str) -> str:
-    return text.replace("|", "\\|").replace("\n", " ")
-
-
-def to_markdown(blocks: list) -> str:
-    out: list[str] = []
-    for b in blocks:
-        if isinstance(b, Heading):
-            out.append("#" * b.level + " " + b.text)
-        elif isinstance(b, Para):
-            out.append(b.text)
-        elif isinstance(b, Table):
-            out.append("| " + " | ".join(_md_cell(h) for h in b.header) + " |")
-            out.append("|" + "---|" * len(b.header))
-            out += ["| " + " | ".join(_md_cell(c) for c in row) + " |" for row in b.rows]
-        elif isinstance(b, Fig):
-            out.append(f"![{b.caption}](figures/{b.key}.png)\n\n*{b.caption}*")
-        elif isinstance(b, Bullets):
-            out += [f"- {i}" for i in b.items]
-        out.append("")
-    return "\n".join(out)
-
-
-def _inline_html(text: str) -> str:
-    t = html.escape(text, quote=False)
-    t = re.sub(r"\*\*(.+?)\*\*", r"<strong>\1</strong>", t)
-    t = re.sub(r"(?<!\*)\*(?!\*)(.+?)\*", r"<em>\1</em>", t)
-    return re.sub(r"`(.+?)`", r"<code>\1</code>", t)
-
-
-_CSS = ("body{font-family:system-ui,sans-serif;max-width:1100px;margin:2em auto;padding:0 1em;color:#222}"
-        "table{border-collapse:collapse;margin:0.6em 0;font-size:0.9em}"
-        "th,td{border:1px solid #ccc;padding:3px 7px;text-align:left;vertical-align:top}"
-        "th{background:#f2f2f2}code{background:#f6f6f6;padding:0 3px}img{max-width:100%}"
-        "figure{margin:1em 0}figcaption{font-style:italic;color:#555}")
-
-
-def to_html(blocks: list, fig_dir: Path, title: str) -> str:
-    parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
-             f"<title>{html.escape(title)}</title><style>{_CSS}</style></head><body>"]
-    for b in blocks:
-        if isinstance(b, Heading):
-            parts.append(f"<h{b.level}>{_inline_html(b.text)}</h{b.level}>")
-        elif isinstance(b, Para):
-            parts.append(f"<p>{_inline_html(b.text)}</p>")
-        elif isinstance(b, Table):
-            parts.append("<table><thead><tr>" + "".join(f"<th>{_inline_html(h)}</th>" for h in b.header)
-                         + "</tr></thead><tbody>")
-            parts += ["<tr>" + "".join(f"<td>{_inline_html(c)}</td>" for c in row) + "</tr>" for row in b.rows]
-            parts.append("</tbody></table>")
-        elif isinstance(b, Fig):
-            data = base64.b64encode((fig_dir / f"{b.key}.png").read_bytes()).decode("ascii")
-            parts.append(f'<figure><img alt="{html.escape(b.caption)}" src="data:image/png;base64,{data}">'
-                         f"<figcaption>{_inline_html(b.caption)}</figcaption></figure>")
-        elif isinstance(b, Bullets):
-            parts.append("<ul>" + "".join(f"<li>{_inline_html(i)}</li>" for i in b.items) + "</ul>")
-    parts.append("</body></html>")
-    return "\n".join(parts) + "\n"
 
 
 def build_report(out_dir: str | Path, metrics: MetricsFile | None = None) -> dict[str, Path]:
@@ -355,5 +360,5 @@ def build_report(out_dir: str | Path, metrics: MetricsFile | None = None) -> dic
     blocks = build_blocks(metrics, set(drawn))
     md, page = out_dir / "report.md", out_dir / "report.html"
     write_text_atomic(md, to_markdown(blocks))
-    write_text_atomic(page, to_html(blocks, fig_dir, f"polarref compare: {metrics.scene.name}"))
+    write_text_atomic(page, to_html(blocks, fig_dir, f"polarref compare: {metrics.scene.name}", REPORT_LAYOUT))
     return {"markdown": md, "html": page, **{f"figure:{k}": p for k, p in drawn.items()}}

@@ -105,6 +105,8 @@ class MethodPlot:
     reproj_hist: Histogram | None = None
     rotation_err_hist: Histogram | None = None
     surface_err_hist: Histogram | None = None
+    rotation_err_deg: list[float] = field(default_factory=list)   # per image, image_names order
+    track_length_hist: Histogram | None = None                    # observations per 3D point
 
 
 @dataclass
@@ -164,6 +166,7 @@ class ClaimResult:
     sample_size: str          # e.g. "10^5 random angles", "1 scene x 2 methods"
     verdict: str              # one of VERDICTS
     rationale: str            # template: "{key}" placeholders filled from figures at report time
+    summary: str = ""         # one-line template for the scorecard; "" = first clause of the rationale
 
 
 @dataclass
@@ -183,6 +186,43 @@ class Environment:
 
 
 @dataclass
+class ViewCloud:
+    """One point cloud of the 3D view, subsampled and quantized (see ``polarref.compare.view3d``)."""
+
+    key: str                  # method name, "gt-surface" or "dense:<method>"
+    label: str
+    kind: str                 # "sparse" | "dense" | "reference"
+    total: int                # points before subsampling
+    count: int                # points stored
+    dropped: int              # far outliers outside the quantization box, left out
+    origin: list[float]       # (3,) box corner, GT frame
+    step: list[float]         # (3,) scene units per quantization step
+    xyz_u16: str              # base64, (count, 3) uint16 little-endian
+    rgb_u8: str               # base64, (count, 3) uint8
+
+
+@dataclass
+class ViewCameras:
+    """Registered cameras of one method (or the ground truth) in the GT frame."""
+
+    key: str                  # method name or "gt"
+    label: str
+    poses: list[list[float]]  # (N, 7): centre x y z, world_from_cam quaternion w x y z
+
+
+@dataclass
+class View3D:
+    """Data of the interactive 3D view: estimates Sim3-aligned to the ground truth."""
+
+    seed: int                 # subsampling seed
+    max_points: int           # cap per sparse cloud
+    max_dense_points: int     # cap per dense cloud
+    tan_half_fov: list[float]  # (2,) frustum shape: width / (2 fx), height / (2 fy)
+    cameras: list[ViewCameras]
+    clouds: list[ViewCloud]
+
+
+@dataclass
 class MetricsFile:
     """Everything a report shows."""
 
@@ -194,6 +234,7 @@ class MetricsFile:
     claims: list[ClaimResult]
     ba_traces: list[BATrace] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    view3d: View3D | None = None
 
     def method(self, name: str) -> MethodResult | None:
         return next((m for m in self.methods if m.name == name), None)

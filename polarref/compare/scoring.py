@@ -72,6 +72,11 @@ def score(rec, gt, mesh, seed: int = 0) -> Score:
                    errors=errors, alignment=alignment)
     errs = errors[0]
     plot = MethodPlot(reproj_hist=_hist(errs))
+    lengths = np.array([len(p.track) for p in rec.points3D.values()], dtype=np.int64)
+    if lengths.size and lengths.max() >= 2:  # one bin per track length (2, 3, ...), the last bin holds the longer ones
+        top = int(min(lengths.max(), 40))
+        counts = np.bincount(np.minimum(lengths, top), minlength=top + 1)[2:]
+        plot.track_length_hist = Histogram([float(k) for k in range(2, top + 2)], [int(c) for c in counts])
     notes = []
     if np.isinf(errs).any():
         notes.append(f"{int(np.isinf(errs).sum())} observations behind their camera (error inf, "
@@ -87,6 +92,7 @@ def score(rec, gt, mesh, seed: int = 0) -> Score:
         plot.centers_gt = _round([gt_by_name[n].cam_from_world.center for n in names])
         rot = np.array([g.per_image[n]["rotation_error_deg"] for n in names])
         plot.rotation_err_hist = _hist(rot)
+        plot.rotation_err_deg = [float(f"{r:.6g}") for r in rot]
         _, xyz = rec.points_array()
         if len(xyz):
             rng = np.random.default_rng(seed)

@@ -1,12 +1,16 @@
 """ParallaxBA's text problem format (Zhao et al. 2015; OpenSLAM ParallaxBA demo files).
 
-Files in one folder:
+Files in one folder, named as in the fake-pile demo or as in the datasets distributed with
+ParallaxBA (``README.txt``: ``ParallaxBA -cam Cam90.txt -fea Feature90.txt -calib cal90.txt``):
 
-* ``intrinsic_matrix.txt``: the 3x3 K (shared by all cameras, no distortion).
-* ``Cam.txt``: one camera per line, ``alpha beta gamma Cx Cy Cz`` (Euler angles in radians, then
-  the camera centre in world coordinates).
-* ``Feature.pmba``: one point per line, ``n cam_1 u_1 v_1 ... cam_n u_n v_n`` (0-based camera
-  indices); the first camera listed is the point's main anchor.
+* ``intrinsic_matrix.txt`` / ``cal<N>.txt``: the 3x3 K (shared by all cameras, no distortion),
+  three rows, or its nine numbers row by row on one line (ParallaxBA reads them with one scanf).
+* ``Cam.txt`` / ``Cam<N>.txt``: one camera per line, ``alpha beta gamma Cx Cy Cz`` (Euler angles
+  in radians, then the camera centre in world coordinates).
+* ``Feature.pmba`` / ``Feature<N>.txt``: one point per line, ``n cam_1 u_1 v_1 ... cam_n u_n
+  v_n`` (0-based camera indices); the first camera listed is the point's main anchor.
+* optional ``XYZ.txt`` (or ``XYZ<N>.txt``): initial points, ``X Y Z`` per line in feature order
+  (ParallaxBA's ``-xyz``).
 
 Verified convention (on the fakepile demo, see tests/test_io_parallaxba.py):
 ``cam_from_world = (Rz(alpha) Ry(beta) Rx(gamma))^T = Rx(-gamma) Ry(-beta) Rz(-alpha)`` with the
@@ -25,9 +29,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+import re
+
 import numpy as np
 
 from polarref.camera import Camera
+from polarref.errors import PolarrefError
 from polarref.geometry import Rigid3, axis_rotation
 from polarref.io import FormatError, build_reconstruction, parse_numbers, read_lines, read_tracks
 
@@ -73,6 +80,7 @@ class ParallaxBAProblem:
     obs_camera: np.ndarray
     obs_uv: np.ndarray
     track_start: np.ndarray
+    points: np.ndarray | None = None  # (M, 3) initial points from XYZ.txt, if the folder has one
 
     @property
     def num_cameras(self) -> int:
@@ -120,12 +128,53 @@ def parallaxba_to_reconstruction(problem: ParallaxBAProblem, points: np.ndarray 
                                 problem.obs_camera, problem.obs_point, problem.obs_uv, points)
 
 
-def read_parallaxba(folder, cam_file: str = "Cam.txt", feature_file: str = "Feature.pmba",
-                    intrinsics_file: str = "intrinsic_matrix.txt") -> ParallaxBAProblem:
-    """Read a ParallaxBA problem folder; FormatError names the file and line."""
+@dataclass(frozen=True)
+class ParallaxBAFiles:
+    """The files of one ParallaxBA problem (``xyz`` None when there is no start file)."""
+
+    cam: Path
+    feature: Path
+    intrinsics: Path
+    xyz: Path | None
+
+
+_NUMBERED = re.compile(r"Cam(\d+)\.txt")
+
+
+def find_parallaxba_files(folder) -> ParallaxBAFiles | None:
+    """The ParallaxBA files in ``folder`` in either naming (module docstring); None if it has
+    neither ``Cam.txt`` + ``Feature.pmba`` nor ``Cam<N>.txt`` + ``Feature<N>.txt``. PolarrefError
+    if several numbered problems share the folder or one lacks its ``cal<N>.txt``."""
     folder = Path(folder)
-    kpath = folder / intrinsics_file
+    if not folder.is_dir():
+        return None
+    if (folder / "Cam.txt").is_file() and (folder / "Feature.pmba").is_file():
+        xyz = folder / "XYZ.txt"
+        return ParallaxBAFiles(folder / "Cam.txt", folder / "Feature.pmba",
+                               folder / "intrinsic_matrix.txt", xyz if xyz.is_file() else None)
+    nums = sorted(m.group(1) for f in folder.iterdir() if (m := _NUMBERED.fullmatch(f.name))
+                  and (folder / f"Feature{m.group(1)}.txt").is_file())
+    if not nums:
+        return None
+    if len(nums) > 1:
+        names = ", ".join(f"Cam{n}.txt" for n in nums)
+        raise PolarrefError(f"{folder}: several ParallaxBA problems ({names}); put each in its "
+                            "own folder")
+    n = nums[0]
+    cal = folder / f"cal{n}.txt"
+    if not cal.is_file():
+        raise PolarrefError(f"{folder}: Cam{n}.txt and Feature{n}.txt but no cal{n}.txt "
+                            "(the 3x3 K)")
+    xyz = [folder / name for name in (f"XYZ{n}.txt", "XYZ.txt") if (folder / name).is_file()]
+    return ParallaxBAFiles(folder / f"Cam{n}.txt", folder / f"Feature{n}.txt", cal,
+                           xyz[0] if xyz else None)
+
+
+def _read_K(kpath: Path) -> np.ndarray:
     rows = [(i + 1, s.split()) for i, s in enumerate(read_lines(kpath)) if s.strip()]
+    if len(rows) == 1 and len(rows[0][1]) == 9:  # ParallaxBA scans nine numbers, any layout
+        n, tok = rows[0]
+        rows = [(n, tok[0:3]), (n, tok[3:6]), (n, tok[6:9])]
     if len(rows) != 3:
         raise FormatError(kpath, None, f"expected 3 non-empty rows of K, found {len(rows)}")
     K = np.array([parse_numbers(kpath, n, tok, float, 3, "K entries") for n, tok in rows])
@@ -134,7 +183,32 @@ def read_parallaxba(folder, cam_file: str = "Cam.txt", feature_file: str = "Feat
                           f"{K.tolist()}")
     if K[0, 1] != 0:
         raise FormatError(kpath, 1, f"skew K[0,1] = {K[0, 1]} is not supported")
-    cpath = folder / cam_file
+    return K
+
+
+def read_xyz(path, num_points: int) -> np.ndarray:
+    """ParallaxBA's start points (``-xyz``): ``X Y Z`` per non-empty line, (num_points, 3)."""
+    path = Path(path)
+    pts = [parse_numbers(path, i + 1, s.split(), float, 3, "coordinates (X Y Z)")
+           for i, s in enumerate(read_lines(path)) if s.strip()]
+    if len(pts) != num_points:
+        raise FormatError(path, None, f"{len(pts)} points for {num_points} features")
+    pts = np.array(pts, dtype=np.float64).reshape(-1, 3)
+    if not np.isfinite(pts).all():
+        raise FormatError(path, None, "non-finite coordinates")
+    return pts
+
+
+def read_parallaxba(folder, cam_file: str | None = None, feature_file: str | None = None,
+                    intrinsics_file: str | None = None) -> ParallaxBAProblem:
+    """Read a ParallaxBA problem folder (either naming, :func:`find_parallaxba_files`; file
+    names given here override it); FormatError names the file and line."""
+    folder = Path(folder)
+    found = find_parallaxba_files(folder)
+    kpath = folder / (intrinsics_file
+                      or (found.intrinsics.name if found else "intrinsic_matrix.txt"))
+    K = _read_K(kpath)
+    cpath = folder / (cam_file or (found.cam.name if found else "Cam.txt"))
     cams = []
     for i, s in enumerate(read_lines(cpath)):
         if s.strip():
@@ -143,14 +217,17 @@ def read_parallaxba(folder, cam_file: str = "Cam.txt", feature_file: str = "Feat
     if not cams:
         raise FormatError(cpath, 1, "no cameras")
     cams = np.array(cams)
-    fpath = folder / feature_file
+    fpath = folder / (feature_file or (found.feature.name if found else "Feature.pmba"))
     obs_point, obs_cam, obs_uv, starts = read_tracks(fpath, len(cams), "camera", distinct=True)
     if len(starts) == 1:
         raise FormatError(fpath, 1, "no points")
+    points = None
+    if found is not None and found.xyz is not None:
+        points = read_xyz(found.xyz, len(starts) - 1)
     return ParallaxBAProblem(K=K, euler=cams[:, :3].copy(), centers=cams[:, 3:].copy(),
                              R=cam_from_world_rotation(cams[:, :3]),
                              obs_point=obs_point, obs_camera=obs_cam, obs_uv=obs_uv,
-                             track_start=starts)
+                             track_start=starts, points=points)
 
 
 def write_parallaxba(problem: ParallaxBAProblem, folder) -> None:
@@ -170,6 +247,9 @@ def write_parallaxba(problem: ParallaxBAProblem, folder) -> None:
             parts += [str(int(c)), f"{u:.17g}", f"{v:.17g}"]
         lines.append(" ".join(parts))
     (folder / "Feature.pmba").write_text("\n".join(lines) + "\n")
+    if problem.points is not None:
+        (folder / "XYZ.txt").write_text("\n".join(
+            " ".join(f"{v:.17g}" for v in X) for X in problem.points) + "\n")
 
 
 def triangulate_dlt(problem: ParallaxBAProblem, R: np.ndarray | None = None) -> np.ndarray:

@@ -233,7 +233,8 @@ def _prepare_out(out_dir: Path, overwrite: bool) -> None:
 
 def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig = SfMConfig(),
             camera=None, gt: Reconstruction | None = None,
-            mesh: tuple[np.ndarray, np.ndarray] | None = None, overwrite: bool = False) -> SfMResult:
+            mesh: tuple[np.ndarray, np.ndarray] | None = None, overwrite: bool = False,
+            model_format: str = "text") -> SfMResult:
     """Run the whole pipeline on ``image_dir`` and write ``out_dir/model`` and ``out_dir/metrics.json``.
 
     Args:
@@ -243,6 +244,7 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         gt: ground-truth model (cameras, and poses for the aligned errors).
         mesh: (vertices, faces) of the true surface in GT coordinates, for point-to-surface errors.
         overwrite: allow writing into a non-empty ``out_dir`` (only our own files are replaced).
+        model_format: COLMAP ``text``, ``binary`` or ``both``; ``model/points3D.ply`` is always written.
     Raises:
         PolarrefError: no images, unknown intrinsics, no initial pair, < 2 registered images.
             metrics.json is still written with what was done.
@@ -316,7 +318,9 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         if out is not None:
             t0 = time.perf_counter()
             _update_point_errors(rec)
-            rec.write_text(out / "model")
+            from polarref.sfm.model_files import write_model
+
+            write_model(rec, out / "model", model_format)
             timings["export"] = time.perf_counter() - t0
         _write()
         return SfMResult(rec, result, out)

@@ -1,0 +1,77 @@
+"""``polarref report --index DIR``: one page over every report folder below DIR.
+
+Reads each ``*/metrics.json`` (never recomputes); a folder whose metrics.json cannot be read is
+listed with the reason instead of stopping the index.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+
+from polarref.compare.report import commit_text, fmt, fmt_s, improving_runtime
+from polarref.compare.report_render import Heading, Para, Table, to_html, to_markdown
+from polarref.compare.schema import STATUS_OK, MetricsFile, load, write_text_atomic
+from polarref.errors import PolarrefError
+
+log = logging.getLogger(__name__)
+
+
+def find_reports(root: Path) -> list[Path]:
+    """Folders at most two levels below ``root`` holding a metrics.json, sorted by path."""
+    found = [p.parent for pattern in ("*/metrics.json", "*/*/metrics.json") for p in root.glob(pattern)]
+    return sorted(set(found))
+
+
+def _main_row(m: MetricsFile) -> list[str]:
+    pair = next((p for p in m.pairs if m.method(p.baseline) and m.method(p.candidate)), None)
+    if pair is None:
+        return ["—", "—", "—"]
+    b, c = m.method(pair.baseline), m.method(pair.candidate)
+    ok = b.status == STATUS_OK and c.status == STATUS_OK
+    acc = f"{fmt(b.mean_reprojection_error_px)} / {fmt(c.mean_reprojection_error_px)}" if ok else "n/a"
+    return [f"{b.label} vs {c.label}", acc, improving_runtime(b.runtime_s, c.runtime_s) if ok else "n/a"]
+
+
+def build_index(root: str | Path) -> dict[str, Path]:
+    """Write ``root/index.md`` and ``root/index.html``; returns their paths."""
+    root = Path(root)
+    if not root.is_dir():
+        raise PolarrefError(f"index folder not found: {root}")
+    folders = find_reports(root)
+    if not folders:
+        raise PolarrefError(f"no report folders (*/metrics.json) under {root}")
+    rows, loaded, bad = [], [], []
+    for d in folders:
+        rel = Path(os.path.relpath(d, root)).as_posix()
+        try:
+            m = load(d / "metrics.json")
+        except PolarrefError as exc:
+            log.warning("skipping %s: %s", d, exc)
+            bad.append(f"`{rel}`: {exc}")
+            continue
+        loaded.append((rel, m))
+        ok = sum(r.status == STATUS_OK for r in m.methods)
+        page = f"{rel}/report.html" if (d / "report.html").is_file() else f"{rel}/metrics.json"
+        rows.append([f"[{rel}]({page})", m.scene.name, m.scene.kind, str(m.scene.num_images),
+                     f"{ok}/{len(m.methods)}", *_main_row(m), fmt_s(m.environment.total_runtime_s),
+                     m.environment.created[:10], commit_text(m)])
+    claim_ids = list(dict.fromkeys(c.claim_id for _, m in loaded for c in m.claims))
+    claim_text = {c.claim_id: c.claim for _, m in loaded for c in m.claims}
+    verdicts = [[cid, claim_text[cid], *[next((c.verdict for c in m.claims if c.claim_id == cid), "—")
+                                         for _, m in loaded]] for cid in claim_ids]
+    blocks: list = [Heading(1, "polarref reports"),
+                    Para(f"{len(loaded)} report folder(s) under `{root.name or root}`; every value is read from "
+                         "the folder's `metrics.json`. Main comparison: the first paper-format table of each "
+                         "report (mean reprojection error, baseline / candidate, and the runtime change)."),
+                    Table(["report", "scene", "kind", "images", "methods ok", "main comparison",
+                           "accuracy (px)", "runtime", "total runtime", "run date", "commit"], rows)]
+    if verdicts:
+        blocks += [Heading(2, "Verdicts"), Table(["#", "claim", *[rel for rel, _ in loaded]], verdicts)]
+    if bad:
+        blocks += [Heading(2, "Unreadable folders"), Para("; ".join(bad))]
+    md, page = root / "index.md", root / "index.html"
+    write_text_atomic(md, to_markdown(blocks))
+    write_text_atomic(page, to_html(blocks, root, "polarref reports"))
+    return {"markdown": md, "html": page}

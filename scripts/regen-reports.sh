@@ -1,0 +1,16 @@
+#!/usr/bin/env bash
+# Regenerate the committed example reports under reports/, their screenshots and the index page.
+# The only command that writes into reports/ (polarref compare writes ./polarref-out/ by default).
+# About 4 minutes on 2 cores with warm caches; needs ../shared/data for the fountain report and
+# Chromium (scripts/setup.sh installs it as root) for the screenshots.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+P=.venv/bin/polarref
+DATA=${POLARREF_DATA:-../shared/data}
+$P --no-progress -q compare comet --preset small --out reports/comet-small --overwrite
+$P --no-progress -q compare --out reports/comet-default --overwrite
+$P --no-progress -q compare "$DATA/strecha_fountain-P11" --preset small \
+  --out reports/strecha_fountain-P11-small --overwrite
+# Work products (databases, logs, models) stay out of git: reports/*/runs/ is ignored.
+$P --no-progress report --screenshot reports/comet-small reports/comet-default reports/strecha_fountain-P11-small
+$P --no-progress report --index reports
