@@ -9,10 +9,16 @@ progress bars are set up here and nowhere else.
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import logging
+import os
 import pkgutil
+import signal
 import sys
+import threading
+import traceback
+import warnings
 from types import ModuleType
 
 from polarref import __version__, progress
@@ -54,25 +60,126 @@ def build_parser() -> argparse.ArgumentParser:
     for module in modules:
         p = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP)
         module.add_arguments(p)
-        p.set_defaults(_run=module.run)
+        # the inputs a message can name: positionals that are not a fixed choice ("bench ba")
+        inputs = [a.dest for a in p._actions if not a.option_strings and a.choices is None]
+        p.set_defaults(_run=module.run, _positionals=inputs)
     return parser
 
 
 def _setup_logging(verbose: int, quiet: bool) -> None:
     level = logging.WARNING if quiet else (logging.DEBUG if verbose > 0 else logging.INFO)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    # Python warnings (numpy RuntimeWarnings, ...) go through logging, as one line each.
+    warnings.showwarning = _log_warning
+
+
+def _log_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    logging.getLogger("py.warnings").warning("%s: %s (%s:%s)", category.__name__,
+                                             _one_line(message), filename, lineno)
+
+
+class _Interrupts:
+    """Record SIGINT before raising KeyboardInterrupt, so an interrupt that a C extension
+    (drjit, pycolmap) turns into another exception still ends as 'interrupted' (exit 130)."""
+
+    def __init__(self) -> None:
+        self.seen = False
+        self._previous = None
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGINT, self._handler)
+
+    def _handler(self, signum, frame) -> None:
+        self.seen = True
+        # What follows an interrupt (an extension's import failing half-way, a fallback warning)
+        # is its consequence, not news: only the one 'interrupted' line is printed.
+        logging.disable(logging.WARNING)
+        raise KeyboardInterrupt
+
+    def restore(self, exiting: bool) -> None:
+        if self.seen:
+            logging.disable(logging.NOTSET)
+        if self._previous is None:
+            return
+        # A process about to exit after Ctrl-C ignores further SIGINTs (drjit re-raises one
+        # from its own handler): they would kill it with -SIGINT after the exit line.
+        signal.signal(signal.SIGINT, signal.SIG_IGN if exiting and self.seen else self._previous)
+
+
+def _primary_input(args: argparse.Namespace) -> str | None:
+    """The first positional argument of the subcommand (what the user gave it to work on)."""
+    for action in getattr(args, "_positionals", ()):
+        value = getattr(args, action, None)
+        if value not in (None, [], ""):
+            return " ".join(map(str, value)) if isinstance(value, list) else str(value)
+    return None
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def describe(exc: BaseException, args: argparse.Namespace) -> str:
+    """One line ``<input>: <what went wrong> (<what to do>)`` for any exception."""
+    if isinstance(exc, PolarrefError):
+        text = _one_line(exc)
+        if exc.option:
+            text += f" (use --{exc.option.replace('_', '-')})"
+        return text
+    if isinstance(exc, MemoryError):
+        where = _primary_input(args)
+        return (f"{where + ': ' if where else ''}out of memory"
+                " (use a smaller input or preset, or free memory)")
+    if isinstance(exc, OSError):
+        name = exc.filename or _primary_input(args) or ""
+        what = _one_line(exc.strerror or exc)
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            todo = "free disk space or choose another output folder; nothing half-written was kept"
+        elif exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS):
+            todo = "check permissions or choose another output path"
+        elif exc.errno in (errno.ENOTDIR, errno.EISDIR, errno.EEXIST):
+            todo = "a file stands where a folder is needed or the reverse; choose another path"
+        elif exc.errno == errno.ENOENT:
+            todo = "check the path"
+        else:
+            todo = "check the path and the disk"
+        return f"{name + ': ' if name else ''}{what} ({todo})"
+    where = _primary_input(args)
+    return (f"{where + ': ' if where else ''}unexpected {type(exc).__name__}: {_one_line(exc)} "
+            f"(rerun with -v for the traceback and report it)")
+
+
+def _exit_now(code: int) -> None:
+    logging.shutdown()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)  # exits 2 with usage on unknown commands/options
-    _setup_logging(args.verbose, args.quiet)
-    progress.enable(not args.no_progress and sys.stderr.isatty())
+    """Run one subcommand. Every failure ends here as one stderr line and an exit code:
+    1 for errors, 2 for usage (argparse), 130 for Ctrl-C; tracebacks only with -v."""
+    interrupts = _Interrupts()  # first: Ctrl-C while the commands are still importing counts too
+    args = argparse.Namespace(command=None, verbose=0)
     try:
-        return int(args._run(args) or 0)
-    except PolarrefError as exc:
-        print(f"polarref {args.command}: error: {exc}", file=sys.stderr)
+        args = build_parser().parse_args(argv)  # exits 2 with usage on bad commands/options/values
+        _setup_logging(args.verbose, args.quiet)
+        progress.enable(not args.no_progress and sys.stderr.isatty())
+        code = int(args._run(args) or 0)
+        if interrupts.seen:  # an extension swallowed the KeyboardInterrupt; Ctrl-C still wins
+            raise KeyboardInterrupt
+        return code
+    except SystemExit:
+        raise
+    except BaseException as exc:  # the one boundary: nothing escapes as a traceback
+        name = f"polarref {args.command}" if args.command else "polarref"
+        if args.verbose:
+            traceback.print_exception(exc, file=sys.stderr)
+        if isinstance(exc, KeyboardInterrupt) or interrupts.seen:
+            print(f"{name}: interrupted; finished outputs were kept", file=sys.stderr)
+            if argv is None:  # a real process: skip finalization, where an interrupted drjit/LLVM
+                _exit_now(130)  # can abort (SIGABRT) after the line above; every output is closed
+            return 130
+        print(f"{name}: {describe(exc, args)}", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print(f"polarref {args.command}: interrupted; finished outputs were kept", file=sys.stderr)
-        return 130
+    finally:
+        interrupts.restore(exiting=argv is None)

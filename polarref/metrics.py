@@ -331,10 +331,9 @@ def evaluate(rec, gt=None, mesh: tuple[np.ndarray, np.ndarray] | None = None,
 
 
 def write_json(path: str | Path, data: dict) -> None:
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=_jsonable) + "\n")
-    tmp.replace(path)
+    from polarref.atomic import atomic_write
+
+    atomic_write(path, json.dumps(data, indent=2, default=_jsonable) + "\n")
 
 
 def _jsonable(o):

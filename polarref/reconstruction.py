@@ -155,9 +155,10 @@ class Reconstruction:
             raise PolarrefError(f"not a COLMAP model (no cameras/images .txt or .bin): {path}")
         try:
             rec = pycolmap.Reconstruction(str(path))
+            # inside the try: names that are not UTF-8 fail only when converted
+            return Reconstruction.from_pycolmap(rec)
         except Exception as exc:  # pycolmap raises generic errors on malformed files
             raise PolarrefError(f"cannot read COLMAP model {path}: {exc}") from exc
-        return Reconstruction.from_pycolmap(rec)
 
     def write_text(self, path: str | Path) -> None:
         """Write cameras.txt, images.txt and points3D.txt (COLMAP text format) atomically per file."""
@@ -181,7 +182,7 @@ class Reconstruction:
             rgb = " ".join(str(int(v)) for v in p.color)
             track = " ".join(f"{int(a)} {int(b)}" for a, b in p.track)
             pts.append(f"{pid} {xyz} {rgb} {float(p.error)!r} {track}")
+        from polarref.atomic import atomic_write
+
         for name, lines in (("cameras.txt", cams), ("images.txt", imgs), ("points3D.txt", pts)):
-            tmp = path / f".{name}.tmp"
-            tmp.write_text("\n".join(lines) + "\n")
-            tmp.replace(path / name)
+            atomic_write(path / name, "\n".join(lines) + "\n")

@@ -54,6 +54,12 @@ def _ellipsoid_exit(u: np.ndarray, c: np.ndarray, axes: np.ndarray, Q: np.ndarra
     return (-b + np.sqrt(b * b - 4 * a * cc)) / (2 * a)
 
 
+def _contain_origin(c: np.ndarray, axes: np.ndarray, Q: np.ndarray, inside: float = 0.95) -> np.ndarray:
+    """``c`` unchanged when the origin lies inside the ellipsoid, else scaled so that it does."""
+    reach = float(np.linalg.norm((-c @ Q) / axes))  # 1 on the surface; linear in c
+    return c if reach < 1.0 else c * (inside / reach)
+
+
 def _smooth_max(a: np.ndarray, b: np.ndarray, k: float) -> np.ndarray:
     h = np.clip(0.5 + 0.5 * (b - a) / k, 0.0, 1.0)
     return a + (b - a) * h + k * h * (1.0 - h)
@@ -69,6 +75,9 @@ def procedural_body(cfg: SceneConfig, level: int) -> tuple[np.ndarray, np.ndarra
     cb, axb = np.array([0.19, 0.02, 0.03]) * jit(3, 0.05), np.array([0.21, 0.18, 0.16]) * jit(3, 0.08)
     Qa = so3_exp(rng.normal(0, 0.08, 3))
     Qb = so3_exp(rng.normal(0, 0.25, 3))  # the small lobe is tilted, as on 67P
+    # The jitter can push the origin (the neck) out of a lobe (9 of the first 40 seeds did),
+    # and the ray-exit distance is then NaN: pull such a lobe's centre back towards the origin.
+    ca, cb = _contain_origin(ca, axa, Qa), _contain_origin(cb, axb, Qb)
     U, F = meshes.icosphere(level)
     r = _smooth_max(_ellipsoid_exit(U, ca, axa, Qa), _ellipsoid_exit(U, cb, axb, Qb), 0.08)
     relief = ValueNoise3(cfg.seed * 7919 + 2, finest_cell=0.25, coarsest_cell=1.0, gain=0.7)

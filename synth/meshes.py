@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from polarref.atomic import atomic_open
 from polarref.errors import PolarrefError
 
 
@@ -59,7 +60,7 @@ def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Read a triangle mesh from OBJ (v/f lines) or PLY; raises PolarrefError naming the file."""
     path = Path(path)
     if not path.is_file():
-        raise PolarrefError(f"--mesh file not found: {path}")
+        raise PolarrefError(f"mesh file not found: {path}")
     suffix = path.suffix.lower()
     try:
         if suffix == ".obj":
@@ -69,11 +70,11 @@ def read_mesh(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
         else:
             raise ValueError("unsupported extension (use .obj or .ply)")
     except (ValueError, IndexError, UnicodeDecodeError) as exc:
-        raise PolarrefError(f"--mesh {path} is not a readable triangle mesh: {exc}") from exc
+        raise PolarrefError(f"mesh {path} is not a readable triangle mesh: {exc}") from exc
     if len(V) < 4 or len(F) < 4:
-        raise PolarrefError(f"--mesh {path} is not a triangle mesh ({len(V)} vertices, {len(F)} faces)")
+        raise PolarrefError(f"mesh {path} is not a triangle mesh ({len(V)} vertices, {len(F)} faces)")
     if F.min() < 0 or F.max() >= len(V) or not np.isfinite(V).all():
-        raise PolarrefError(f"--mesh {path} has out-of-range face indices or non-finite vertices")
+        raise PolarrefError(f"mesh {path} has out-of-range face indices or non-finite vertices")
     return V, F
 
 
@@ -157,9 +158,7 @@ def write_ply(path: str | os.PathLike, V: np.ndarray, F: np.ndarray, rgb: np.nda
         vert["red"], vert["green"], vert["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
     face = np.empty(len(F), dtype=[("n", "u1"), ("i", "<i4", 3)])
     face["n"], face["i"] = 3, F
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as fh:
+    with atomic_open(path) as fh:
         fh.write(header.encode("ascii"))
         fh.write(vert.tobytes())
         fh.write(face.tobytes())
-    os.replace(tmp, path)

@@ -8,6 +8,7 @@ leaves a half-written file behind.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import hashlib
 import json
@@ -21,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from polarref import progress
+from polarref.atomic import publish_dir
 from polarref.errors import PolarrefError
 from synth import meshes
 from synth.config import SceneConfig, preset
@@ -90,12 +92,13 @@ def _prepare_out(out: Path, digest: str, overwrite: bool) -> bool:
             return True
         if not overwrite:
             raise PolarrefError(f"{out} holds a scene rendered with other parameters or code "
-                                f"(digest {old} != {digest}); pass --overwrite or choose another --out")
+                                f"(digest {old} != {digest}); choose another output folder or replace it",
+                                option="overwrite")
         return False
     foreign = sorted(p.name for p in out.iterdir() if not p.name.startswith(".") and p.name not in _KNOWN_ENTRIES)
     if foreign and not overwrite:
         raise PolarrefError(f"{out} is not empty and is not a rendered scene (found {foreign[0]!r}); "
-                            f"choose a new folder or pass --overwrite")
+                            f"choose a new folder or replace it", option="overwrite")
     return False
 
 
@@ -213,40 +216,9 @@ def _encode_npy(a: np.ndarray) -> bytes:
     return bio.getvalue()
 
 
-def render_scene(scene: str, out: str | os.PathLike, config: SceneConfig | None = None, *,
-                 overwrite: bool = False) -> SceneResult:
-    """Render ``scene`` into folder ``out`` (resumable; see the module docstring).
-
-    Args:
-        scene: "comet" or "uav".
-        out: output folder (created).
-        config: scene configuration; default: ``preset(scene, "default")``.
-        overwrite: re-render every view and replace a folder holding other parameters.
-    Raises:
-        PolarrefError: bad configuration, unwritable folder, foreign folder content, bad mesh.
-    """
-    t_start = time.perf_counter()
-    cfg = config or preset(scene)
-    if cfg.scene != scene:
-        raise PolarrefError(f"config is for scene {cfg.scene!r}, not {scene!r}")
-    try:
-        cfg.validate()
-    except ValueError as exc:
-        raise PolarrefError(str(exc)) from exc
-    if cfg.mesh is not None:
-        cfg = dataclasses.replace(cfg, mesh=str(Path(cfg.mesh).expanduser().resolve()))
-    out = Path(out)
-    digest = cfg.digest(code_version())
-    same = _prepare_out(out, digest, overwrite)
-    names = view_names(cfg.views)
-    if same and not overwrite and _is_complete(out, cfg.views):
-        return SceneResult(out, 0, cfg.views, 0.0, time.perf_counter() - t_start, None)
-
-    from synth.mitsuba_variant import load_mitsuba
-
-    geo = build_geometry(cfg)
-    camera = PinholeCamera(cfg.width, cfg.height, pinhole_params(cfg.width, cfg.height, cfg.fov_deg))
-    mi, variant = load_mitsuba()
+def _render_views(out: Path, scene: str, cfg: SceneConfig, digest: str, geo, camera, mi, variant,
+                  names: list[str], overwrite: bool) -> tuple[list[int], float]:
+    """Write scene.json, mesh, GT and every missing view into ``out``; (rendered views, start time)."""
     meta = _scene_json(cfg, digest, geo, camera, variant, names)
     atomic_write_bytes(out / SCENE_JSON, (json.dumps(meta, indent=1) + "\n").encode())
     meshes.write_ply(out / "mesh.ply", geo.vertices, geo.faces,
@@ -279,6 +251,62 @@ def render_scene(scene: str, out: str | os.PathLike, config: SceneConfig | None 
         stem = names[i][:-4]
         atomic_write_bytes(out / "depth" / f"{stem}.npy", _encode_npy(depth))
         atomic_write_bytes(out / "images" / names[i], _encode_png(_srgb8(img[..., :3] * exposure)))
+    return todo, t0
+
+
+def render_scene(scene: str, out: str | os.PathLike, config: SceneConfig | None = None, *,
+                 overwrite: bool = False) -> SceneResult:
+    """Render ``scene`` into folder ``out`` (resumable; see the module docstring).
+
+    Args:
+        scene: "comet" or "uav".
+        out: output folder (created).
+        config: scene configuration; default: ``preset(scene, "default")``.
+        overwrite: re-render every view and replace a folder holding other parameters.
+    Raises:
+        PolarrefError: bad configuration, unwritable folder, foreign folder content, bad mesh.
+    """
+    t_start = time.perf_counter()
+    cfg = config or preset(scene)
+    if cfg.scene != scene:
+        raise PolarrefError(f"config is for scene {cfg.scene!r}, not {scene!r}")
+    try:
+        cfg.validate()
+    except ValueError as exc:
+        raise PolarrefError(str(exc)) from exc
+    if cfg.mesh is not None:
+        cfg = dataclasses.replace(cfg, mesh=str(Path(cfg.mesh).expanduser().resolve()))
+    out = Path(out)
+    digest = cfg.digest(code_version())
+    created = not out.exists()
+    try:
+        return _render(scene, out, cfg, digest, overwrite, t_start)
+    except BaseException:
+        if created and out.is_dir() and not any(out.iterdir()):
+            out.rmdir()  # a failed run leaves no empty folder behind
+        raise
+
+
+def _render(scene: str, out: Path, cfg: SceneConfig, digest: str, overwrite: bool,
+            t_start: float) -> SceneResult:
+    same = _prepare_out(out, digest, overwrite)
+    names = view_names(cfg.views)
+    if same and not overwrite and _is_complete(out, cfg.views):
+        return SceneResult(out, 0, cfg.views, 0.0, time.perf_counter() - t_start, None)
+
+    from synth.mitsuba_variant import load_mitsuba
+
+    geo = build_geometry(cfg)
+    camera = PinholeCamera(cfg.width, cfg.height, pinhole_params(cfg.width, cfg.height, cfg.fov_deg))
+    mi, variant = load_mitsuba()
+    # Replacing a folder: render into a hidden sibling and swap it in whole at the end, so no
+    # image or depth map of the old scene (more views, other size) survives beside the new ones.
+    replacing = overwrite and any(out.iterdir())
+    staging = (publish_dir(out, overwrite=True, owned=tuple(_KNOWN_ENTRIES)) if replacing
+               else contextlib.nullcontext(out))
+    with staging as root:
+        todo, t0 = _render_views(root, scene, cfg, digest, geo, camera, mi, variant, names,
+                                 overwrite)
     seconds = time.perf_counter() - t0
     log.info("rendered %d views in %.1f s (%s)", len(todo), seconds, variant.variant)
     return SceneResult(out, len(todo), cfg.views - len(todo), seconds, time.perf_counter() - t_start,

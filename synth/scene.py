@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from polarref.atomic import atomic_write
 from polarref.errors import PolarrefError
 from polarref.geometry import Rigid3
 
@@ -88,10 +89,7 @@ class Scene:
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
     """Write ``data`` to a temporary file beside ``path`` and rename it into place."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-    os.replace(tmp, path)
+    atomic_write(path, data)
 
 
 def write_gt(root: Path, camera: PinholeCamera, names: list[str], poses: list[Rigid3]) -> None:

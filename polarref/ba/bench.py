@@ -21,6 +21,8 @@ import time
 import tracemalloc
 from pathlib import Path
 
+from polarref.atomic import atomic_write
+from polarref.errors import PolarrefError
 from polarref.ba.options import PARAMS, BAOptions
 from polarref.ba.problem import prepare
 from polarref.ba.solver import solve
@@ -33,10 +35,18 @@ SCIPY_MAX_OBS = 400_000  # scipy is skipped on larger problems (noted in the tab
 
 
 def _resolve(spec: str) -> str:
+    """A path that exists, ``synth-*``, or an item of the reference data (``bal/...``)."""
     if spec.startswith("synth-") or Path(spec).exists():
         return spec
     from polarref.data import data_path
-    return str(data_path(*spec.split("/")))
+    from polarref.errors import DataNotFoundError
+    if Path(spec).is_absolute() or spec.startswith((".", "~")):
+        raise PolarrefError(f"BA problem not found: {spec}")
+    try:
+        return str(data_path(*spec.split("/")))
+    except DataNotFoundError as exc:
+        raise PolarrefError(f"BA problem not found: {spec} (neither a path here nor an item of "
+                            f"the reference data: {exc})") from exc
 
 
 def _ours(base, options: BAOptions, param: str, memory: bool) -> dict:
@@ -183,7 +193,6 @@ def run_bench(problems, out_dir: Path, options: BAOptions = BAOptions(),
               merge: bool = False) -> list[dict]:
     """Run the problems; with ``merge`` keep the other problems of an existing bench.json
     (a problem run again replaces its old entry)."""
-    out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / "bench.json"
     results = json.loads(path.read_text()) if merge and path.exists() else []
     for spec in problems:
@@ -192,6 +201,7 @@ def run_bench(problems, out_dir: Path, options: BAOptions = BAOptions(),
         log.info("bench %s done in %.1f s", spec, time.perf_counter() - t)
         results = [r for r in results if r["problem"] != spec] + [res]
         # written after every problem so an interrupted bench keeps what it measured
-        path.write_text(json.dumps(results, indent=1, default=float))
-        (out_dir / "bench.md").write_text(markdown(results))
+        out_dir.mkdir(parents=True, exist_ok=True)
+        atomic_write(path, json.dumps(results, indent=1, default=float))
+        atomic_write(out_dir / "bench.md", markdown(results))
     return results

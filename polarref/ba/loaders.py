@@ -4,11 +4,24 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from polarref.ba.problem import BAProblem
 from polarref.errors import PolarrefError
 
 
 def load_problem(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]:
+    """See :func:`_load`; numeric failures of a parsed but degenerate problem (singular
+    triangulation, a value that breaks a conversion) become a PolarrefError naming it."""
+    try:
+        return _load(spec, seed=seed)
+    except PolarrefError:
+        raise
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError, UnicodeError) as exc:
+        raise PolarrefError(f"{spec}: not a usable BA problem ({type(exc).__name__}: {exc})") from exc
+
+
+def _load(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]:
     """(problem, truth Reconstruction or None) for a path or ``synth-20``/``synth-60``/``synth-200``.
 
     BAL: a ``.txt`` file (RADIAL cameras via ``polarref.io.bal``); ParallaxBA: a folder with
@@ -49,7 +62,7 @@ def load_problem(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]
     from polarref.io.bal import bal_to_reconstruction, read_bal
     try:
         bal = read_bal(path)
-    except (ValueError, OSError) as exc:
-        raise PolarrefError(f"cannot read BAL problem {path}: {exc}") from exc
+    except OSError as exc:
+        raise PolarrefError(f"cannot read BAL problem {path}: {exc.strerror or exc}") from exc
     return problem_from_reconstruction(bal_to_reconstruction(bal)), None
 

@@ -66,8 +66,8 @@ class BAOptions:
             raise ValueError(f"unknown BA parameterization {self.param!r}; choose {', '.join(PARAMS)}")
         if self.loss not in LOSSES:
             raise ValueError(f"unknown loss {self.loss!r}; choose {', '.join(LOSSES)}")
-        if not self.loss_scale > 0:
-            raise ValueError(f"loss_scale must be > 0, got {self.loss_scale}")
+        if not 0 < self.loss_scale < float("inf"):
+            raise ValueError(f"loss_scale must be finite and > 0, got {self.loss_scale}")
         if self.solver not in SOLVERS:
             raise ValueError(f"unknown solver {self.solver!r}; choose {', '.join(SOLVERS)}")
         if self.damping is not None and self.damping not in DAMPINGS:

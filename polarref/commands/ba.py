@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from pathlib import Path
 
+from polarref.commands._types import float_range, positive_int
 from polarref.errors import PolarrefError
 
 NAME = "ba"
@@ -19,8 +21,9 @@ def add_arguments(parser) -> None:
                         "or synth-20 / synth-60 / synth-200")
     parser.add_argument("--param", choices=PARAMS, default="euclidean")
     parser.add_argument("--loss", choices=LOSSES, default="trivial")
-    parser.add_argument("--loss-scale", type=float, default=1.0, help="robust loss scale [px]")
-    parser.add_argument("--max-iterations", type=int, default=100)
+    parser.add_argument("--loss-scale", type=float_range(0.0, lo_open=True), default=1.0,
+                        help="robust loss scale [px], finite and > 0")
+    parser.add_argument("--max-iterations", type=positive_int, default=100)
     parser.add_argument("--solver", choices=SOLVERS, default="lm",
                         help="lm: Levenberg-Marquardt; gn: Gauss-Newton (undamped, gauge held)")
     parser.add_argument("--damping", choices=DAMPINGS, default=None,
@@ -37,12 +40,16 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
+    from polarref.atomic import atomic_write, check_writable_parent
     from polarref.ba import BAOptions, solve
     from polarref.ba.loaders import load_problem
 
     out = Path(args.out)
+    if out.is_dir():
+        raise PolarrefError(f"{out} is a folder; --out takes a JSON file path")
     if out.exists() and not args.overwrite:
-        raise PolarrefError(f"{out} exists; pass --overwrite to replace it")
+        raise PolarrefError(f"{out} exists", option="overwrite")
+    check_writable_parent(out)
     try:
         options = BAOptions(param=args.param, loss=args.loss, loss_scale=args.loss_scale,
                             max_iterations=args.max_iterations, staged=args.staged,
@@ -52,11 +59,15 @@ def run(args) -> int:
         raise PolarrefError(str(exc)) from exc
     problem, _ = load_problem(args.problem)
     summary = solve(problem, options)
+    if not (math.isfinite(summary.initial_cost) and math.isfinite(summary.final_cost)):
+        raise PolarrefError(f"{args.problem}: bundle adjustment cost is not finite (initial "
+                            f"{summary.initial_cost:.6g}, final {summary.final_cost:.6g}); check the "
+                            "problem for huge or degenerate values")
     data = dataclasses.asdict(summary)
     data.pop("points_state", None)
     data["problem"] = str(args.problem)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(data, indent=1, default=float))
+    atomic_write(out, json.dumps(data, indent=1, default=float) + "\n")
     print(f"{args.param}: cost {summary.initial_cost:.6g} -> {summary.final_cost:.6g}, "
           f"RMS {summary.final_rms_px:.4f} px, {summary.iterations} iterations "
           f"({summary.accepted_iterations} accepted, {summary.rejected_iterations} rejected; "

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from polarref.atomic import check_writable_parent
+from polarref.commands._types import nonneg_int, positive_int
 from polarref.errors import PolarrefError
 
 NAME = "bench"
@@ -18,10 +20,10 @@ def add_arguments(parser) -> None:
                         help="problem path or synth-20/60/200 (repeatable; default: the full set)")
     parser.add_argument("--quick", action="store_true", help="only the small problems")
     parser.add_argument("--loss", choices=LOSSES, default="trivial")
-    parser.add_argument("--max-iterations", type=int, default=100)
-    parser.add_argument("--scipy-max-obs", type=int, default=400_000,
+    parser.add_argument("--max-iterations", type=positive_int, default=100)
+    parser.add_argument("--scipy-max-obs", type=nonneg_int, default=400_000,
                         help="skip scipy on problems with more observations")
-    parser.add_argument("--repeat", type=int, default=1,
+    parser.add_argument("--repeat", type=positive_int, default=1,
                         help="runs per solver (ours and pycolmap interleaved); best wall time")
     parser.add_argument("--merge", action="store_true",
                         help="add/replace these problems in an existing OUT/bench.json")
@@ -35,10 +37,11 @@ def run(args) -> int:
 
     out = Path(args.out)
     if (out / "bench.json").exists() and not (args.overwrite or args.merge):
-        raise PolarrefError(f"{out / 'bench.json'} exists; pass --overwrite to replace it "
-                            "or --merge to add problems to it")
-    if args.repeat < 1:
-        raise PolarrefError(f"--repeat must be >= 1, got {args.repeat}")
+        raise PolarrefError(f"{out / 'bench.json'} exists (or use --merge to add problems to it)",
+                            option="overwrite")
+    if out.exists() and not out.is_dir():
+        raise PolarrefError(f"{out} is not a folder (choose another output folder)")
+    check_writable_parent(out / "bench.json")
     problems = args.problem or (QUICK if args.quick else FULL)
     results = run_bench(problems, out, BAOptions(loss=args.loss,
                                                  max_iterations=args.max_iterations),

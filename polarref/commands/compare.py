@@ -6,6 +6,7 @@ import argparse
 import logging
 from pathlib import Path
 
+from polarref.commands._types import SEED, float_range, positive_float
 from polarref.errors import PolarrefError
 
 NAME = "compare"
@@ -13,6 +14,11 @@ HELP = ("run our SfM (euclidean/parallax/polar/angular BA) and pycolmap (increme
         "SIFT and ours) on one scene and write report.md/report.html/metrics.json")
 
 log = logging.getLogger(__name__)
+
+
+def _budget(text: str) -> float:
+    # -1 (the default) means "by preset"; any other negative is a typo
+    return -1.0 if text.strip() in ("-1", "-1.0") else float_range(0.0)(text)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -30,11 +36,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="replace the results in a finished report folder (other files are kept)")
     parser.add_argument("--methods", nargs="+", default=None, metavar="METHOD", choices=METHOD_NAMES,
                         help="subset of methods (default: all): " + ", ".join(METHOD_NAMES))
-    parser.add_argument("--seed", type=int, default=0, help="render seed and every method/experiment seed")
-    parser.add_argument("--method-timeout", type=float, default=None, metavar="S",
+    parser.add_argument("--seed", type=SEED, default=0, help="render seed and every method/experiment seed")
+    parser.add_argument("--method-timeout", type=positive_float, default=None, metavar="S",
                         help="wall-clock limit per method in seconds (default by preset: small 120, "
                              "default 90, large 1800); a method over it is reported as timed out")
-    parser.add_argument("--budget", type=float, default=-1.0, metavar="S",
+    parser.add_argument("--budget", type=_budget, default=-1.0, metavar="S",
                         help="whole-run time limit in seconds, rendering included (default by preset: "
                              "default 290, others none; 0 = none); later methods get shorter limits")
     parser.add_argument("--no-claims", action="store_true", help="skip the claim experiments")
@@ -46,6 +52,12 @@ def run(args: argparse.Namespace) -> int:
     from polarref.compare.pipeline import CompareConfig, command_line, run_compare
     from polarref.compare.schema import STATUS_OK
 
+    if args.out is not None:  # before rendering, not after it
+        from polarref.atomic import check_writable_parent
+
+        if args.out.exists() and not args.out.is_dir():
+            raise PolarrefError(f"{args.out} exists and is not a folder (choose another report folder)")
+        check_writable_parent(args.out / "metrics.json")
     if args.method_timeout is not None and not args.method_timeout > 0:
         raise PolarrefError(f"--method-timeout must be > 0, got {args.method_timeout}")
     cfg = CompareConfig(scene=args.scene, preset=args.preset, out=args.out,

@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 import polarref
+from polarref.atomic import atomic_write, check_writable_parent
 from polarref.errors import PolarrefError
 
 NAME = "derive"
@@ -72,14 +73,23 @@ def _write_if_changed(target: Path, text: str, overwrite: bool) -> bool:
         if target.read_text() == text:
             return False
         if not overwrite:
-            raise PolarrefError(f"{target} exists and differs from the regenerated text; "
-                                "rerun with --overwrite to replace it")
+            raise PolarrefError(f"{target} exists and differs from the regenerated text",
+                                option="overwrite")
     target.parent.mkdir(parents=True, exist_ok=True)
-    target.write_text(text)
+    atomic_write(target, text)
     return True
 
 
 def run(args: argparse.Namespace) -> int:
+    # Output paths are checked before the (slow) generation, not after it.
+    if args.out.exists() and not args.out.is_dir():
+        raise PolarrefError(f"{args.out} is not a folder (choose another output folder)")
+    if not args.check:
+        check_writable_parent(args.out / "x.py")
+        if not args.no_report:
+            if args.report.is_dir():
+                raise PolarrefError(f"{args.report} is a folder; the report path names a file")
+            check_writable_parent(args.report)
     with tempfile.TemporaryDirectory(prefix="polarref-derive-") as tmp:
         fresh = Path(tmp)
         seconds = generate_into(fresh)

@@ -5,28 +5,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 
+from polarref.commands._types import MAX_IMAGE_SIDE, SEED, float_range, int_range
+
+MAX_VIEWS = 100_000
+MAX_SPP = 65_536
+
 NAME = "render"
 HELP = "render a synthetic comet or UAV scene with exact ground-truth cameras, depth and mesh"
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {value}")
-    return value
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {text!r}") from None
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be positive, got {value}")
-    return value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -36,15 +21,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="output folder (created; resumable)")
     parser.add_argument("--preset", choices=PRESETS, default="default",
                         help="small: 12 views 320x240 (tests); default: 28 views 640x480; large: 300 views")
-    parser.add_argument("--views", type=_positive_int, help="number of images (overrides the preset)")
-    parser.add_argument("--width", type=_positive_int, help="image width in pixels")
-    parser.add_argument("--height", type=_positive_int, help="image height in pixels")
-    parser.add_argument("--spp", type=_positive_int, help="samples per pixel")
-    parser.add_argument("--fov", type=_positive_float,
-                        help="horizontal field of view in degrees (OSIRIS NAC: 2.2, WAC: 12)")
-    parser.add_argument("--seed", type=int, default=0, help="seed of shape, texture, orbit and renderer")
+    parser.add_argument("--views", type=int_range(2, MAX_VIEWS),
+                        help=f"number of images, 2..{MAX_VIEWS} (overrides the preset)")
+    parser.add_argument("--width", type=int_range(8, MAX_IMAGE_SIDE), help=f"image width in pixels (8..{MAX_IMAGE_SIDE})")
+    parser.add_argument("--height", type=int_range(8, MAX_IMAGE_SIDE), help=f"image height in pixels (8..{MAX_IMAGE_SIDE})")
+    parser.add_argument("--spp", type=int_range(1, MAX_SPP), help=f"samples per pixel (1..{MAX_SPP})")
+    parser.add_argument("--fov", type=float_range(0.0, 169.9, lo_open=True),
+                        help="horizontal field of view in degrees, (0, 170) (OSIRIS NAC: 2.2, WAC: 12)")
+    parser.add_argument("--seed", type=SEED, default=0, help="seed of shape, texture, orbit and renderer (0..2^32-1)")
     parser.add_argument("--mesh", help="comet only: OBJ/PLY shape model in metres instead of the procedural body")
-    parser.add_argument("--oblique", type=float, help="uav only: forward camera tilt from nadir, degrees")
+    parser.add_argument("--oblique", type=float_range(-89.0, 89.0), help="uav only: forward camera tilt from nadir, degrees")
     parser.add_argument("--distortion", metavar="K1[,K2]",
                         help="apply a known RADIAL lens distortion (k1, k2) to every view (synth/distort.py)")
     parser.add_argument("--overwrite", action="store_true",
@@ -61,12 +47,12 @@ def run(args: argparse.Namespace) -> int:
         overrides["fov_deg"] = args.fov
     if args.mesh:
         if args.scene != "comet":
-            raise PolarrefError("--mesh is only supported for the comet scene")
+            raise PolarrefError("a mesh is only supported for the comet scene")
         overrides["mesh"] = args.mesh
     cfg = preset(args.scene, args.preset, seed=args.seed, **overrides)
     if args.oblique is not None:
         if args.scene != "uav":
-            raise PolarrefError("--oblique is only supported for the uav scene")
+            raise PolarrefError("an oblique tilt is only supported for the uav scene")
         cfg = dataclasses.replace(cfg, uav=dataclasses.replace(cfg.uav, oblique_deg=args.oblique))
     if args.distortion:
         from synth.distort import render_distorted_scene

@@ -6,6 +6,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
+from polarref.commands._types import MAX_IMAGE_SIDE, SEED, int_range
 from polarref.errors import PolarrefError
 
 NAME = "sfm"
@@ -30,17 +31,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       help="EXIF cameras: one camera for all images (default: one per make, model, size)")
     cams.add_argument("--camera-per-image", action="store_true", help="EXIF cameras: one camera per image")
     parser.add_argument("--preset", choices=sorted(PRESETS), default="default", help="configuration preset")
-    parser.add_argument("--max-features", type=int, help="SIFT keypoints per image")
-    parser.add_argument("--max-image-size", type=int, help="detect on images downscaled to this size (px)")
+    parser.add_argument("--max-features", type=int_range(8), help="SIFT keypoints per image (>= 8)")
+    parser.add_argument("--max-image-size", type=_image_size,
+                        help=f"detect on images downscaled to this size (32..{MAX_IMAGE_SIDE} px; 0 = full size)")
     parser.add_argument("--pairing", choices=("exhaustive", "sequential"), help="image pairs to match")
     parser.add_argument("--triangulation", choices=("moci", "dlt"), help="triangulation method")
     parser.add_argument("--track-conflicts", choices=("drop", "split"),
                         help="what to do with a track holding two keypoints of one image")
-    parser.add_argument("--seed", type=int, help="RANSAC seed")
+    parser.add_argument("--seed", type=SEED, help="RANSAC seed (0..2^32-1)")
     parser.add_argument("--no-cache", action="store_true", help="recompute features and matches")
     parser.add_argument("--format", dest="model_format", choices=("text", "binary", "both"), default="both",
                         help="COLMAP model format in OUT/model (default: both); points3D.ply is always written")
     parser.add_argument("--overwrite", action="store_true", help="write into a non-empty --out")
+
+
+def _image_size(text: str) -> int:
+    value = int_range(0, MAX_IMAGE_SIDE)(text)
+    if 0 < value < 32:
+        raise argparse.ArgumentTypeError(f"{value} px is too small to detect features; use 0 or >= 32")
+    return value
 
 
 def _config(args: argparse.Namespace):
@@ -49,8 +58,6 @@ def _config(args: argparse.Namespace):
     cfg = with_ba(PRESETS[args.preset], args.ba)
     rep = dataclasses.replace
     if args.max_features is not None:
-        if args.max_features < 8:
-            raise PolarrefError(f"--max-features {args.max_features}: need >= 8")
         cfg = rep(cfg, features=rep(cfg.features, max_num_features=args.max_features))
     if args.max_image_size is not None:
         cfg = rep(cfg, features=rep(cfg.features, max_image_size=args.max_image_size))
@@ -103,6 +110,9 @@ def run(args: argparse.Namespace) -> int:
     res = run_sfm(image_dir, args.out, cfg, camera=camera, gt=gt, mesh=mesh, overwrite=args.overwrite,
                   model_format=args.model_format)
     m = res.metrics
+    if m.get("gt_skipped"):
+        raise PolarrefError(f"{root / 'gt'}: metrics vs ground truth skipped: {m['gt_skipped']}; the model "
+                            f"and metrics.json were written to {args.out}")
     line = (f"registered {m['registered_images']}/{m['num_images']} images, {m['tie_points']} tie points, "
             f"{m['reprojected_px']} observations, mean reprojection error {m['mean_reprojection_error_px']:.3f} px")
     if m.get("gt"):

@@ -17,6 +17,7 @@ import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from polarref.atomic import atomic_write
 from polarref.errors import PolarrefError
 
 SCHEMA_VERSION = 1
@@ -288,11 +289,12 @@ def _build(tp, value, where: str):
             raise PolarrefError(f"metrics.json: {where} should be an object, got {type(value).__name__}")
         return {k: _build(inner, v, f"{where}.{k}") for k, v in value.items()}
     if tp is float:
-        if not isinstance(value, (int, float)):
-            raise PolarrefError(f"metrics.json: {where} should be a number, got {value!r}")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise PolarrefError(f"metrics.json: {where} should be a finite number, got {value!r}")
         return float(value)
     if tp is int:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value):
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+                or value != int(value):
             raise PolarrefError(f"metrics.json: {where} should be an integer, got {value!r}")
         return int(value)
     return value
@@ -317,9 +319,7 @@ def dumps(metrics: MetricsFile) -> str:
 
 def write_text_atomic(path: Path, text: str) -> None:
     """Write UTF-8 ``text`` beside ``path`` and rename it into place (never a truncated file)."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    tmp.replace(path)
+    atomic_write(path, text)
 
 
 def save(metrics: MetricsFile, path: str | Path) -> Path:
@@ -335,7 +335,14 @@ def load(path: str | Path) -> MetricsFile:
     if not path.is_file():
         raise PolarrefError(f"metrics file not found: {path}")
     try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
+        # utf-8-sig skips a byte-order mark; NaN/Infinity are not JSON (we write missing as null)
+        data = json.loads(path.read_text(encoding="utf-8-sig"), parse_constant=_reject_constant)
+    except UnicodeDecodeError as exc:
+        raise PolarrefError(f"{path} is not UTF-8 text ({exc.reason} at byte {exc.start})") from exc
+    except (json.JSONDecodeError, ValueError) as exc:
         raise PolarrefError(f"{path} is not valid JSON: {exc}") from exc
     return from_dict(data)
+
+
+def _reject_constant(name: str):
+    raise ValueError(f"{name} is not a JSON number (a missing value is null)")

@@ -18,6 +18,11 @@ from polarref.errors import PolarrefError
 from polarref.reconstruction import Image, Point3D, Reconstruction
 
 
+# A coordinate beyond this is a corrupt file, not a survey: squares and products of such values
+# overflow float64 and turn costs into inf/NaN downstream.
+MAX_ABS_VALUE = 1e100
+
+
 class FormatError(PolarrefError):
     """A malformed input file; ``path`` and ``line`` (1-based, or None) name the place."""
 
@@ -32,11 +37,14 @@ def read_lines(path) -> list[str]:
     """All lines of a text file; FormatError when it is missing or not text."""
     path = Path(path)
     if not path.is_file():
-        raise FormatError(path, None, "file not found")
+        raise FormatError(path, None, "file not found" if not path.exists() else "not a file")
     try:
-        return path.read_text(encoding="utf-8").splitlines()
+        # utf-8-sig: a byte-order mark written by some Windows editors is skipped, not an error
+        return path.read_text(encoding="utf-8-sig").splitlines()
     except UnicodeDecodeError as exc:
         raise FormatError(path, None, f"not a UTF-8 text file ({exc})") from exc
+    except OSError as exc:
+        raise FormatError(path, None, f"cannot read: {exc.strerror or exc}") from exc
 
 
 def parse_numbers(path, lineno: int, tokens: list[str], kind=float, count: int | None = None,
@@ -46,9 +54,15 @@ def parse_numbers(path, lineno: int, tokens: list[str], kind=float, count: int |
         raise FormatError(path, lineno, f"expected {count} {what}, found {len(tokens)}: "
                           f"{' '.join(tokens)!r}")
     try:
-        return [kind(t) for t in tokens]
+        values = [kind(t) for t in tokens]
     except ValueError as exc:
         raise FormatError(path, lineno, f"bad number in {what}: {exc}") from exc
+    if kind is float and any(not abs(v) <= MAX_ABS_VALUE for v in values):
+        bad = next(v for v in values if not abs(v) <= MAX_ABS_VALUE)
+        raise FormatError(path, lineno, f"non-finite or huge value {bad!r} in {what} (|value| must be "
+                          f"<= {MAX_ABS_VALUE:g} so that its square cannot overflow float64)")
+    return values
+
 
 
 def read_tracks(path, num_views: int, view: str = "camera", distinct: bool = False):

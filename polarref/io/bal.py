@@ -76,8 +76,13 @@ def read_bal(path) -> BALProblem:
                                        "header fields (num_cameras num_points num_observations)")
     if min(n_cam, n_pt, n_obs) < 0:
         raise FormatError(path, header_line + 1, "negative count in header")
-    obs_idx = np.empty((n_obs, 2), dtype=np.int64)
-    obs_xy = np.empty((n_obs, 2))
+    # Size arrays by what the file can hold, not by what the header claims: an observation takes
+    # >= 8 bytes ("0 0 0 0\n"), a parameter >= 2 ("0\n"), so a corrupt header claiming 10^12
+    # points allocates nothing large and fails below with "file ends after k of n".
+    size = path.stat().st_size
+    n_par = 9 * n_cam + 3 * n_pt
+    obs_idx = np.empty((min(n_obs, size // 8 + 1), 2), dtype=np.int64)
+    obs_xy = np.empty((len(obs_idx), 2))
     i = header_line + 1
     k = 0
     while k < n_obs:
@@ -98,8 +103,7 @@ def read_bal(path) -> BALProblem:
         obs_idx[k] = c, p
         obs_xy[k] = x, y
         k += 1
-    n_par = 9 * n_cam + 3 * n_pt
-    values = np.empty(n_par)
+    values = np.empty(min(n_par, size // 2 + 1))
     j = 0
     while j < n_par:
         if i >= len(lines):
@@ -117,6 +121,10 @@ def read_bal(path) -> BALProblem:
     if not np.isfinite(values).all() or not np.isfinite(obs_xy).all():
         raise FormatError(path, None, "non-finite value (nan/inf) in the file")
     cams = values[:9 * n_cam].reshape(n_cam, 9)
+    bad_f = np.flatnonzero(~(cams[:, 6] > 0))
+    if len(bad_f):
+        raise FormatError(path, None, f"camera {bad_f[0]} has focal length {cams[bad_f[0], 6]:g}; "
+                          "BAL focal lengths must be > 0")
     return BALProblem(rotvec=cams[:, :3].copy(), t=cams[:, 3:6].copy(),
                       intrinsics=cams[:, 6:9].copy(),
                       points=values[9 * n_cam:].reshape(n_pt, 3).copy(),

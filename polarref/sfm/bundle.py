@@ -130,7 +130,7 @@ def adjust(state, variable: list[int], fixed: list[int], ba: str, max_iterations
     Returns a JSON-ready summary (with the iteration trace for polarref's adjusters).
     """
     if ba not in BA_NAMES:
-        raise PolarrefError(f"unknown --ba {ba!r}; choose one of {', '.join(BA_NAMES)}")
+        raise PolarrefError(f"unknown bundle adjuster {ba!r}; choose one of {', '.join(BA_NAMES)}")
     rec = to_reconstruction(state, sorted(set(variable) | set(fixed)), track_ids)
     if not rec.points3D:
         return {"param": ba, "skipped": "no points"}

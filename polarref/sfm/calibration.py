@@ -71,7 +71,7 @@ def cameras_from_exif(paths: list[Path], sizes: list[tuple[int, int]], mode: str
     infos = [read_exif(p) for p in paths]
     if mode == "single":
         if len(set(sizes)) > 1:
-            raise PolarrefError(f"--single-camera: images have {len(set(sizes))} different sizes "
+            raise PolarrefError(f"one camera for all images, but the images have {len(set(sizes))} different sizes "
                                 f"({', '.join(f'{w}x{h}' for w, h in sorted(set(sizes))[:3])})")
         keys = [0] * len(paths)
     elif mode == "per-image":

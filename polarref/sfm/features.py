@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from polarref.atomic import atomic_open
+
 log = logging.getLogger(__name__)
 
 OPENCV_SIFT_BIAS = 0.25  # px (detection resolution) added by OpenCV's 2x first-octave upsampling
@@ -76,7 +78,11 @@ def read_image(path: Path) -> np.ndarray | None:
     """BGR uint8 image, or None when OpenCV cannot decode it."""
     import cv2
 
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    try:  # decode from bytes: cv2.imread would print its own warning besides ours
+        data = np.fromfile(path, dtype=np.uint8)
+    except OSError:
+        return None
+    img = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
     if img is None or img.size == 0:
         return None
     if img.dtype != np.uint8:  # 16-bit PNG/TIFF: keep the range, drop precision
@@ -145,9 +151,8 @@ def save(path: Path, feats: list[Features]) -> None:
         arrays[f"sc{i}"] = f.scales
         arrays[f"or{i}"] = f.orientations
         arrays[f"co{i}"] = f.colors
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez(tmp, **arrays)
-    tmp.replace(path)
+    with atomic_open(path) as fh:
+        np.savez(fh, **arrays)
 
 
 def load(path: Path) -> list[Features]:

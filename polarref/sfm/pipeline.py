@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from polarref.atomic import atomic_open, atomic_write, check_dir_target, check_writable_parent, publish_dir
 from polarref.data import cache_root
 from polarref.errors import PolarrefError
 from polarref.geometry import Rigid3
@@ -91,7 +92,7 @@ def parse_camera(spec: str, width: int, height: int):
         values = np.array([float(v) for v in params.replace(" ", "").split(",") if v])
         return Camera(model.strip().upper(), int(width), int(height), values)
     except (ValueError, TypeError) as exc:
-        raise PolarrefError(f"--camera {spec!r}: expected MODEL:p1,p2,... ({exc})") from exc
+        raise PolarrefError(f"camera {spec!r}: expected MODEL:p1,p2,... ({exc})", option="camera") from exc
 
 
 def cameras_for_images(names: list[str], sizes: list[tuple[int, int]], camera=None,
@@ -103,20 +104,55 @@ def cameras_for_images(names: list[str], sizes: list[tuple[int, int]], camera=No
                 raise PolarrefError(f"image {n} is {w}x{h} but the camera is {camera.width}x{camera.height}")
         return [camera], np.zeros(len(names), np.int64)
     if gt is None:
-        raise PolarrefError("intrinsics unknown: give --camera MODEL:params or a gt/ model beside images/")
+        raise PolarrefError("intrinsics unknown: give camera intrinsics (MODEL:params) or a gt/ model "
+                            "beside images/", option="camera")
     by_name = {im.name: im.camera_id for im in gt.images.values()}
     ids = sorted(gt.cameras)
     default = ids[0] if len(ids) == 1 else None
     idx = []
-    for n in names:
+    for n, (w, h) in zip(names, sizes):
         cid = by_name.get(n, default)
         if cid is None:
             raise PolarrefError(f"image {n} is not in the ground truth and GT has several cameras")
+        c = gt.cameras[cid]
+        if (w, h) != (int(c.width), int(c.height)):
+            # Applying intrinsics of another image size silently corrupts every ray.
+            raise PolarrefError(f"image {n} is {w}x{h} but its ground-truth camera {cid} is "
+                                f"{int(c.width)}x{int(c.height)}; give intrinsics for this size",
+                                option="camera")
         idx.append(ids.index(cid))
     return [gt.cameras[i] for i in ids], np.array(idx, np.int64)
 
 
 # ---- cache ------------------------------------------------------------------------------------
+# Every cache entry has a sidecar ``<entry>.sha256`` written after it; an entry whose bytes do not
+# match (disk error, killed writer of an older version, hand edit) is reported once, deleted and
+# recomputed instead of breaking every later run.
+def _checksum(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def seal(path: Path) -> None:
+    """Record the checksum of the cache entry ``path`` (call after writing it)."""
+    atomic_write(path.with_name(path.name + ".sha256"), _checksum(path) + "\n")
+
+
+def cache_valid(path: Path) -> bool:
+    """True when ``path`` and its checksum exist and agree; a corrupt entry is removed (warned once)."""
+    side = path.with_name(path.name + ".sha256")
+    if not (path.is_file() and side.is_file()):
+        return False
+    try:
+        ok = side.read_text().strip() == _checksum(path)
+    except (OSError, UnicodeDecodeError):
+        ok = False
+    if not ok:
+        log.warning("cache entry %s is corrupt (checksum mismatch); recomputing it", path)
+        for p in (path, side):
+            p.unlink(missing_ok=True)
+    return ok
+
+
 def _hash(*parts) -> str:
     h = hashlib.sha256()
     for p in parts:
@@ -142,9 +178,9 @@ def _save_matches(path: Path, m: dict[tuple[int, int], np.ndarray], g: dict[tupl
     for (i, j), v in g.items():
         arrays[f"g_{i}_{j}"] = v.inliers
         arrays[f"p_{i}_{j}"] = np.concatenate([v.cam2_from_cam1.R.ravel(), v.cam2_from_cam1.t, [v.num_matches]])
-    tmp = path.with_name(path.name + ".tmp.npz")
-    np.savez(tmp, **arrays)
-    tmp.replace(path)
+    with atomic_open(path) as fh:
+        np.savez(fh, **arrays)
+    seal(path)
 
 
 def _load_matches(path: Path):
@@ -172,7 +208,7 @@ def load_images_and_features(image_dir: Path, config: SfMConfig, timings: dict) 
     key = _hash("features", _code_digest(F), [p.name for p in paths], digests, config.features)
     cache = _cache_dir(config) / f"features-{key}.npz"
     skipped_file = cache.with_suffix(".skipped.json")
-    if config.use_cache and cache.exists() and skipped_file.exists():
+    if config.use_cache and cache_valid(cache) and cache_valid(skipped_file):
         feats = F.load(cache)
         skipped = json.loads(skipped_file.read_text())
         timings["features_cached"] = True
@@ -180,14 +216,15 @@ def load_images_and_features(image_dir: Path, config: SfMConfig, timings: dict) 
         feats, skipped = [], []
         for p in track(paths, desc="features", total=len(paths)):
             img = F.read_image(p)
-            if img is None:
-                log.warning("skipping unreadable image %s", p)
+            if img is None:  # warned once, below, with the cached case
                 skipped.append({"name": p.name, "reason": "unreadable (OpenCV could not decode it)"})
                 continue
             feats.append(F.extract(img, p.name, config.features))
         if config.use_cache:
             F.save(cache, feats)
-            skipped_file.write_text(json.dumps(skipped))
+            seal(cache)
+            atomic_write(skipped_file, json.dumps(skipped))
+            seal(skipped_file)
         timings["features_cached"] = False
     for s in skipped:
         log.warning("skipped image %s: %s", s["name"], s["reason"])
@@ -205,7 +242,7 @@ def match_and_verify(feats: list[F.Features], cameras: list, camera_of_image: np
     key = _hash("matches", _code_digest(matching, verification), feature_key, config.matching, config.verification, cam_key,
                 camera_of_image.tolist(), None if centers is None else np.round(centers, 9).tolist())
     cache = _cache_dir(config) / f"matches-{key}.npz"
-    if config.use_cache and cache.exists():
+    if config.use_cache and cache_valid(cache):
         putative, geoms = _load_matches(cache)
         timings["matching"] = time.perf_counter() - t0
         timings["verification"] = 0.0
@@ -225,10 +262,7 @@ def match_and_verify(feats: list[F.Features], cameras: list, camera_of_image: np
     return Matches([f.name for f in feats], feats, putative, geoms)
 
 
-def _prepare_out(out_dir: Path, overwrite: bool) -> None:
-    if out_dir.exists() and any(out_dir.iterdir()) and not overwrite:
-        raise PolarrefError(f"output folder {out_dir} exists and is not empty; use --overwrite")
-    out_dir.mkdir(parents=True, exist_ok=True)
+SFM_OUTPUTS = ("model", "metrics.json")  # what a run writes into its folder (the rest is the user's)
 
 
 def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig = SfMConfig(),
@@ -243,25 +277,39 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         camera: known intrinsics (:class:`polarref.camera.Camera`) shared by all images; else from gt.
         gt: ground-truth model (cameras, and poses for the aligned errors).
         mesh: (vertices, faces) of the true surface in GT coordinates, for point-to-surface errors.
-        overwrite: allow writing into a non-empty ``out_dir`` (only our own files are replaced).
+        overwrite: replace a non-empty ``out_dir``. The new folder is built in a hidden
+            sibling and swapped in whole when complete, so ``out_dir`` always holds one run's
+            outputs: the old ones until the new ones are written, never a mix.
         model_format: COLMAP ``text``, ``binary`` or ``both``; ``model/points3D.ply`` is always written.
     Raises:
         PolarrefError: no images, unknown intrinsics, no initial pair, < 2 registered images.
-            metrics.json is still written with what was done.
+            metrics.json is still written with what was done. A failure after the
+            reconstruction (GT metrics) does not raise: the model is kept and the failure is
+            named in ``metrics["gt_skipped"]``.
     """
     from polarref import metrics as M
 
-    out = Path(out_dir) if out_dir is not None else None
-    if out is not None:
-        _prepare_out(out, overwrite)
+    target = Path(out_dir) if out_dir is not None else None
+    if target is not None:  # fail before any work, not after it
+        check_dir_target(target, overwrite)
+        check_writable_parent(target)
     t_start = time.perf_counter()
     timings: dict = {}
     result: dict = {"image_dir": str(image_dir), "config": dataclasses.asdict(config), "status": "running"}
 
-    def _write() -> None:
-        timings["total"] = time.perf_counter() - t_start
-        result["runtime_s"] = timings
-        if out is not None:
+    def _publish(rec: Reconstruction | None) -> None:
+        if target is None:
+            return
+        with publish_dir(target, overwrite=overwrite, owned=SFM_OUTPUTS) as out:
+            if rec is not None:
+                t0 = time.perf_counter()
+                _update_point_errors(rec)
+                from polarref.sfm.model_files import write_model
+
+                write_model(rec, out / "model", model_format)
+                timings["export"] = time.perf_counter() - t0
+            timings["total"] = time.perf_counter() - t_start
+            result["runtime_s"] = timings
             M.write_json(out / "metrics.json", result)
 
     try:
@@ -310,25 +358,39 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         result["cameras"] = [r.to_dict() for r in camera_reports(
             initial_cameras, state.cameras, sources, cam_idx, [f.name for f in feats], gt)]
         rec = to_reconstruction(state, colors=[f.colors for f in feats])
-        t0 = time.perf_counter()
-        met = M.evaluate(rec, gt=gt, mesh=mesh, num_images=result["num_images"])
-        timings["metrics"] = time.perf_counter() - t0
-        result.update(met.to_dict())
-        result["status"] = "ok"
-        if out is not None:
-            t0 = time.perf_counter()
-            _update_point_errors(rec)
-            from polarref.sfm.model_files import write_model
-
-            write_model(rec, out / "model", model_format)
-            timings["export"] = time.perf_counter() - t0
-        _write()
-        return SfMResult(rec, result, out)
     except PolarrefError as exc:
         result["status"] = "failed"
         result["error"] = str(exc)
-        _write()
+        timings["total"] = time.perf_counter() - t_start
+        result["runtime_s"] = timings
+        _publish(None)
         raise
+    t0 = time.perf_counter()
+    result.update(_score(rec, gt, mesh, result["num_images"]))
+    timings["metrics"] = time.perf_counter() - t0
+    result["status"] = "ok"
+    timings["total"] = time.perf_counter() - t_start
+    result["runtime_s"] = timings
+    _publish(rec)
+    return SfMResult(rec, result, target)
+
+
+def _score(rec: Reconstruction, gt: Reconstruction | None, mesh, num_images: int) -> dict:
+    """Metrics of a finished reconstruction. A GT comparison that cannot be made is skipped
+    with its reason (``gt_skipped``) rather than losing the reconstruction."""
+    from polarref import metrics as M
+
+    if gt is not None:
+        common = {im.name for im in rec.images.values()} & {im.name for im in gt.images.values()}
+        if len(common) < 3:
+            reason = (f"only {len(common)} registered image name(s) also in gt/ (need 3 to align); "
+                      "image names must match the gt/ model")
+            return {**M.evaluate(rec, num_images=num_images).to_dict(), "gt_skipped": reason}
+    try:
+        return M.evaluate(rec, gt=gt, mesh=mesh, num_images=num_images).to_dict()
+    except (ValueError, np.linalg.LinAlgError, PolarrefError) as exc:
+        reason = f"{type(exc).__name__}: {exc}"
+        return {**M.evaluate(rec, num_images=num_images).to_dict(), "gt_skipped": reason}
 
 
 def _update_point_errors(rec: Reconstruction) -> None:
