@@ -1,4 +1,5 @@
 import os
+import shutil
 
 import pytest
 
@@ -42,6 +43,17 @@ def _cached_scene(scene: str, preset_name: str, seed: int = 0):
 def comet_small_scene():
     """Folder of the small comet scene (12 views, 320x240), see synth/scene.py for the layout."""
     return _cached_scene("comet", "small")
+
+
+@pytest.fixture
+def small_copy(comet_small_scene, tmp_path):
+    """The first 6 views of the small comet scene (images + gt) in a writable folder."""
+    dst = tmp_path / "scene"
+    (dst / "images").mkdir(parents=True)
+    for p in sorted((comet_small_scene / "images").iterdir())[:6]:
+        shutil.copy(p, dst / "images" / p.name)
+    shutil.copytree(comet_small_scene / "gt", dst / "gt")
+    return dst
 
 
 @pytest.fixture(scope="session")

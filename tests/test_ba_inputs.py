@@ -113,12 +113,3 @@ def test_cli_writes_json(shared_data, tmp_path):
 
 def test_cli_missing_problem(tmp_path):
     assert main(["ba", str(tmp_path / "missing.txt"), "--out", str(tmp_path / "o.json")]) == 1
-
-
-def test_bench_quick(tmp_path):
-    from polarref.ba.bench import run_bench
-    res = run_bench(["synth-20"], tmp_path, BAOptions(max_iterations=30), scipy_max_obs=0)
-    rows = {r["solver"]: r for r in res[0]["rows"]}
-    assert {"euclidean", "parallax", "polar", "angular", "pycolmap"} <= set(rows)
-    assert rows["euclidean"]["final_cost"] <= 1.001 * rows["pycolmap"]["final_cost"]
-    assert (tmp_path / "bench.md").exists()

@@ -54,12 +54,20 @@ def test_equal_accuracy_verdict(kw, verdict):
 
 
 @pytest.mark.parametrize("kw, verdict", [
-    (dict(polar_tp=1001, polar_rp=5001), "supported"),
-    (dict(polar_tp=1001, polar_rp=5000), "not supported"),
+    (dict(polar_tp=1010, polar_rp=5010), "supported"),
+    (dict(polar_tp=1001, polar_rp=5001), "not supported"),   # +1 each: inside the max(1, 0.1 %) margin
     (dict(polar_tp=990, polar_rp=6000), "not supported"),
+    (dict(polar_tp=None), "not tested"),                      # a missing count is never 0
 ])
 def test_more_tie_points_verdict(kw, verdict):
     assert _verdict(claims.scene_claims(_metrics(10, 10, **kw)), "C5").verdict == verdict
+
+
+def test_missing_reprojection_error_is_not_tested():
+    m = _metrics(10, 10)
+    for meth in m.methods:
+        meth.mean_reprojection_error_px = None
+    assert _verdict(claims.scene_claims(m), "C3").verdict == "not tested"
 
 
 def test_scene_claims_not_tested_when_candidate_failed():
@@ -96,16 +104,17 @@ def _cond(eu, pa, corr_eu, corr_pa):
 
 
 def _runs(successes, rot=0.03, flip=0.0):
-    return {"runs": [{"success": bool(s), "rotation_error_deg": rot, "flipped_fraction": flip} for s in successes],
-            "errors": []}
+    return {"runs": [{"seed": k, "success": bool(s), "rotation_error_deg": rot, "flipped_fraction": flip}
+                     for k, s in enumerate(successes)], "errors": []}
 
 
-def _rob(out_eu, out_pa, levels):
+def _rob(out_eu, out_pa, levels, start=None, rot_pa=0.03):
     """levels: list of (euclidean successes, parallax successes) per parallax level."""
+    st = start or [0] * len(out_eu)
+    unit = lambda e, p: {"start": _runs(st, rot=2.0), "euclidean": _runs(e), "parallax": _runs(p, rot=rot_pa)}  # noqa: E731
     return {"seeds_run": len(out_eu), "success_rule": "r", "outlier_problem": "o", "parallax_problem": "l",
-            "outliers": {"0.1": {"euclidean": _runs(out_eu), "parallax": _runs(out_pa)}},
-            "low_parallax": {f"{0.3 / 10 ** i:g}": {"euclidean": _runs(e), "parallax": _runs(p)}
-                             for i, (e, p) in enumerate(levels)}}
+            "outliers": {"0.1": unit(out_eu, out_pa)},
+            "low_parallax": {f"{0.3 / 10 ** i:g}": unit(e, p) for i, (e, p) in enumerate(levels)}}
 
 
 ALL, NONE, SOME = [1] * 5, [0] * 5, [1, 1, 0, 1, 0]
@@ -122,6 +131,20 @@ def test_conditioning_verdict_two_sided(eu, pa, verdict):
     ratio = next(f for f in c6.figures if f.key == "ratio6").value
     assert ratio == pytest.approx(np.mean(np.array(pa) / np.array(eu)))
     assert f"{len(eu)} seeds" in c6.sample_size
+    raw = {f.key: f.value for f in c6.figures if "raw" in f.key}
+    assert raw["ratio6_raw"] == pytest.approx(ratio) and "jtj_raw_euclidean" in raw
+
+
+def test_conditioning_unit_rescaling_moves_raw_not_scaled():
+    """The real experiment: km instead of m changes the raw condition number, not the scaled one."""
+    from polarref.compare import experiments
+
+    cond = experiments.conditioning(0, seeds=2, size=(5, 30))
+    c6, _ = claims_experiments.conditioning_claims(cond, "")
+    f = {x.key: x.value for x in c6.figures}
+    assert f["ratio6_rescaled"] == pytest.approx(f["ratio6"], rel=1e-4)
+    assert abs(np.log(f["ratio6_raw_rescaled"] / f["ratio6_raw"])) > np.log(5)   # raw moves by > 5x
+    assert "rests on the Jacobi-scaled" in c6.rationale
 
 
 @pytest.mark.parametrize("corr_pa, verdict", [
@@ -135,17 +158,35 @@ def test_correlation_verdict_two_sided(corr_pa, verdict):
 
 @pytest.mark.parametrize("rob, verdict", [
     (_rob(SOME, ALL, [(ALL, ALL), (SOME, ALL)]), "supported"),          # better in both halves
-    (_rob(ALL, ALL, [(ALL, ALL), (ALL, ALL)]), "not supported"),        # never better
-    (_rob(ALL, ALL, [(ALL, ALL), (ALL, NONE)]), "not supported"),       # worse at low parallax
-    (_rob(SOME, ALL, [(ALL, ALL), (ALL, ALL)]), "inconclusive"),        # outliers yes, parallax no
-    (_rob(ALL, ALL, [(SOME, ALL), (ALL, SOME)]), "not supported"),      # better at one level, worse at another
+    (_rob(ALL, ALL, [(ALL, ALL), (ALL, ALL)]), "inconclusive"),         # baseline always succeeds: saturated
+    (_rob(NONE, NONE, [(NONE, NONE)]), "inconclusive"),                 # baseline never succeeds
+    (_rob(SOME, SOME, [(SOME, SOME), (SOME, SOME)]), "not supported"),  # baseline struggles, no form better
+    (_rob(SOME, SOME, [(ALL, ALL), (ALL, NONE)]), "not supported"),     # worse at low parallax
+    (_rob(SOME, ALL, [(ALL, ALL), (ALL, ALL)]), "inconclusive"),        # outliers yes, parallax saturated
+    (_rob(ALL, ALL, [(ALL, ALL)], rot_pa=0.01), "supported"),           # same rates, 3x lower error every seed
+    (_rob(SOME, ALL, [(SOME, ALL)], start=ALL), "inconclusive"),        # the start point already succeeds
 ])
 def test_robustness_verdict(rob, verdict):
     c8 = claims_experiments.robustness_claim(rob, "")
     assert c8.verdict == verdict
-    rate = next(f for f in c8.figures if f.key == "out0_parallax").value
-    assert rate == pytest.approx(np.mean([r["success"] for r in rob["outliers"]["0.1"]["parallax"]["runs"]]))
-    assert c8.sample_size.startswith("5 seeds x (1 outlier levels + 2 parallax levels) x 2 forms")
+    f = {x.key: x.value for x in c8.figures}
+    assert f["out0_parallax"] == pytest.approx(np.mean([r["success"] for r in rob["outliers"]["0.1"]["parallax"]["runs"]]))
+    starts = [v for k, v in f.items() if k.endswith("_start_success")]
+    assert len(starts) == 1 + len(rob["low_parallax"])
+    assert c8.sample_size.startswith("5 seeds x (1 outlier levels + ")
+
+
+def test_tost_outcomes():
+    d = np.array([0.10, 0.11, 0.09, 0.10, 0.10])
+    assert claims_experiments.tost(d, 0.5)[3] == "equal"
+    assert claims_experiments.tost(d, 0.05)[3] == "higher"
+    assert claims_experiments.tost(-d, 0.05)[3] == "lower"
+    assert claims_experiments.tost(np.array([-1.0, 1.0, -0.5, 0.6]), 0.5)[3] == "unclear"   # too wide
+    m, lo, hi, _ = claims_experiments.tost(d, 1.0)
+    from scipy import stats
+    ref = stats.t.interval(0.90, len(d) - 1, loc=d.mean(), scale=stats.sem(d))   # independent implementation
+    assert (lo, hi) == pytest.approx(ref) and m == pytest.approx(d.mean())
+    assert claims_experiments.tost(np.array([0.1]), 1.0)[3] == "unclear"
 
 
 def test_broken_experiments_are_not_tested_with_reason():

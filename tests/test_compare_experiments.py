@@ -136,3 +136,27 @@ def test_dense_jacobian_matches_loop_reference_and_gauge(param):
     w_free = np.linalg.eigvalsh(J.T @ J)
     assert w_all[6] / w_all[-1] < 1e-9 < w_all[7] / w_all[-1]       # 7 gauge null directions ...
     assert w_free[0] / w_free[-1] > 1e-9                            # ... all removed by the mask
+
+
+def test_start_point_fails_the_success_rule_at_every_level():
+    """C8 can only come out either way if the start point itself fails (issue 12): at the scorecard's
+    levels, with the scorecard's initial perturbation, the untouched start fails on every seed."""
+    rob = experiments.robustness(0, time.perf_counter() + 100, seeds=2, outlier_size=(5, 40), parallax_size=(5, 40))
+    units = list(rob["outliers"].values()) + list(rob["low_parallax"].values())
+    assert len(units) == len(experiments.OUTLIER_FRACTIONS) + len(experiments.PARALLAX_RATIOS)
+    for unit in units:
+        start = unit["start"]["runs"]
+        assert len(start) == 2 and not any(r["success"] for r in start)
+        assert all(r["rotation_error_deg"] > experiments.SUCCESS_ROT_DEG for r in start)
+    for unit in rob["low_parallax"].values():   # and BA gets somewhere from it (outliers on 5x40 may defeat it)
+        eu, start = unit["euclidean"]["runs"], unit["start"]["runs"]
+        assert np.median([r["rotation_error_deg"] for r in eu]) < 0.5 * np.median([r["rotation_error_deg"] for r in start])
+    for unit in rob["outliers"].values():      # C5's counts: within [0, all observations]
+        for r in unit["polar"]["runs"]:
+            assert 0 < r["tie_points"] <= 40 and 0 < r["inlier_observations"] <= 5 * 40
+        # the start point (C5's baseline) keeps far fewer observations within 4 px than BA does
+        start = np.mean([r["inlier_observations"] for r in unit["start"]["runs"]])
+        assert start < 0.5 * np.mean([r["inlier_observations"] for r in unit["euclidean"]["runs"]])
+    c8 = claims.experiment_claims({"robustness": rob}, "")[-1]
+    starts = [f.value for f in c8.figures if f.key.endswith("_start_success")]
+    assert starts and max(starts) <= 0.2

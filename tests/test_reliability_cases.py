@@ -8,7 +8,6 @@ import errno
 import json
 import logging
 import os
-import shutil
 import signal
 import subprocess
 import sys
@@ -21,18 +20,6 @@ import pytest
 from polarref.cli import main
 
 TINY = ["--preset", "small", "--spp", "2"]
-
-
-@pytest.fixture
-def small_copy(request, tmp_path):
-    """The first 6 views of the small comet scene (images + gt) in a writable folder."""
-    src = request.getfixturevalue("comet_small_scene")
-    dst = tmp_path / "scene"
-    (dst / "images").mkdir(parents=True)
-    for p in sorted((src / "images").iterdir())[:6]:
-        shutil.copy(p, dst / "images" / p.name)
-    shutil.copytree(src / "gt", dst / "gt")
-    return dst
 
 
 def _err_lines(capsys) -> list[str]:

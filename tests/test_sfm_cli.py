@@ -1,28 +1,12 @@
 """``polarref sfm`` on the command line: outputs, refusal to overwrite, bad input."""
 
 import json
-import shutil
 
 import cv2
 import numpy as np
 import pytest
 
 from polarref.cli import main
-
-
-@pytest.fixture
-def small_copy(request, tmp_path):
-    """The first 6 views of the small comet scene (images + gt) in a writable folder."""
-    try:
-        src = request.getfixturevalue("comet_small_scene")
-    except (ImportError, ModuleNotFoundError) as exc:
-        pytest.skip(f"comet_small_scene unavailable: {exc}")
-    dst = tmp_path / "scene"
-    (dst / "images").mkdir(parents=True)
-    for p in sorted((src / "images").iterdir())[:6]:
-        shutil.copy(p, dst / "images" / p.name)
-    shutil.copytree(src / "gt", dst / "gt")
-    return dst
 
 
 def _cam_arg(scene):

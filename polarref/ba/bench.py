@@ -1,13 +1,20 @@
-"""Benchmark: every parameterization of ours, pycolmap (Ceres) and scipy on the same problems.
+"""Benchmark: every parameterization of ours, pycolmap (Ceres) in four settings and scipy.
 
-Costs are all recomputed with one definition (:func:`polarref.ba.solver.pixel_cost`).
-Wall times are the best of ``repeat`` runs in one process, ours and pycolmap's interleaved,
-without memory tracing (tracemalloc slows numpy allocations). Peak memory is measured in a
-separate run: ``tracemalloc`` peak of Python/numpy allocations for our and scipy's solves;
-for pycolmap (C++ allocations are invisible to tracemalloc) the process ``ru_maxrss`` after
-its run, an upper bound that includes everything loaded before.
-Per-iteration time excludes setup (landmarks, index structures, first evaluation) and the
-final summary: ``(trace[-1].wall_s - setup_s) / iterations``.
+Fairness rules (issue 12):
+
+* Every solver's settings are stored beside its times (tolerances, threads, linear solver,
+  iteration limit). Ceres runs under COLMAP's tolerances and under ours, on 1 and 2 threads.
+* Speed is the **time to reach the common final cost**: the common cost is the highest final
+  pixel cost among the pixel-objective solvers (ours euclidean/parallax, every Ceres setting)
+  that end within ``CONVERGED_REL`` of the best one, i.e. a cost every converged solver reaches;
+  the target is that cost + ``TARGET_REL``. For every solver the same method measures it: the
+  smallest iteration limit k* whose complete solve ends at or below the target is found (ours:
+  from the trace of the full run; Ceres and ours' non-pixel forms: bisection over
+  ``max_num_iterations``, since pycolmap exposes no per-iteration trace), then a complete solve
+  with that limit is timed in every repeat. LM runs with a smaller limit are a prefix of the full
+  run, so the cost is monotone in k.
+* Costs are recomputed with one definition (:func:`polarref.ba.solver.pixel_cost`) on every
+  output. Every repeat is stored; tables show medians and ranges.
 """
 
 from __future__ import annotations
@@ -16,22 +23,27 @@ import dataclasses
 import json
 import logging
 import os
-import resource
 import time
-import tracemalloc
 from pathlib import Path
 
+import numpy as np
+
 from polarref.atomic import atomic_write
-from polarref.errors import PolarrefError
 from polarref.ba.options import PARAMS, BAOptions
 from polarref.ba.problem import prepare
 from polarref.ba.solver import solve
+from polarref.errors import PolarrefError
 
 log = logging.getLogger(__name__)
 
 QUICK = ("synth-20", "bal/dubrovnik-3-7-pre.txt")
-FULL = ("bal/problem-49-7776-pre.txt", "parallaxba_fakepile", "synth-20", "synth-60", "synth-200")
+FULL = ("bal/problem-49-7776-pre.txt", "parallaxba_fakepile", "synth-20", "synth-60", "synth-200",
+        "synth-60-sparse", "synth-200-sparse")
 SCIPY_MAX_OBS = 400_000  # scipy is skipped on larger problems (noted in the table)
+TARGET_REL = 1e-3        # "within 0.1 %" of the common final cost
+CONVERGED_REL = 0.01     # solvers ending > 1 % above the best are not used to set the common cost
+CERES = (("colmap", 1), ("colmap", 2), ("ours", 1), ("ours", 2))
+PIXEL_FORMS = ("euclidean", "parallax")   # forms whose objective is the pixel cost
 
 
 def _resolve(spec: str) -> str:
@@ -49,159 +61,194 @@ def _resolve(spec: str) -> str:
                             f"the reference data: {exc})") from exc
 
 
-def _ours(base, options: BAOptions, param: str, memory: bool) -> dict:
-    opts = dataclasses.replace(options, param=param)
-    s = solve(base.copy(), opts, prepared=True)
-    peak = float("nan")
-    if memory:
-        tracemalloc.start()
-        try:
-            solve(base.copy(), opts, prepared=True)
-            peak = tracemalloc.get_traced_memory()[1]
-        finally:
-            tracemalloc.stop()
-    trace = [(r.wall_s, r.cost) for r in s.trace if r.accepted]
-    loop_s = (s.trace[-1].wall_s if s.trace else s.wall_s) - s.setup_s
-    return {"solver": param, "initial_cost": s.initial_pixel_cost,
-            "final_cost": s.final_pixel_cost, "objective_final": s.final_cost,
-            "final_rms_px": s.final_rms_px, "iterations": s.iterations,
-            "wall_s": s.wall_s, "setup_s": s.setup_s, "termination": s.termination,
-            "peak_mem_mb": peak / 2**20, "mem_kind": "tracemalloc",
-            "per_iteration_s": loop_s / max(s.iterations, 1),
-            "pixel_objective": param in ("euclidean", "parallax"), "trace": trace,
-            "time_in": s.time_in, "linear_solver": s.linear_solver,
-            "behind_camera": s.behind_camera, "exclusions": s.exclusions}
+class _Solver:
+    """One solver configuration: run(limit) -> dict with final_cost, wall_s, iterations."""
+
+    def __init__(self, name: str, kind: str, settings: dict, fn):
+        self.name, self.kind, self.settings, self.fn = name, kind, settings, fn
 
 
-def run_problem(spec: str, options: BAOptions, scipy_max_obs: int = SCIPY_MAX_OBS,
-                repeat: int = 1) -> dict:
+def _ours_solver(base, options: BAOptions, param: str) -> _Solver:
+    def fn(limit: int | None):
+        opts = dataclasses.replace(options, param=param, **({} if limit is None else {"max_iterations": limit}))
+        s = solve(base.copy(), opts, prepared=True)
+        return {"final_cost": s.final_pixel_cost, "objective_final": s.final_cost, "wall_s": s.wall_s,
+                "iterations": s.iterations, "accepted": s.accepted_iterations,
+                "rejected": s.iterations - s.accepted_iterations, "termination": s.termination,
+                "final_rms_px": s.final_rms_px, "initial_cost": s.initial_pixel_cost,
+                "linear_solver": s.linear_solver, "setup_s": s.setup_s,
+                "trace": [[r.iteration, r.accepted, r.wall_s, r.cost] for r in s.trace]}
+
+    settings = {k: v for k, v in dataclasses.asdict(dataclasses.replace(options, param=param)).items()}
+    settings.update(threads=options.blas_threads, threads_kind="BLAS (threadpoolctl); the solver itself is one "
+                    "Python thread")
+    return _Solver(param, "ours", settings, fn)
+
+
+def _ceres_solver(base, options: BAOptions, which: str, threads: int) -> _Solver:
+    from polarref.ba.peers import ceres_settings, run_pycolmap
+
+    cs = ceres_settings(options, which, threads)
+
+    def fn(limit: int | None):
+        r = run_pycolmap(base.copy(), options, cs if limit is None else cs.with_iterations(limit))
+        fn.settings_used = r.settings
+        return {"final_cost": r.final_cost, "wall_s": r.wall_s, "iterations": r.iterations,
+                "accepted": r.accepted_iterations, "rejected": r.rejected_iterations,
+                "termination": r.termination, "final_rms_px": r.final_rms_px, "initial_cost": r.initial_cost,
+                "reported_cost": r.reported_cost, "behind_camera": r.behind_camera,
+                "linear_solver": r.settings.get("linear_solver_used", "")}
+
+    return _Solver(cs.name, "ceres", dataclasses.asdict(cs), fn)
+
+
+def _limit_from_trace(run: dict, target: float) -> int | None:
+    for it, accepted, _, cost in run["trace"]:
+        if accepted and cost <= target:
+            return int(it)          # iterations are numbered from 1 (accepted + rejected)
+    return None
+
+
+def _bisect_limit(sol: _Solver, full: dict, target: float) -> int | None:
+    """Smallest iteration limit whose solve ends at or below ``target`` (None: the full run misses it)."""
+    if full["final_cost"] > target:
+        return None
+    lo, hi = 0, max(int(full["iterations"]), 1)       # cost(lo) > target >= cost(hi)
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if sol.fn(mid)["final_cost"] <= target:
+            hi = mid
+        else:
+            lo = mid
+    return hi
+
+
+def _stats(vals: list) -> dict:
+    v = [x for x in vals if x is not None]
+    if not v:
+        return {"median": None, "min": None, "max": None, "n": 0}
+    return {"median": float(np.median(v)), "min": float(min(v)), "max": float(max(v)), "n": len(v)}
+
+
+def run_problem(spec: str, options: BAOptions, scipy_max_obs: int = SCIPY_MAX_OBS, repeat: int = 1) -> dict:
     from threadpoolctl import threadpool_limits
 
     from polarref.ba.loaders import load_problem
-    from polarref.ba.peers import run_pycolmap, run_scipy
+    from polarref.ba.peers import run_scipy
 
     load = os.getloadavg()[0]  # the machine is shared: say how busy it was
     base, _ = load_problem(_resolve(spec))
     prepare(base)
-    rows = {}
-    py = None
-    for rep in range(repeat):  # interleaved, so load changes hit both
-        r = run_pycolmap(base.copy(), options)
-        py = r if py is None or r.wall_s < py.wall_s else py
-        for param in PARAMS:
-            try:
-                row = _ours(base, options, param, memory=rep == 0)
-            except Exception as exc:  # a failing form is reported, not fatal to the bench
-                rows[param] = {"solver": param, "error": f"{type(exc).__name__}: {exc}"}
-                continue
-            if param not in rows:
-                rows[param] = row
-            elif row["wall_s"] < rows[param].get("wall_s", float("inf")):
-                row["peak_mem_mb"] = rows[param]["peak_mem_mb"]
-                rows[param] = row
-    rows = [rows[p] for p in PARAMS]
-    rows.append({"solver": "pycolmap", "initial_cost": py.initial_cost, "final_cost": py.final_cost,
-                 "final_rms_px": py.final_rms_px, "iterations": py.iterations, "wall_s": py.wall_s,
-                 "termination": py.termination, "reported_cost": py.reported_cost,
-                 "behind_camera": {"final": py.behind_camera},
-                 "peak_mem_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-                 "mem_kind": "maxrss"})
-    if base.num_observations <= scipy_max_obs:
-        # once, same BLAS setting as ours; memory not traced (it is the slowest solver)
-        with threadpool_limits(limits=options.blas_threads, user_api="blas"):
-            r = run_scipy(base.copy(), options)
-        rows.append({"solver": "scipy", "initial_cost": r.initial_cost, "final_cost": r.final_cost,
-                     "final_rms_px": r.final_rms_px, "iterations": r.iterations,
-                     "wall_s": r.wall_s, "termination": r.termination,
-                     "behind_camera": {"final": r.behind_camera},
-                     "peak_mem_mb": float("nan"), "mem_kind": "not measured"})
-    else:
-        rows.append({"solver": "scipy", "error": f"skipped: {base.num_observations} observations "
-                     f"> --scipy-max-obs {scipy_max_obs}"})
-    best = min(x["final_cost"] for x in rows if "final_cost" in x)
-    py = next(x for x in rows if x["solver"] == "pycolmap")
-    for x in rows:
-        if "final_cost" not in x:
+    solvers = [_ours_solver(base, options, p) for p in PARAMS]
+    solvers += [_ceres_solver(base, options, w, t) for w, t in CERES]
+    rows: dict[str, dict] = {}
+    for s in solvers:   # full runs first: they fix the common cost
+        try:
+            full = s.fn(None)
+        except Exception as exc:  # a failing solver is reported, not fatal to the bench
+            rows[s.name] = {"solver": s.name, "kind": s.kind, "settings": s.settings,
+                            "error": f"{type(exc).__name__}: {exc}"}
             continue
-        x["within_0.1pct_of_best"] = bool(x["final_cost"] <= best * 1.001)
-        x["time_to_0.1pct_s"] = None
-        if x.get("pixel_objective"):
-            hit = [t for t, c in x["trace"] if c <= best * 1.001]
-            x["time_to_0.1pct_s"] = hit[0] if hit else None
-        elif x["within_0.1pct_of_best"] and x["solver"] in ("pycolmap", "scipy"):
-            x["time_to_0.1pct_s"] = x["wall_s"]  # no per-iteration trace: upper bound
-        x["ratio_to_pycolmap"] = x["wall_s"] / py["wall_s"]
-    eu = next((x for x in rows if x["solver"] == "euclidean" and "per_iteration_s" in x), None)
-    for x in rows:
-        if eu and "per_iteration_s" in x:
-            x["per_iteration_vs_euclidean"] = x["per_iteration_s"] / eu["per_iteration_s"]
-    return {"problem": spec, "num_cameras": base.num_cameras, "num_points": base.num_points,
-            "num_observations": base.num_observations, "best_final_cost": best, "rows": rows,
-            "repeat": repeat, "load_1min": load, "cpus": os.cpu_count(),
-            "blas_threads": options.blas_threads}
-
-
-def _behind(x: dict) -> str:
-    n = x.get("behind_camera", {}).get("final", 0)
-    return f"; {n} obs behind camera" if n and n > 0 else ""
-
-
-def _mem(x: dict) -> str:
-    m = x.get("peak_mem_mb", float("nan"))
-    return "-" if m != m else f"{m:.0f} ({x['mem_kind']})"
-
-
-def markdown(results: list[dict]) -> str:
-    out = ["Costs: 1/2 sum of squared pixel residuals recomputed on every solver's output (one "
-           "definition; polar and angular minimize a different objective, see `objective`); "
-           "wall s: best of the runs noted per problem, in one process; t to 0.1%: first "
-           "accepted iteration within 0.1% of the best final cost (pixel-objective forms only; "
-           "pycolmap/scipy have no trace: their wall time when they reach it); s/iter vs eu: "
-           "steady per-iteration time (setup excluded) relative to euclidean; peak MB: "
-           "tracemalloc peak of the solve (pycolmap: process maxrss, an upper bound); "
-           "termination notes observations left behind their camera (projected anyway in "
-           "the recomputed cost; COLMAP's own cost counts them as zero). Findings: notes.md.",
-           "",
-           "| problem | solver | initial cost | final cost | objective | RMS px | iters | wall s | "
-           "t to 0.1% s | x pycolmap | s/iter | s/iter vs eu | peak MB | termination |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for res in results:
-        name = (f"{res['problem']} ({res['num_cameras']} cams, {res['num_points']} pts, "
-                f"{res['num_observations']} obs; best of {res.get('repeat', 1)}, load "
-                f"{res.get('load_1min', float('nan')):.1f} on {res.get('cpus', '?')} CPUs)")
-        for x in res["rows"]:
-            if "error" in x:
-                out.append(f"| {name} | {x['solver']} | {x['error']} ||||||||||||")
-                name = ""
+        if s.kind == "ceres":
+            s.settings = getattr(s.fn, "settings_used", s.settings)
+        rows[s.name] = {"solver": s.name, "kind": s.kind, "settings": s.settings, "full_runs": [full],
+                        "pixel_objective": s.kind == "ceres" or s.name in PIXEL_FORMS}
+    finals = {n: r["full_runs"][0]["final_cost"] for n, r in rows.items() if "full_runs" in r and r["pixel_objective"]}
+    best = min(finals.values())
+    common = max(c for c in finals.values() if c <= best * (1 + CONVERGED_REL))
+    target = common * (1 + TARGET_REL)
+    limits = {}
+    for s in solvers:
+        r = rows[s.name]
+        if "full_runs" not in r:
+            continue
+        full = r["full_runs"][0]
+        limits[s.name] = (_limit_from_trace(full, target) if "trace" in full and r["pixel_objective"]
+                          else _bisect_limit(s, full, target))
+        r["iterations_limit_to_target"] = limits[s.name]
+        r["set_common_cost"] = s.name in finals and finals[s.name] <= best * (1 + CONVERGED_REL)
+    for rep in range(repeat):   # interleaved, so load changes hit every solver alike
+        for s in solvers:
+            r = rows[s.name]
+            if "full_runs" not in r:
                 continue
-            t01 = "-" if x["time_to_0.1pct_s"] is None else f"{x['time_to_0.1pct_s']:.3f}"
-            pie = x.get("per_iteration_vs_euclidean")
-            pit = x.get("per_iteration_s")
-            obj = x.get("objective_final")
-            out.append(
-                f"| {name} | {x['solver']} | {x['initial_cost']:.6g} | {x['final_cost']:.6g} | "
-                f"{'-' if obj is None else f'{obj:.6g}'} | {x['final_rms_px']:.4f} | "
-                f"{x['iterations']} | {x['wall_s']:.3f} | {t01} | {x['ratio_to_pycolmap']:.2f} | "
-                f"{'-' if pit is None else f'{pit:.4f}'} | {'-' if pie is None else f'{pie:.2f}'} | "
-                f"{_mem(x)} | {x['termination']}{_behind(x)} |")
-            name = ""
-    return "\n".join(out) + "\n"
+            if rep > 0:
+                r["full_runs"].append(s.fn(None))
+            k = limits[s.name]
+            if k is not None:
+                r.setdefault("target_runs", []).append(s.fn(k))
+    out_rows = []
+    for s in solvers:
+        r = rows[s.name]
+        if "full_runs" in r:
+            for run in r["full_runs"]:
+                run.pop("trace", None)
+            tr = r.get("target_runs", [])
+            for run in tr:
+                run.pop("trace", None)
+            r["wall_s"] = _stats([x["wall_s"] for x in r["full_runs"]])
+            r["final_cost"] = r["full_runs"][0]["final_cost"]
+            r["iterations"] = r["full_runs"][0]["iterations"]
+            r["reached_target"] = bool(tr) and all(x["final_cost"] <= target for x in tr)
+            r["time_to_target_s"] = _stats([x["wall_s"] for x in tr] if r["reached_target"] else [])
+            r["iterations_to_target"] = ({"total": tr[0]["iterations"], "accepted": tr[0]["accepted"],
+                                          "rejected": tr[0]["rejected"]} if tr else None)
+        out_rows.append(r)
+    if base.num_observations <= scipy_max_obs:
+        # once, same BLAS setting as ours; wall time to convergence (no trace: an upper bound)
+        with threadpool_limits(limits=options.blas_threads, user_api="blas"):
+            sp = run_scipy(base.copy(), options)
+        out_rows.append({"solver": "scipy", "kind": "scipy", "settings": {
+            "method": "trf", "tr_solver": "lsmr", "ftol": options.function_tolerance, "xtol": 1e-10, "gtol": 1e-10,
+            "max_nfev": options.max_iterations, "threads": options.blas_threads},
+            "full_runs": [dataclasses.asdict(sp)], "final_cost": sp.final_cost, "iterations": sp.iterations,
+            "wall_s": _stats([sp.wall_s]), "reached_target": sp.final_cost <= target, "pixel_objective": True,
+            "time_to_target_s": _stats([sp.wall_s] if sp.final_cost <= target else []),
+            "time_to_target_kind": "wall time of the whole run (upper bound)"})
+    else:
+        out_rows.append({"solver": "scipy", "kind": "scipy", "error": f"skipped: {base.num_observations} "
+                         f"observations > --scipy-max-obs {scipy_max_obs}"})
+    summary = _summarize(out_rows)
+    return {"problem": spec, "num_cameras": base.num_cameras, "num_points": base.num_points,
+            "num_observations": base.num_observations, "best_final_cost": best, "common_final_cost": common,
+            "target_cost": target, "rows": out_rows, "repeat": repeat, "load_1min": load, **summary}
+
+
+def _summarize(rows: list[dict]) -> dict:
+    """The fastest Ceres setting to the target and every solver's ratio to it (medians)."""
+    t = {r["solver"]: (r.get("time_to_target_s") or {}).get("median") for r in rows}
+    ceres = {n: v for n, v in t.items() if n.startswith("ceres-") and v is not None}
+    fastest = min(ceres, key=ceres.get) if ceres else None
+    for r in rows:
+        v = t.get(r["solver"])
+        r["ratio_to_fastest_ceres"] = v / ceres[fastest] if fastest and v is not None else None
+    return {"fastest_ceres": fastest, "fastest_ceres_time_to_target_s": ceres.get(fastest)}
 
 
 def run_bench(problems, out_dir: Path, options: BAOptions = BAOptions(),
               scipy_max_obs: int = SCIPY_MAX_OBS, repeat: int = 1,
               merge: bool = False) -> list[dict]:
     """Run the problems; with ``merge`` keep the other problems of an existing bench.json
-    (a problem run again replaces its old entry)."""
+    (a problem run again replaces its old entry). bench.json: {"environment", "settings",
+    "problems"}."""
+    from polarref.ba.bench_report import markdown
+    from polarref.provenance import collect
+
     path = out_dir / "bench.json"
-    results = json.loads(path.read_text()) if merge and path.exists() else []
+    old = json.loads(path.read_text()) if merge and path.exists() else {}
+    results = old.get("problems", []) if isinstance(old, dict) else []
+    doc = {"environment": collect(threads={"ours_blas": options.blas_threads or 0}),
+           "settings": {"repeat": repeat, "target": f"common final cost + {TARGET_REL:.1%}",
+                        "converged_rel": CONVERGED_REL, "ours": dataclasses.asdict(options),
+                        "ceres": [f"{w} tolerances, {t} thread(s)" for w, t in CERES]},
+           "problems": results}
     for spec in problems:
         t = time.perf_counter()
         res = run_problem(spec, options, scipy_max_obs, repeat)
         log.info("bench %s done in %.1f s", spec, time.perf_counter() - t)
-        results = [r for r in results if r["problem"] != spec] + [res]
+        doc["problems"] = [r for r in doc["problems"] if r["problem"] != spec] + [res]
         # written after every problem so an interrupted bench keeps what it measured
         out_dir.mkdir(parents=True, exist_ok=True)
-        atomic_write(path, json.dumps(results, indent=1, default=float))
-        atomic_write(out_dir / "bench.md", markdown(results))
-    return results
+        atomic_write(path, json.dumps(doc, indent=1, default=float))
+        atomic_write(out_dir / "bench.md", markdown(doc))
+    return doc["problems"]

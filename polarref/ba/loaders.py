@@ -33,11 +33,13 @@ def _load(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]:
     from polarref.ba.adapter import problem_from_reconstruction
 
     if spec.startswith("synth-"):
-        from polarref.ba.synthetic import SIZES, synthetic_reconstruction
-        if spec not in SIZES:
-            raise PolarrefError(f"unknown synthetic problem {spec!r}; known: {', '.join(SIZES)}")
-        init, truth = synthetic_reconstruction(*SIZES[spec], seed=seed, rot_deg=0.3,
-                                               point_sigma=0.05, center_sigma=0.05)
+        from polarref.ba.synthetic import SIZES, SPARSE_SIZES, SPARSE_TRACK, synthetic_reconstruction
+        sizes = {**SIZES, **SPARSE_SIZES}
+        if spec not in sizes:
+            raise PolarrefError(f"unknown synthetic problem {spec!r}; known: {', '.join(sizes)}")
+        init, truth = synthetic_reconstruction(*sizes[spec], seed=seed, rot_deg=0.3,
+                                               point_sigma=0.05, center_sigma=0.05,
+                                               track_length=SPARSE_TRACK if spec in SPARSE_SIZES else -1)
         return problem_from_reconstruction(init), truth
     path = Path(spec)
     if not path.exists():

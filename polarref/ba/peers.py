@@ -7,8 +7,9 @@ residual of a point behind its camera.
 
 from __future__ import annotations
 
+import dataclasses
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -30,6 +31,38 @@ class PeerResult:
     termination: str
     reported_cost: float  # the peer's own final cost (COLMAP: behind-camera residuals zeroed)
     behind_camera: int = -1  # observations whose point ends with depth <= 0 in its camera
+    accepted_iterations: int = -1
+    rejected_iterations: int = -1
+    settings: dict = field(default_factory=dict)   # what the solver actually used (threads, linear solver)
+
+
+@dataclass(frozen=True)
+class CeresSettings:
+    """Stopping rules and threads of one pycolmap (Ceres) configuration."""
+
+    name: str = "colmap-defaults"
+    function_tolerance: float = 0.0      # COLMAP's defaults (pycolmap 4.2.1 BundleAdjustmentOptions)
+    gradient_tolerance: float = 1e-4
+    parameter_tolerance: float = 0.0
+    max_num_iterations: int = 100
+    num_threads: int = -1                # -1: all cores
+    # Ceres runs single-threaded below this many residuals whatever num_threads says (COLMAP: 50,000)
+    min_residuals_for_multithreading: int = 50_000
+
+    def with_iterations(self, n: int) -> "CeresSettings":
+        return dataclasses.replace(self, max_num_iterations=int(n))
+
+
+def ceres_settings(options: BAOptions, which: str, threads: int) -> CeresSettings:
+    """``which`` = "colmap" (COLMAP's tolerances) or "ours" (the tolerances of ``options``);
+    ``threads`` used for every residual count (the multi-threading floor is lifted)."""
+    if which == "colmap":
+        return CeresSettings(f"ceres-colmap-tol-{threads}t", max_num_iterations=options.max_iterations,
+                             num_threads=threads, min_residuals_for_multithreading=1)
+    if which == "ours":
+        return CeresSettings(f"ceres-our-tol-{threads}t", options.function_tolerance, options.gradient_tolerance,
+                             options.parameter_tolerance, options.max_iterations, threads, 1)
+    raise ValueError(f"unknown Ceres setting {which!r}")
 
 
 def _cost_of(e: Euclidean, R, C, X, options: BAOptions):
@@ -40,10 +73,9 @@ def _behind(problem: BAProblem, R, C, X) -> int:
     return behind_camera_xyz(R, C, X, problem.obs_cam, problem.obs_pt)
 
 
-def run_pycolmap(problem: BAProblem, options: BAOptions) -> PeerResult:
-    """Ceres via pycolmap: intrinsics fixed (or ``options.refine``), gauge TWO_CAMS_FROM_WORLD, same robust loss,
-    pycolmap's default solver settings otherwise (max 100 iterations, gradient_tolerance 1e-4,
-    function_tolerance 0)."""
+def run_pycolmap(problem: BAProblem, options: BAOptions, ceres: CeresSettings = CeresSettings()) -> PeerResult:
+    """Ceres via pycolmap: intrinsics fixed (or refined as ``options.refine``), gauge TWO_CAMS_FROM_WORLD, same robust loss, stopping
+    rules and threads from ``ceres`` (default: COLMAP's defaults)."""
     import pycolmap
 
     from polarref.ba.adapter import problem_to_reconstruction
@@ -61,7 +93,13 @@ def run_pycolmap(problem: BAProblem, options: BAOptions) -> PeerResult:
                                      "huber": pycolmap.LossFunctionType.HUBER,
                                      "cauchy": pycolmap.LossFunctionType.CAUCHY}[options.loss]
     opts.ceres.loss_function_scale = options.loss_scale
-    opts.ceres.solver_options.max_num_iterations = options.max_iterations
+    so = opts.ceres.solver_options
+    so.max_num_iterations = ceres.max_num_iterations
+    so.function_tolerance = ceres.function_tolerance
+    so.gradient_tolerance = ceres.gradient_tolerance
+    so.parameter_tolerance = ceres.parameter_tolerance
+    so.num_threads = ceres.num_threads
+    opts.ceres.min_num_residuals_for_cpu_multi_threading = ceres.min_residuals_for_multithreading
     config = pycolmap.BundleAdjustmentConfig()
     for image_id in rec.images:
         config.add_image(image_id)
@@ -88,9 +126,14 @@ def run_pycolmap(problem: BAProblem, options: BAOptions) -> PeerResult:
                            for i in range(N)]
         e = Euclidean(refined)
     c1, rms = _cost_of(e, R, C, X, options)
-    return PeerResult("pycolmap", c0, c1, rms, int(cs.num_successful_steps + cs.num_unsuccessful_steps),
-                      wall, str(cs.termination_type).split(".")[-1], float(cs.final_cost),
-                      _behind(problem, R, C, X))
+    used = {**dataclasses.asdict(ceres), "linear_solver_used": str(cs.linear_solver_type_used).split(".")[-1],
+            "preconditioner_used": str(cs.preconditioner_type_used).split(".")[-1],
+            "num_threads_used": int(cs.num_threads_used), "jacobi_scaling": bool(so.jacobi_scaling),
+            "trust_region_strategy": str(so.trust_region_strategy_type).split(".")[-1]}
+    # Ceres counts its iteration 0 (the initial evaluation) as a successful step: not an LM step.
+    acc, rej = max(int(cs.num_successful_steps) - 1, 0), int(cs.num_unsuccessful_steps)
+    return PeerResult(ceres.name, c0, c1, rms, acc + rej, wall, str(cs.termination_type).split(".")[-1],
+                      float(cs.final_cost), _behind(problem, R, C, X), acc, rej, used)
 
 
 def _left_jacobian(w: np.ndarray) -> np.ndarray:

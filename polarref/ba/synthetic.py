@@ -10,6 +10,9 @@ from polarref.geometry import Rigid3, so3_exp
 
 # Sizes used by the benchmark (issue 6): cameras, points; every point is seen by every camera.
 SIZES = {"synth-20": (20, 600), "synth-60": (60, 1000), "synth-200": (200, 1500)}
+# Realistic sparse visibility (issue 12): each point seen by SPARSE_TRACK cameras, ~200 points per image.
+SPARSE_TRACK = 4
+SPARSE_SIZES = {"synth-60-sparse": (60, 3000), "synth-200-sparse": (200, 10000)}
 
 
 def synthetic_reconstruction(num_cameras: int, num_points: int, *, seed: int = 0,

@@ -17,14 +17,15 @@ def add_arguments(parser) -> None:
 
     parser.add_argument("what", choices=("ba",), help="which benchmark")
     parser.add_argument("--problem", action="append", default=None,
-                        help="problem path or synth-20/60/200 (repeatable; default: the full set)")
+                        help="problem path or synth-20/60/200, synth-60-sparse/synth-200-sparse (repeatable; "
+                        "default: the full set)")
     parser.add_argument("--quick", action="store_true", help="only the small problems")
     parser.add_argument("--loss", choices=LOSSES, default="trivial")
     parser.add_argument("--max-iterations", type=positive_int, default=100)
     parser.add_argument("--scipy-max-obs", type=nonneg_int, default=400_000,
                         help="skip scipy on problems with more observations")
     parser.add_argument("--repeat", type=positive_int, default=1,
-                        help="runs per solver (ours and pycolmap interleaved); best wall time")
+                        help="timed runs per solver (interleaved); every run is stored, medians and ranges shown")
     parser.add_argument("--merge", action="store_true",
                         help="add/replace these problems in an existing OUT/bench.json")
     parser.add_argument("--out", required=True, help="output folder (bench.json, bench.md)")

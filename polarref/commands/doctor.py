@@ -47,6 +47,10 @@ def collect() -> dict[str, object]:
         "platform": platform.platform(),
         "cpu_count": os.cpu_count(),
     }
+    from polarref.provenance import cpu_model, git_state
+
+    report["cpu_model"] = cpu_model()
+    report["git_commit"], report["git_dirty"] = git_state()
     report.update({name: _version(name) for name in PACKAGES})
     try:
         from synth.mitsuba_variant import selected_variant

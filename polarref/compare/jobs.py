@@ -25,7 +25,7 @@ def _camera(camera: dict) -> Camera:
 
 
 def pycolmap_sift_db(image_dir: str, image_names: list[str], camera: dict, db_path: str,
-                     seed: int, num_threads: int = 2) -> dict:
+                     seed: int, num_threads: int = 1) -> dict:
     """pycolmap SIFT + exhaustive matching + verification into ``db_path``."""
     opts = ColmapSfMOptions(seed=seed, num_threads=num_threads)
     stages = extract_and_match_sift(Path(image_dir), _camera(camera), Path(db_path), opts,
@@ -48,7 +48,7 @@ def ours_db(image_dir: str, camera: dict, preset: str, cache_dir: str, db_path: 
 
 
 def pycolmap_map(db_path: str, image_dir: str, work_dir: str, mapper: str, seed: int,
-                 num_threads: int = 2) -> dict:
+                 num_threads: int = 1) -> dict:
     """Map a copy of a prepared database; the largest model goes to ``work_dir/model``."""
     work = Path(work_dir)
     db = copy_database(Path(db_path), work / "database.db")

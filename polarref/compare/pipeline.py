@@ -9,7 +9,6 @@ claims -> metrics.json -> report. Work products (databases, models, logs) live i
 from __future__ import annotations
 
 import logging
-import os
 import shlex
 import sys
 import time
@@ -31,7 +30,9 @@ log = logging.getLogger(__name__)
 
 # Per-method wall-clock limit by preset.
 METHOD_TIMEOUT_S = {"small": 120.0, "default": 90.0, "large": 1800.0}
-CLAIMS_BUDGET_S = {"small": 60.0, "default": 25.0, "large": 300.0}
+# Claim experiments: the small preset runs every seed (no deadline, so reruns repeat exactly);
+# the default preset must fit its 290 s run budget (10 + 5 seeds need ~40 s on 2 idle cores).
+CLAIMS_BUDGET_S = {"small": float("inf"), "default": 60.0, "large": 300.0}
 # Whole-run budget (rendering included) by preset; None = unlimited. The default run must finish
 # in 5 minutes on 2 cores: methods run in RUN_ORDER, each may use what is left after keeping
 # MIN_METHOD_S for every later method and RESERVE_S for claims and the report.
@@ -89,7 +90,8 @@ def _shared(ctx: _Context, key: str):
     elif key == "db-pycolmap-sift":
         extra = ctx.runs / key / "database.db"
         job, kw = "polarref.compare.jobs:pycolmap_sift_db", dict(image_names=ctx.scene.image_names,
-                                                                 db_path=str(extra), seed=ctx.seed)
+                                                                 db_path=str(extra), seed=ctx.seed,
+                                                                 num_threads=PYCOLMAP_THREADS)
     elif key == "db-ours":
         feat, _ = _shared(ctx, "ours-features")
         if feat.status != STATUS_OK:
@@ -128,7 +130,8 @@ def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodResult, object |
     if spec.family == "pycolmap":
         outcome = run_isolated("polarref.compare.jobs:pycolmap_map",
                                dict(db_path=str(db), image_dir=str(ctx.scene.image_dir), work_dir=str(work),
-                                    mapper=spec.mapper.split("-")[1], seed=ctx.seed),
+                                    mapper=spec.mapper.split("-")[1], seed=ctx.seed,
+                                    num_threads=PYCOLMAP_THREADS),
                                ctx.timeout, work, "job")
     else:
         outcome = run_isolated("polarref.compare.jobs:ours_sfm",
@@ -171,31 +174,36 @@ def _score_into(res: MethodResult, rec, scene: scenes.PreparedScene, mesh, seed:
         res.status, res.reason = STATUS_FAILED, "no image registered"
 
 
-def _environment(cfg: CompareConfig, scene: scenes.PreparedScene, timeout: float, total_s: float) -> Environment:
-    try:
-        from polarref.commands.doctor import collect
+PYCOLMAP_THREADS = 1   # pycolmap extraction, matching, mapping: one thread, so reruns repeat exactly
 
-        info = collect()
-    except Exception as exc:  # the report must not fail for lack of version strings
-        info = {"doctor": f"failed: {type(exc).__name__}: {exc}"}
-    skip = {"broken_commands", "data", "data_reason", "cpu_count", "mitsuba_variant", "mitsuba_variant_reason",
-            "platform"}
-    versions = {k: str(v) for k, v in info.items() if k not in skip}
-    versions["platform"] = str(info.get("platform", ""))
-    variant = (scene.mitsuba_variant or str(info.get("mitsuba_variant") or "")) if scene.kind == "synthetic" \
-        else "not used (real images)"
+
+def _environment(cfg: CompareConfig, scene: scenes.PreparedScene, timeout: float, total_s: float,
+                 prov: dict) -> Environment:
+    variant = scene.mitsuba_variant if scene.kind == "synthetic" else "not used (real images)"
+    if scene.kind == "synthetic" and not variant:
+        try:
+            from synth.mitsuba_variant import selected_variant
+
+            variant = selected_variant().variant
+        except Exception as exc:  # the report must not fail for lack of a variant name
+            variant = f"unknown ({type(exc).__name__})"
     return Environment(
         command=cfg.command or "polarref compare", created=datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        versions=versions, cpu_count=int(os.cpu_count() or 0), mitsuba_variant=variant,
+        versions=prov["versions"], cpu_count=prov["cpu_count"], mitsuba_variant=variant,
         seeds={"scene": scene.seed, "methods": cfg.seed, "claims": cfg.seed}, preset=cfg.preset,
-        method_timeout_s=timeout, total_runtime_s=total_s)
+        method_timeout_s=timeout, total_runtime_s=total_s, git_commit=prov["git_commit"],
+        git_dirty=prov["git_dirty"], cpu_model=prov["cpu_model"], machine=prov["machine"],
+        platform=prov["platform"], threads=prov["threads"])
 
 
 def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
     """Run the comparison and write OUT/metrics.json, OUT/report.md, OUT/report.html, OUT/figures/."""
     from polarref.compare.report import build_report
+    from polarref.provenance import collect
 
     t_start = time.perf_counter()
+    # Taken before anything is written: regenerating a committed report must not mark the run dirty.
+    prov = collect(threads={"pycolmap": PYCOLMAP_THREADS, "ba_blas": 1})
     specs = select(list(cfg.methods) or None)
     if cfg.preset not in METHOD_TIMEOUT_S:
         raise PolarrefError(f"unknown preset {cfg.preset!r} (choose from {', '.join(METHOD_TIMEOUT_S)})")
@@ -233,7 +241,9 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
                      "intrinsics divided by the same factor (exact with the corner pixel origin).")
     budget = TOTAL_BUDGET_S[cfg.preset] if cfg.budget_s == -1.0 else cfg.budget_s
     claims_budget = CLAIMS_BUDGET_S[cfg.preset] if cfg.claims else 0.0
-    deadline = None if budget is None else t_start + budget - claims_budget - REPORT_RESERVE_S
+    # an unbounded claims budget (small preset) under an explicit --budget keeps the default's reserve
+    reserve = claims_budget if claims_budget < float("inf") else CLAIMS_BUDGET_S["default"]
+    deadline = None if budget is None else t_start + budget - reserve - REPORT_RESERVE_S
     results: list[MethodResult] = []
     job_results: dict[str, dict] = {}
     view = view3d.new_view(scene.gt, scene.camera, mesh, cfg.seed) if scene.gt is not None else None
@@ -262,7 +272,7 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
                      has_mesh=scene.mesh_path is not None, downscale=scene.downscale,
                      render_s=scene.render_s, scene_extent=extent)
     metrics = MetricsFile(schema_version=SCHEMA_VERSION, scene=info,
-                          environment=_environment(cfg, scene, timeout, 0.0), methods=results,
+                          environment=_environment(cfg, scene, timeout, 0.0, prov), methods=results,
                           pairs=[p for p in PAIRS if any(r.name == p.baseline for r in results)
                                  and any(r.name == p.candidate for r in results)],
                           claims=[], notes=notes, view3d=view)

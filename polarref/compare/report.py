@@ -267,11 +267,11 @@ def environment_items(m: MetricsFile) -> list[tuple[str, str]]:
 def commit_text(m: MetricsFile) -> str:
     """``abc1234`` / ``abc1234 (dirty)`` from any stored ``git_commit`` / ``git_dirty`` field, else n/a."""
     items = dict(environment_items(m))
-    commit = next((v for k, v in items.items() if k.split(".")[-1] == "git_commit" and v not in ("", "n/a")), None)
-    if commit is None:
+    key = next((k for k, v in items.items() if k.split(".")[-1] == "git_commit" and v not in ("", "n/a")), None)
+    if key is None:
         return "n/a"
-    dirty = next((v for k, v in items.items() if k.split(".")[-1] == "git_dirty"), "False")
-    return commit[:10] + (" (dirty)" if dirty == "True" else "")
+    dirty = items.get(key[:-len("git_commit")] + "git_dirty", "False")   # the flag beside that commit
+    return items[key][:10] + (" (dirty)" if dirty == "True" else "")
 
 
 def _env_section(m: MetricsFile) -> list:

@@ -184,6 +184,13 @@ class Environment:
     method_timeout_s: float
     total_runtime_s: float
     run_budget_s: float | None = None   # whole-run limit (None = unlimited)
+    # Provenance (polarref.provenance.collect), taken when the run starts:
+    git_commit: str = ""                # HEAD, 40 hex digits ("" outside a git checkout)
+    git_dirty: bool | None = None       # tracked files differ from HEAD (None: unknown)
+    cpu_model: str = ""
+    machine: str = ""                   # e.g. x86_64
+    platform: str = ""
+    threads: dict[str, int] = field(default_factory=dict)   # stage -> threads (pycolmap, BA BLAS, ...)
 
 
 @dataclass

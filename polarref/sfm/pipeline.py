@@ -295,7 +295,11 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         check_writable_parent(target)
     t_start = time.perf_counter()
     timings: dict = {}
-    result: dict = {"image_dir": str(image_dir), "config": dataclasses.asdict(config), "status": "running"}
+    from polarref.provenance import collect
+
+    result: dict = {"image_dir": str(image_dir), "config": dataclasses.asdict(config), "status": "running",
+                    "environment": collect(seeds={"verification": config.verification.seed,
+                                                  "registration": config.mapper.register.seed})}
 
     def _publish(rec: Reconstruction | None) -> None:
         if target is None:

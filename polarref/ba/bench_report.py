@@ -1,0 +1,112 @@
+"""Markdown of a bench.json: the bench table and the README's speed table, from the JSON alone.
+
+The README quotes bench figures only through :func:`readme_table` (run ``python -m
+polarref.ba.bench_report reports/bench-ba/bench.json`` and paste), so no number in it can drift
+from bench.json.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+
+def _rng(st: dict | None, digits: int = 3) -> str:
+    if not st or st.get("median") is None:
+        return "-"
+    if st["n"] == 1:
+        return f"{st['median']:.{digits}f}"
+    return f"{st['median']:.{digits}f} ({st['min']:.{digits}f}-{st['max']:.{digits}f})"
+
+
+def _settings(x: dict) -> str:
+    s = x.get("settings", {})
+    if x.get("kind") == "ceres":
+        return (f"ftol {s.get('function_tolerance'):g}, gtol {s.get('gradient_tolerance'):g}, ptol "
+                f"{s.get('parameter_tolerance'):g}, max it {s.get('max_num_iterations')}, threads "
+                f"{s.get('num_threads_used', s.get('num_threads'))}, {s.get('linear_solver_used', '?')}")
+    if x.get("kind") == "ours":
+        return (f"ftol {s.get('function_tolerance'):g}, gtol {s.get('gradient_tolerance'):g}, ptol "
+                f"{s.get('parameter_tolerance'):g}, max it {s.get('max_iterations')}, BLAS threads "
+                f"{s.get('threads')}, {x['full_runs'][0].get('linear_solver', '')}")
+    return ", ".join(f"{k} {v}" for k, v in s.items())
+
+
+def _iters(x: dict) -> str:
+    it = x.get("iterations_to_target")
+    if not it:
+        return "-"
+    return f"{it['total']} ({it['accepted']}/{it['rejected']})"
+
+
+def markdown(doc: dict) -> str:
+    env = doc.get("environment", {})
+    out = [f"Commit {env.get('git_commit', '?')}{' (dirty)' if env.get('git_dirty') else ''}, "
+           f"{env.get('cpu_count', '?')} x {env.get('cpu_model', '?')}; settings of every solver in the "
+           "table. Costs: 1/2 sum of squared pixel residuals recomputed on every output. Common cost: the "
+           "highest final cost among pixel-objective solvers within 1 % of the best; t to target: wall time "
+           "of a complete solve limited to the fewest iterations that reach the common cost + 0.1 % "
+           "(median (min-max) over the repeats); iterations to target: total (accepted/rejected). "
+           "x fastest Ceres: median t to target / the fastest Ceres setting's.", "",
+           "| problem | solver | settings | final cost | full-run wall s | iters | t to target s | "
+           "iters to target | x fastest Ceres | termination |",
+           "|---|---|---|---|---|---|---|---|---|---|"]
+    for res in doc.get("problems", []):
+        name = (f"{res['problem']} ({res['num_cameras']} cams, {res['num_points']} pts, "
+                f"{res['num_observations']} obs; target {res['target_cost']:.6g}; {res.get('repeat', 1)} repeats, "
+                f"load {res.get('load_1min', float('nan')):.1f})")
+        for x in res["rows"]:
+            if "error" in x:
+                out.append(f"| {name} | {x['solver']} | {x['error']} ||||||||")
+                name = ""
+                continue
+            ratio = x.get("ratio_to_fastest_ceres")
+            out.append(f"| {name} | {x['solver']} | {_settings(x)} | {x['final_cost']:.6g} | {_rng(x['wall_s'])} | "
+                       f"{x['iterations']} | {_rng(x.get('time_to_target_s'))} | {_iters(x)} | "
+                       f"{'-' if ratio is None else f'{ratio:.2f}'} | {x['full_runs'][0].get('termination', '')} |")
+            name = ""
+    return "\n".join(out) + "\n"
+
+
+def readme_table(doc: dict) -> str:
+    """Per problem: fastest Ceres setting and our forms' time-to-target ratios against it."""
+    out = ["| problem | fastest Ceres setting (t to target, s) | euclidean | parallax | polar | angular |",
+           "|---|---|---|---|---|---|"]
+    for res in doc.get("problems", []):
+        t = {x["solver"]: x for x in res["rows"]}
+        f = res.get("fastest_ceres")
+        cells = []
+        for p in ("euclidean", "parallax", "polar", "angular"):
+            r = (t.get(p) or {}).get("ratio_to_fastest_ceres")
+            cells.append("did not reach" if r is None else f"{r:.2f}x")
+        head = "none reached the target" if f is None else f"{f} ({res['fastest_ceres_time_to_target_s']:.3f})"
+        out.append(f"| {res['problem']} | {head} | " + " | ".join(cells) + " |")
+    return "\n".join(out) + "\n"
+
+
+BEGIN = "<!-- bench-table: generated from reports/bench-ba/bench.json, do not edit by hand -->"
+END = "<!-- /bench-table -->"
+
+
+def readme_block(text: str) -> str | None:
+    """The generated table between the README's markers (None without markers)."""
+    if BEGIN not in text or END not in text:
+        return None
+    return text.split(BEGIN, 1)[1].split(END, 1)[0].strip("\n")
+
+
+def update_readme(readme: Path, doc: dict) -> None:
+    text = readme.read_text()
+    if readme_block(text) is None:
+        raise SystemExit(f"{readme}: no {BEGIN!r} ... {END!r} block")
+    head, rest = text.split(BEGIN, 1)
+    readme.write_text(head + BEGIN + "\n" + readme_table(doc) + END + rest.split(END, 1)[1])
+
+
+if __name__ == "__main__":
+    bench = json.loads(Path(sys.argv[1]).read_text())
+    if len(sys.argv) == 4 and sys.argv[2] == "--readme":
+        update_readme(Path(sys.argv[3]), bench)
+    else:
+        print(readme_table(bench))

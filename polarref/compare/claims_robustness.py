@@ -1,0 +1,189 @@
+"""C8 (outliers, low parallax) and the controlled part of C5 (tie points), from the robustness runs.
+
+Verdict rules and margins are stated in :mod:`polarref.compare.claims_experiments` (one place for
+every threshold); this module applies them to :func:`polarref.compare.experiments.robustness`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from polarref.compare.claims_experiments import (ALPHA, CONTINUOUS_FACTOR, PAPER_FORM, START_MAX_SUCCESS,
+                                                 SUCCESS_MARGIN, TIE_MARGIN_REL, fig, not_tested, tost)
+from polarref.compare.schema import ClaimResult, Figure
+
+C8 = ("C8", "Angular/parallax forms are more robust to outliers (Sec. 1.2.1) and to low parallax (Sec. 1.2.2, "
+      "4.1 (3))", "Section 1.2.1 (outliers: angular pixel coordinates), Section 1.2.2 and Discussion 4.1 (3) "
+      "(low parallax)", "Controlled BA per seed and form: (a) 10-50 % gross outliers "
+      "with the Huber loss; (b) a forward-looking rig at several baseline/depth ratios (points far away relative to the "
+      "baseline), same initial perturbation in angle terms. Errors are gauge-free: relative rotations of all "
+      "camera pairs and point bearings in the camera frames; success = reached the noise floor with correct "
+      "geometry.")
+
+
+# ---- C8 -------------------------------------------------------------------------------------
+
+def _rate(v: dict):
+    runs = v.get("runs", [])
+    if not runs:
+        return None, None, 0
+    return (float(np.mean([r["success"] for r in runs])),
+            float(np.median([r["rotation_error_deg"] for r in runs])), len(runs))
+
+
+def _paired_ratio(form: dict, base: dict, key: str = "rotation_error_deg") -> np.ndarray:
+    """Per-seed ratio form / base of ``key`` over the seeds both completed."""
+    a = {r.get("seed"): r.get(key) for r in form.get("runs", [])}
+    b = {r.get("seed"): r.get(key) for r in base.get("runs", [])}
+    seeds = [s for s in a if s in b and a[s] is not None and b[s] is not None and b[s] > 0]
+    return np.array([a[s] / b[s] for s in seeds], float)
+
+
+def _compare(a: float | None, e: float | None, ratio: np.ndarray) -> str:
+    if a is None or e is None:
+        return "unknown"
+    if a >= e + SUCCESS_MARGIN:
+        return "better"
+    if a <= e - SUCCESS_MARGIN:
+        return "worse"
+    if len(ratio) >= 2 and (ratio > 0).all():
+        gm = float(np.exp(np.log(ratio).mean()))
+        if (ratio < 1).all() and gm <= 1 / CONTINUOUS_FACTOR:
+            return "better"
+        if (ratio > 1).all() and gm >= CONTINUOUS_FACTOR:
+            return "worse"
+    return "equal"
+
+
+def _level(key: str, name: str, forms: dict, figs: list, flipped: list, crashed: list):
+    """Figures and text of one level; returns (text, start rate, euclidean rate, {form: outcome})."""
+    rates = {p: _rate(v) for p, v in forms.items() if p != "start"}
+    start = _rate(forms.get("start", {}))[0]
+    figs.append(fig(f"{key}_start_success", f"{name}: start point (no optimisation) success rate", start))
+    parts, outcome = [f"start {{{key}_start_success}}"], {}
+    eu = forms.get("euclidean", {})
+    for p, (sr, med, n) in rates.items():
+        figs += [fig(f"{key}_{p}", f"{name}: {p} success rate ({n} runs)", sr),
+                 fig(f"{key}_{p}_med", f"{name}: {p} median relative-rotation error", med, "deg")]
+        runs = forms[p].get("runs", [])
+        flips = [r.get("flipped_fraction") for r in runs if r.get("flipped_fraction") is not None]
+        if flips:
+            figs.append(fig(f"{key}_{p}_flip", f"{name}: {p} mean fraction of observations with the point "
+                            "behind the camera (bearing error > 90 deg)", np.mean(flips)))
+            if np.mean(flips) > 0.005:
+                flipped.append(f"{name}/{p} {{{key}_{p}_flip}}")
+        its = [r["iterations"] for r in runs if r.get("iterations") is not None]
+        figs.append(fig(f"{key}_{p}_it", f"{name}: {p} median LM iterations", np.median(its) if its else None, "count"))
+        text = f"{p} {{{key}_{p}}} ({{{key}_{p}_med}}, {{{key}_{p}_it}} it"
+        if forms[p].get("errors"):
+            crashed.append(f"{name}/{p}: {len(forms[p]['errors'])} runs raised ({forms[p]['errors'][0]})")
+        if p != "euclidean":
+            ratio = _paired_ratio(forms[p], eu)
+            gm = float(np.exp(np.log(ratio).mean())) if len(ratio) and (ratio > 0).all() else None
+            figs.append(fig(f"{key}_{p}_ratio", f"{name}: {p}/euclidean final rotation error, geometric mean of "
+                            "the per-seed ratios", gm, "x"))
+            text += f", {{{key}_{p}_ratio}} vs euclidean"
+            outcome[p] = _compare(sr, rates.get("euclidean", (None,))[0], ratio)
+        parts.append(text + ")")
+    init_rms = [r["initial_rms_px"] for r in eu.get("runs", []) if "initial_rms_px" in r]
+    if init_rms:
+        figs.append(fig(f"{key}_rms0", f"{name}: median initial pixel RMS", np.median(init_rms), "px"))
+        parts.insert(0, f"initial RMS {{{key}_rms0}}")
+    return f"{name}: " + ", ".join(parts), start, rates.get("euclidean", (None,))[0], outcome
+
+
+def _half(levels: list) -> tuple[str, str]:
+    """Verdict of one half from [(key, start rate, euclidean rate, outcomes)] and its explanation."""
+    valid = [lv for lv in levels if lv[1] is not None and lv[1] <= START_MAX_SUCCESS]
+    if not valid:
+        return "inconclusive", "no level where the start point fails the rule"
+    forms = sorted({p for lv in valid for p in lv[3]})
+    per_form = {p: [lv[3].get(p, "unknown") for lv in valid] for p in forms}
+    if not forms or all(all(o == "unknown" for o in v) for v in per_form.values()):
+        return "inconclusive", "no completed runs"
+    desc = "; ".join(f"{p} vs euclidean " + "/".join(v) for p, v in per_form.items())
+    if any("better" in v and "worse" not in v for v in per_form.values()):
+        return "supported", desc
+    differs = any(o in ("better", "worse") for v in per_form.values() for o in v)
+    saturated = all(lv[2] in (0.0, 1.0) for lv in valid)
+    if saturated and not differs:
+        return "inconclusive", desc + " (the Euclidean baseline succeeded always or never at every level)"
+    return "not supported", desc
+
+
+def robustness_claim(rob: dict | None, reason: str) -> ClaimResult:
+    if not rob or "outliers" not in rob or "low_parallax" not in rob:
+        return not_tested(*C8, (rob or {}).get("error") or reason or "robustness experiment did not run")
+    figs, texts, crashed, flipped = [], [], [], []
+    halves = {}
+    for h, prefix, label, data in (("outliers", "out", lambda lv: f"outliers {float(lv):.0%}", rob["outliers"]),
+                                   ("low parallax", "lp", lambda lv: f"baseline/depth {lv}", rob["low_parallax"])):
+        levels = []
+        for i, (lvl, forms) in enumerate(data.items()):
+            text, start, eu, outcome = _level(f"{prefix}{i}", label(lvl), forms, figs, flipped, crashed)
+            texts.append(text)
+            levels.append((f"{prefix}{i}", start, eu, outcome))
+        halves[h] = _half(levels)
+    for h, (v, desc) in halves.items():
+        texts.append(f"{h}: {v} ({desc})")
+    verdicts = [v for v, _ in halves.values()]
+    v8 = ("supported" if all(v == "supported" for v in verdicts) else
+          "not supported" if all(v == "not supported" for v in verdicts) else "inconclusive")
+    rationale = ("Success rate (median relative-rotation error, median LM iterations, paired rotation-error ratio "
+                 "vs euclidean) per form, beside the start point's success rate -- " + "; ".join(texts)
+                 + f". Success: {rob.get('success_rule', '')}. Levels whose start point succeeds in more than "
+                 f"{START_MAX_SUCCESS:.0%} of the runs are left out. Better/worse = success rate differs by >= "
+                 f"{SUCCESS_MARGIN:.0%}, or equal rates and the rotation error is lower/higher on every seed by a "
+                 f"geometric-mean factor >= {CONTINUOUS_FACTOR}."
+                 + (" Points ending behind the cameras (mean fraction of observations over the runs; reprojection cannot "
+                    "see it, since -X projects like X): " + ", ".join(flipped) + "." if flipped else "")
+                 + (" Runs that raised (solver bugs, not counted): " + "; ".join(crashed) if crashed else ""))
+    nforms = len([p for p in next(iter(rob["outliers"].values()), {}) if p != "start"])
+    size = (f"{rob.get('seeds_run', 0)} seeds x ({len(rob['outliers'])} outlier levels + {len(rob['low_parallax'])} "
+            f"parallax levels) x {nforms} forms + start point ({rob.get('outlier_problem', '')}; "
+            f"{rob.get('parallax_problem', '')})")
+    return ClaimResult(*C8, figs, size, v8, rationale)
+
+
+# ---- C5 controlled ---------------------------------------------------------------------------
+
+def more_tie_points(rob: dict | None) -> tuple[str, list[Figure], str, int]:
+    """Controlled C5 from the outlier runs: counts after a 4 px filter, polar vs euclidean (TOST)."""
+    if not rob or "outliers" not in rob:
+        return "not tested", [], "controlled experiment did not run", 0
+    figs, outcomes, parts = [], [], []
+    n = 0
+    for key, name in (("tie_points", "tie points"), ("inlier_observations", "observations within 4 px")):
+        rel, base = [], []
+        start = [r[key] for forms in rob["outliers"].values() for r in forms.get("start", {}).get("runs", [])
+                 if r.get(key) is not None]
+        for forms in rob["outliers"].values():
+            c = {r["seed"]: r.get(key) for r in forms.get(PAPER_FORM, {}).get("runs", [])}
+            b = {r["seed"]: r.get(key) for r in forms.get("euclidean", {}).get("runs", [])}
+            for s_ in c:
+                if s_ in b and c[s_] is not None and b[s_]:
+                    rel.append((c[s_] - b[s_]) / b[s_])
+                    base.append(b[s_])
+        n = len(rel)
+        if n < 2:
+            return "not tested", [], f"fewer than 2 paired outlier runs with {name} counts ({n})", n
+        margin = max(TIE_MARGIN_REL, 1.0 / float(np.mean(base)))
+        d, lo, hi, o = tost(np.array(rel), margin)
+        k = "tp" if key == "tie_points" else "obs"
+        outcomes.append({"higher": "more", "lower": "fewer"}.get(o, o))
+        figs += [fig(f"c5_{k}_start", f"controlled: start point (no BA) mean {name}",
+                     np.mean(start) if start else None, "count"),
+                 fig(f"c5_{k}_eu", f"controlled: euclidean mean {name}", np.mean(base), "count"),
+                 fig(f"c5_{k}_d", f"controlled: mean relative difference polar - euclidean, {name}", 100 * d, "%"),
+                 fig(f"c5_{k}_ci_lo", f"controlled: {1 - 2 * ALPHA:.0%} CI lower, {name}", 100 * lo, "%"),
+                 fig(f"c5_{k}_ci_hi", f"controlled: {1 - 2 * ALPHA:.0%} CI upper, {name}", 100 * hi, "%"),
+                 fig(f"c5_{k}_margin", f"controlled: margin (declared before the run), {name}", 100 * margin, "%")]
+        parts.append(f"{name}: start {{c5_{k}_start}}, euclidean {{c5_{k}_eu}}, polar {{c5_{k}_d}} ({1 - 2 * ALPHA:.0%} CI {{c5_{k}_ci_lo}} to "
+                     f"{{c5_{k}_ci_hi}}, margin {{c5_{k}_margin}}): {outcomes[-1]}")
+    verdict = ("supported" if all(o == "more" for o in outcomes) else
+               "not supported" if any(o in ("equal", "fewer") for o in outcomes) else "inconclusive")
+    text = ("Controlled BA on the C8 outlier problems (seeds x outlier levels, paired): points with >= 2 "
+            "observations and observations that reproject within COLMAP's 4 px filter after BA, the BA-only "
+            "analogue of tie points / reprojected pixels. " + "; ".join(parts)
+            + f". Margin max({TIE_MARGIN_REL:.1%}, 1 count); more = the interval lies above it")
+    return verdict, figs, text, n

@@ -1,0 +1,104 @@
+"""Provenance of a result: which code, on which machine, with which packages, threads and seeds.
+
+One function, :func:`collect`, shared by every writer of results (``compare``'s metrics.json,
+``sfm``'s metrics.json, ``bench ba``'s bench.json) and by ``polarref doctor``. It never
+raises: a field it cannot determine is recorded as unknown ("" / None) rather than aborting a
+finished run for want of a version string.
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import platform
+import subprocess
+import sys
+from pathlib import Path
+
+# Module names as imported; the keys in ``versions`` use the distribution's common name.
+PACKAGES = {"numpy": "numpy", "scipy": "scipy", "sympy": "sympy", "mitsuba": "mitsuba", "drjit": "drjit",
+            "pycolmap": "pycolmap", "opencv": "cv2", "matplotlib": "matplotlib", "threadpoolctl": "threadpoolctl"}
+THREAD_ENV = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def _git(repo: Path, *args: str) -> str | None:
+    try:
+        r = subprocess.run(["git", "-C", str(repo), *args], capture_output=True, text=True, timeout=10)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return r.stdout if r.returncode == 0 else None
+
+
+def git_state(repo: Path | None = None) -> tuple[str, bool | None]:
+    """(HEAD commit as 40 hex digits or "", dirty flag or None outside a git checkout).
+
+    Dirty means a tracked file differs from HEAD; untracked files (caches, outputs) do not count.
+    """
+    from polarref.data import REPO_ROOT
+
+    repo = Path(repo or REPO_ROOT)
+    head = (_git(repo, "rev-parse", "HEAD") or "").strip()
+    if len(head) != 40:
+        return "", None
+    status = _git(repo, "status", "--porcelain", "--untracked-files=no")
+    return head, None if status is None else bool(status.strip())
+
+
+def cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.lower().startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or ""
+
+
+def package_versions() -> dict[str, str]:
+    """name -> version, "missing (...)" when the import fails; polarref's own version first."""
+    from polarref import __version__
+
+    out = {"polarref": str(__version__), "python": sys.version.split()[0]}
+    for name, module in PACKAGES.items():
+        try:
+            out[name] = str(getattr(importlib.import_module(module), "__version__", "unknown version"))
+        except Exception as exc:  # provenance must report, never crash
+            out[name] = f"missing ({type(exc).__name__})"
+    return out
+
+
+def blas_threads() -> int | None:
+    """The largest thread count of the loaded BLAS libraries (None: none loaded / unknown)."""
+    try:
+        from threadpoolctl import threadpool_info
+
+        counts = [int(i["num_threads"]) for i in threadpool_info() if i.get("user_api") == "blas"]
+    except Exception:
+        return None
+    return max(counts) if counts else None
+
+
+def collect(seeds: dict[str, int] | None = None, threads: dict[str, int] | None = None) -> dict:
+    """The environment record embedded as ``environment`` in every result file.
+
+    Args:
+        seeds: the seeds of the run (name -> seed), recorded as given.
+        threads: thread counts the caller set for its stages (name -> count), e.g.
+            ``{"pycolmap": 1, "ba_blas": 1}``; the process's BLAS default and the thread
+            environment variables are added.
+    Returns:
+        JSON-able dict: git_commit, git_dirty, cpu_count, cpu_model, machine, platform, python,
+        versions, threads, seeds.
+    """
+    commit, dirty = git_state()
+    th = dict(threads or {})
+    b = blas_threads()
+    if b is not None:
+        th.setdefault("blas_default", b)
+    for var in THREAD_ENV:
+        if os.environ.get(var, "").isdigit():
+            th.setdefault(var, int(os.environ[var]))
+    return {"git_commit": commit, "git_dirty": dirty, "cpu_count": int(os.cpu_count() or 0),
+            "cpu_model": cpu_model(), "machine": platform.machine(), "platform": platform.platform(),
+            "python": sys.version.split()[0], "versions": package_versions(), "threads": th,
+            "seeds": dict(seeds or {})}
