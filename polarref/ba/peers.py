@@ -74,8 +74,9 @@ def _behind(problem: BAProblem, R, C, X) -> int:
 
 
 def run_pycolmap(problem: BAProblem, options: BAOptions, ceres: CeresSettings = CeresSettings()) -> PeerResult:
-    """Ceres via pycolmap: intrinsics fixed (or refined as ``options.refine``), gauge TWO_CAMS_FROM_WORLD, same robust loss, stopping
-    rules and threads from ``ceres`` (default: COLMAP's defaults)."""
+    """Ceres via pycolmap: intrinsics fixed (or refined as ``options.refine``, one camera per
+    group), gauge TWO_CAMS_FROM_WORLD, same robust loss, stopping rules and threads from
+    ``ceres`` (default: COLMAP's defaults)."""
     import pycolmap
 
     from polarref.ba.adapter import problem_to_reconstruction
