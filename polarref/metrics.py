@@ -26,6 +26,8 @@ Definitions (all in the JSON as written here):
 * Point-to-surface: exact Euclidean distance from each aligned 3D point to the triangle mesh
   (closest point on triangle, Ericson 2005, 5.1.5), reported in GT units and divided by
   scene_size.
+* Dense surfaces (clouds, meshes): accuracy, completeness and F-score at tau (ETH3D / Tanks and
+  Temples) in :mod:`polarref.surface_metrics`, re-exported here.
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from polarref.geometry import Sim3, rotation_angle_deg, umeyama
+from polarref.surface_metrics import SurfaceScore, mesh_diameter, sample_mesh, score_cloud, score_mesh  # noqa: F401
 
 COLLINEAR_RATIO = 1e-3  # 2nd / 1st singular value of centred camera centres below this: near-collinear
 

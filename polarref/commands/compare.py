@@ -44,6 +44,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="whole-run time limit in seconds, rendering included (default by preset: "
                              "default 290, others none; 0 = none); later methods get shorter limits")
     parser.add_argument("--no-claims", action="store_true", help="skip the claim experiments")
+    parser.add_argument("--dense", action="store_true",
+                        help="also run polarref dense from the GT, ours-euclidean and ours-polar poses "
+                             "(after the budgeted run; adds a dense section and figure to the report)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -64,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
                         methods=tuple(args.methods or ()), seed=args.seed,
                         method_timeout_s=args.method_timeout, claims=not args.no_claims,
                         budget_s=None if args.budget == 0 else args.budget,
-                        command=command_line(), overwrite=args.overwrite)
+                        command=command_line(), overwrite=args.overwrite, dense=args.dense)
     t0 = time.perf_counter()
     out, metrics = run_compare(cfg)
     ok = sum(m.status == STATUS_OK for m in metrics.methods)

@@ -55,6 +55,7 @@ class CompareConfig:
     claims: bool = True               # run the claim experiments
     command: str = ""                 # exact command line, recorded in the report
     overwrite: bool = False           # allow replacing a finished report folder (metrics.json present)
+    dense: bool = False               # also run the dense stage (GT, ours-euclidean, ours-polar poses)
 
 
 @dataclass
@@ -281,6 +282,11 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
         if trace:
             metrics.ba_traces.append(BATrace(spec.ba, f"{scene.name}: final global BA of our SfM",
                                              [TracePoint(int(i), float(t), float(c)) for i, t, c in trace]))
+    if cfg.dense:  # after the budgeted part: the dense stage has its own (benchmarked) cost
+        from polarref.compare.dense_section import run_dense_stage
+
+        metrics.dense = run_dense_stage(scene.root, {n: (job_results.get(n) or {}).get("model_dir")
+                                                     for n in ("ours-euclidean", "ours-polar")}, out)
     if cfg.claims:
         c_budget = claims_budget
         if budget is not None:

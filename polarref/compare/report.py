@@ -12,10 +12,12 @@ base64, and the 3D view's data and script are inlined, so the page works offline
 from __future__ import annotations
 
 import dataclasses
+import logging
 from pathlib import Path
 
 from polarref.compare import figures as figs
 from polarref.compare import view3d
+from polarref.compare.dense_section import dense_blocks, draw_dense_figure
 from polarref.compare.report_render import (Badge, Badges, Bullets, Details, Fig, Heading, Para, RawHtml,
                                             Section, Table, to_html, to_markdown)
 from polarref.compare.schema import (STATUS_OK, ClaimResult, MethodPair, MethodResult,
@@ -334,6 +336,7 @@ def build_blocks(m: MetricsFile, figure_keys: set[str]) -> list:
     for key, caption, _ in figs.FIGURES:
         if key in figure_keys:
             blocks.append(Fig(key, caption))
+    blocks += dense_blocks(m, figure_keys)
     blocks += [Heading(2, "Claims in detail"), *_claims_blocks(m),
                Heading(2, "Details"),
                Details("All paper-format comparisons (Tables 1-3 layout)", _pairs_blocks(m)),
@@ -357,6 +360,10 @@ def build_report(out_dir: str | Path, metrics: MetricsFile | None = None) -> dic
         metrics = load(out_dir / "metrics.json")
     fig_dir = out_dir / "figures"
     drawn = figs.draw_all(metrics, fig_dir)
+    try:
+        drawn.update(draw_dense_figure(metrics, out_dir, fig_dir))
+    except Exception as exc:  # a broken plot must not lose the tables
+        logging.getLogger(__name__).warning("figure dense failed: %s: %s", type(exc).__name__, exc)
     blocks = build_blocks(metrics, set(drawn))
     md, page = out_dir / "report.md", out_dir / "report.html"
     write_text_atomic(md, to_markdown(blocks))

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from polarref.atomic import atomic_write
+from polarref.compare.dense_section import DenseSection
 from polarref.errors import PolarrefError
 
 SCHEMA_VERSION = 1
@@ -243,6 +244,7 @@ class MetricsFile:
     ba_traces: list[BATrace] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     view3d: View3D | None = None
+    dense: DenseSection | None = None  # compare --dense (polarref.compare.dense_section)
 
     def method(self, name: str) -> MethodResult | None:
         return next((m for m in self.methods if m.name == name), None)
