@@ -29,7 +29,8 @@ SCENE_JSON = "scene.json"
 
 @dataclass(frozen=True)
 class PinholeCamera:
-    """COLMAP ``PINHOLE`` camera: params (fx, fy, cx, cy), pixel-corner origin."""
+    """COLMAP ``PINHOLE`` camera: params (fx, fy, cx, cy), pixel-corner origin (or ``RADIAL``
+    (f, cx, cy, k1, k2) for scenes rendered with distortion, synth/distort.py)."""
 
     width: int
     height: int
@@ -110,7 +111,8 @@ def load_scene(root: str | os.PathLike) -> Scene:
     try:
         meta = json.loads(meta_path.read_text())
         cam = meta["camera"]
-        camera = PinholeCamera(int(cam["width"]), int(cam["height"]), np.array(cam["params"], float))
+        camera = PinholeCamera(int(cam["width"]), int(cam["height"]), np.array(cam["params"], float),
+                               model=cam.get("model", "PINHOLE"))
         views = [View(int(v["image_id"]), v["name"], Rigid3(np.array(v["R"]), np.array(v["tvec"])),
                       root / "images" / v["name"], root / "depth" / (Path(v["name"]).stem + ".npy"))
                  for v in meta["views"]]

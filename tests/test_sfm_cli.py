@@ -63,8 +63,14 @@ def test_cli_unknown_camera_and_missing_dir(tmp_path, capsys):
     d.mkdir(parents=True)
     cv2.imwrite(str(d / "a.png"), np.zeros((20, 30, 3), np.uint8))
     cv2.imwrite(str(d / "b.png"), np.zeros((20, 30, 3), np.uint8))
+    # no camera, no gt/, no EXIF (issue 19): the default camera with a warning, then the usual
+    # one-line failure for blank images (no crash)
     assert main(["sfm", str(tmp_path / "s"), "--out", str(tmp_path / "o2")]) == 1
-    assert "intrinsics unknown" in capsys.readouterr().err
+    assert "no image pair passed geometric verification" in capsys.readouterr().err
+    m = json.loads((tmp_path / "o2" / "metrics.json").read_text())
+    assert m["status"] == "failed"
+    assert main(["sfm", str(tmp_path / "s"), "--out", str(tmp_path / "o4"), "--refine", "focal,skew"]) == 1
+    assert "--refine" in capsys.readouterr().err
     assert main(["sfm", str(tmp_path / "s"), "--out", str(tmp_path / "o3"), "--camera", "PINHOLE:1,2"]) == 1
     assert "--camera" in capsys.readouterr().err
 

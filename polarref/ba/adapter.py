@@ -72,6 +72,9 @@ def problem_from_reconstruction(rec, *, variable_image_ids=None, fixed_image_ids
                         cam_fixed=cam_fixed, image_ids=image_ids,
                         point_ids=np.array(pids, np.int64))
     problem.exclusions["observations_unknown_image"] = int((~known).sum())
+    # images of one camera id share intrinsics when they are refined
+    cam_ids = np.array([im.camera_id for im in imgs])
+    problem.camera_group = np.unique(cam_ids, return_inverse=True)[1].astype(np.int64)
     return problem
 
 
@@ -83,11 +86,26 @@ def write_back(rec, problem: BAProblem) -> None:
             rec.images[int(i)].cam_from_world = Rigid3(problem.R[k], t[k])
     for k, p in enumerate(problem.point_ids):
         rec.points3D[int(p)].xyz = problem.X[k].copy()
+    for k, i in enumerate(problem.image_ids):  # refined intrinsics (unchanged when held fixed)
+        cid = rec.images[int(i)].camera_id
+        if rec.cameras[cid] != problem.cameras[k]:
+            rec.cameras[cid] = problem.cameras[k]
 
 
-def problem_to_reconstruction(problem: BAProblem):
-    """A Reconstruction holding the problem's cameras, poses, points and observations."""
+def problem_to_reconstruction(problem: BAProblem, shared_cameras: bool = False):
+    """A Reconstruction holding the problem's cameras, poses, points and observations.
+
+    Camera id = image id = index + 1; with ``shared_cameras`` one camera per intrinsics group
+    instead (camera id = group + 1, ``problem.camera_group`` or equal intrinsics).
+    """
     from polarref.reconstruction import Image, Point3D, Reconstruction
+
+    cam_id = np.arange(problem.num_cameras) + 1
+    if shared_cameras:
+        from polarref.ba.intrinsics import default_groups
+        groups = (default_groups(problem.cameras) if problem.camera_group is None
+                  else np.asarray(problem.camera_group))
+        cam_id = groups + 1
 
     rec = Reconstruction()
     order = np.argsort(problem.obs_cam, kind="stable")
@@ -97,8 +115,8 @@ def problem_to_reconstruction(problem: BAProblem):
     for i in range(problem.num_cameras):
         obs = order[starts[i]:starts[i + 1]]
         p2d[obs] = np.arange(len(obs))
-        rec.cameras[i + 1] = problem.cameras[i]
-        rec.images[i + 1] = Image(i + 1, f"img_{i:05d}", i + 1, Rigid3(problem.R[i], t[i]),
+        rec.cameras[int(cam_id[i])] = problem.cameras[i]
+        rec.images[i + 1] = Image(i + 1, f"img_{i:05d}", int(cam_id[i]), Rigid3(problem.R[i], t[i]),
                                   problem.obs_uv[obs].copy(), problem.obs_pt[obs] + 1)
     tracks = np.stack([problem.obs_cam + 1, p2d], axis=1)
     starts = np.searchsorted(problem.obs_pt, np.arange(problem.num_points + 1))
@@ -109,7 +127,7 @@ def problem_to_reconstruction(problem: BAProblem):
 
 def adjust(rec, options: BAOptions = BAOptions(), *, variable_image_ids=None,
            fixed_image_ids=None, variable_point_ids=None) -> BASummary:
-    """Bundle-adjust a Reconstruction in place (poses and points; intrinsics fixed).
+    """Bundle-adjust a Reconstruction in place (poses, points; intrinsics if ``options.refine``).
 
     Args:
         rec: ``polarref.reconstruction.Reconstruction``.

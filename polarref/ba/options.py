@@ -57,6 +57,9 @@ class BAOptions:
     # thread is fastest here: the BLAS calls are small and multi-threaded OpenBLAS on 2 busy
     # cores spent 0.64 s instead of 0.014 s in the Ladybug-49 Cholesky solves.
     blas_threads: int | None = 1
+    # self-calibration (intrinsics.py): intrinsics groups refined, subset of ("focal", "pp",
+    # "dist"); () holds the intrinsics fixed (the solve is then exactly the fixed-camera one)
+    refine: tuple = ()
 
     def __post_init__(self) -> None:
         if self.param not in PARAMS:
@@ -77,6 +80,9 @@ class BAOptions:
             raise ValueError(f"unknown axis_residual {self.axis_residual!r}; choose chart or theta")
         if self.blas_threads is not None and self.blas_threads < 1:
             raise ValueError(f"blas_threads must be >= 1 or None, got {self.blas_threads}")
+        if self.refine:
+            from polarref.ba.intrinsics import parse_refine
+            object.__setattr__(self, "refine", parse_refine(self.refine))
         if self.max_iterations < 0:
             raise ValueError(f"max_iterations must be >= 0, got {self.max_iterations}")
 
@@ -134,3 +140,5 @@ class BASummary:
     # parallax forms (omega kept in [0, pi - margin]): points ending at_lower (omega = 0, at
     # infinity along +d, written back FAR away) / at_upper, and accepted steps that were clipped
     point_bounds: dict = field(default_factory=dict)
+    # self-calibration: one polarref.ba.intrinsics.IntrinsicsResult per camera group
+    intrinsics: list = field(default_factory=list)

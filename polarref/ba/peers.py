@@ -74,16 +74,20 @@ def _behind(problem: BAProblem, R, C, X) -> int:
 
 
 def run_pycolmap(problem: BAProblem, options: BAOptions, ceres: CeresSettings = CeresSettings()) -> PeerResult:
-    """Ceres via pycolmap: intrinsics fixed, gauge TWO_CAMS_FROM_WORLD, same robust loss, stopping
-    rules and threads from ``ceres`` (default: COLMAP's defaults)."""
+    """Ceres via pycolmap: intrinsics fixed (or refined as ``options.refine``, one camera per
+    group), gauge TWO_CAMS_FROM_WORLD, same robust loss, stopping rules and threads from
+    ``ceres`` (default: COLMAP's defaults)."""
     import pycolmap
 
     from polarref.ba.adapter import problem_to_reconstruction
 
     # image id = camera index + 1, point id = point index + 1 (kept by to_pycolmap)
-    rec = problem_to_reconstruction(problem).to_pycolmap()
+    rec = problem_to_reconstruction(problem, shared_cameras=bool(options.refine)).to_pycolmap()
     opts = pycolmap.BundleAdjustmentOptions()
-    opts.refine_focal_length = opts.refine_principal_point = opts.refine_extra_params = False
+    # the same intrinsics groups as ours (options.refine, issue 19); none by default
+    opts.refine_focal_length = "focal" in options.refine
+    opts.refine_principal_point = "pp" in options.refine
+    opts.refine_extra_params = "dist" in options.refine
     opts.refine_sensor_from_rig = False
     opts.print_summary = False
     opts.ceres.loss_function_type = {"trivial": pycolmap.LossFunctionType.TRIVIAL,
@@ -116,6 +120,12 @@ def run_pycolmap(problem: BAProblem, options: BAOptions, ceres: CeresSettings = 
         R[i] = pose.rotation.matrix()
         C[i] = -R[i].T @ np.asarray(pose.translation)
     X = np.array([rec.points3D[j + 1].xyz for j in range(problem.num_points)])
+    if options.refine:  # final cost with the refined intrinsics
+        from polarref.camera import Camera
+        refined = problem.copy()
+        refined.cameras = [Camera.from_pycolmap(rec.cameras[rec.images[i + 1].camera_id])
+                           for i in range(N)]
+        e = Euclidean(refined)
     c1, rms = _cost_of(e, R, C, X, options)
     used = {**dataclasses.asdict(ceres), "linear_solver_used": str(cs.linear_solver_type_used).split(".")[-1],
             "preconditioner_used": str(cs.preconditioner_type_used).split(".")[-1],

@@ -51,6 +51,8 @@ class BAProblem:
     cam_mask: np.ndarray | None = None  # (N, 6) True = free parameter
     gauge: str = ""
     exclusions: dict = field(default_factory=dict)
+    # (N,) intrinsics group per camera for self-calibration (None: equal cameras share one)
+    camera_group: np.ndarray | None = None
 
     @property
     def num_cameras(self) -> int:
@@ -72,7 +74,8 @@ class BAProblem:
                          None if self.image_ids is None else self.image_ids.copy(),
                          None if self.point_ids is None else self.point_ids.copy(),
                          None if self.cam_mask is None else self.cam_mask.copy(),
-                         self.gauge, copy.deepcopy(self.exclusions))
+                         self.gauge, copy.deepcopy(self.exclusions),
+                         None if self.camera_group is None else self.camera_group.copy())
 
     def cam_from_world_t(self) -> np.ndarray:
         """(N, 3) translations t = -R C (matmul: bit-identical to ``-R[i] @ C[i]``)."""

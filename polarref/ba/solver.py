@@ -128,6 +128,9 @@ def _clipped_model(a_lin, q_damp, g_p, dp, delta, D_p, V, mu) -> float:
 def solve(problem: BAProblem, options: BAOptions, *, prepared: bool = False,
           param=None) -> BASummary:
     """Run LM on ``problem`` (updated in place: R, C, X). See module docstring."""
+    if options.refine:  # self-calibration: intrinsics blocks join the camera system
+        from polarref.ba.intrinsics import solve_calibrating
+        return solve_calibrating(problem, options, prepared=prepared)
     if options.blas_threads is None:
         return _solve(problem, options, prepared, param)
     from threadpoolctl import threadpool_limits

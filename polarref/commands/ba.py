@@ -33,6 +33,8 @@ def add_arguments(parser) -> None:
                         help="LM: release the 7 gauge DoF during the solve (result mapped back) "
                         "or hold them; default: the form's measured best")
     parser.add_argument("--staged", action="store_true", help="angular: theta first, then joint")
+    parser.add_argument("--refine", default="", metavar="GROUPS",
+                        help="self-calibration: refine intrinsics groups focal,pp,dist (default none)")
     parser.add_argument("--out", required=True, help="output JSON path")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing --out")
 
@@ -51,7 +53,8 @@ def run(args) -> int:
     try:
         options = BAOptions(param=args.param, loss=args.loss, loss_scale=args.loss_scale,
                             max_iterations=args.max_iterations, staged=args.staged,
-                            solver=args.solver, damping=args.damping, lm_gauge=args.lm_gauge)
+                            solver=args.solver, damping=args.damping, lm_gauge=args.lm_gauge,
+                            refine=args.refine)
     except ValueError as exc:
         raise PolarrefError(str(exc)) from exc
     problem, _ = load_problem(args.problem)

@@ -31,6 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=SEED, default=0, help="seed of shape, texture, orbit and renderer (0..2^32-1)")
     parser.add_argument("--mesh", help="comet only: OBJ/PLY shape model in metres instead of the procedural body")
     parser.add_argument("--oblique", type=float_range(-89.0, 89.0), help="uav only: forward camera tilt from nadir, degrees")
+    parser.add_argument("--distortion", metavar="K1[,K2]",
+                        help="apply a known RADIAL lens distortion (k1, k2) to every view (synth/distort.py)")
     parser.add_argument("--overwrite", action="store_true",
                         help="re-render every view, replacing a folder rendered with other parameters")
 
@@ -52,7 +54,19 @@ def run(args: argparse.Namespace) -> int:
         if args.scene != "uav":
             raise PolarrefError("an oblique tilt is only supported for the uav scene")
         cfg = dataclasses.replace(cfg, uav=dataclasses.replace(cfg.uav, oblique_deg=args.oblique))
-    result = render_scene(args.scene, args.out, cfg, overwrite=args.overwrite)
+    if args.distortion:
+        from synth.distort import render_distorted_scene
+
+        try:
+            ks = [float(v) for v in args.distortion.split(",")]
+        except ValueError:
+            ks = []
+        if not 1 <= len(ks) <= 2 or not all(abs(k) < float("inf") for k in ks):
+            raise PolarrefError(f"--distortion {args.distortion!r}: expected K1 or K1,K2")
+        result = render_distorted_scene(args.scene, args.out, cfg, ks[0], ks[1] if len(ks) > 1 else 0.0,
+                                        overwrite=args.overwrite)
+    else:
+        result = render_scene(args.scene, args.out, cfg, overwrite=args.overwrite)
     if result.rendered:
         print(f"rendered {result.rendered} views ({result.skipped} already done) in {result.seconds:.1f} s: "
               f"{result.images_per_s:.2f} images/s, {result.seconds / result.rendered:.3f} s/image "

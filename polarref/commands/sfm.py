@@ -23,6 +23,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="bundle adjuster (colmap = pycolmap's Ceres, for reference)")
     parser.add_argument("--camera", metavar="MODEL:params",
                         help="known intrinsics in COLMAP order, e.g. PINHOLE:fx,fy,cx,cy (default: from gt/)")
+    parser.add_argument("--refine", metavar="GROUPS",
+                        help="intrinsics refined in global BA: focal,pp,dist or none (default: focal,dist "
+                             "for EXIF cameras, none for --camera / gt/)")
+    cams = parser.add_mutually_exclusive_group()
+    cams.add_argument("--single-camera", action="store_true",
+                      help="EXIF cameras: one camera for all images (default: one per make, model, size)")
+    cams.add_argument("--camera-per-image", action="store_true", help="EXIF cameras: one camera per image")
     parser.add_argument("--preset", choices=sorted(PRESETS), default="default", help="configuration preset")
     parser.add_argument("--max-features", type=int_range(8), help="SIFT keypoints per image (>= 8)")
     parser.add_argument("--max-image-size", type=_image_size,
@@ -65,6 +72,15 @@ def _config(args: argparse.Namespace):
                   mapper=rep(cfg.mapper, register=rep(cfg.mapper.register, seed=args.seed)))
     if args.no_cache:
         cfg = rep(cfg, use_cache=False)
+    if args.refine is not None:
+        from polarref.ba.intrinsics import parse_refine
+
+        try:
+            cfg = rep(cfg, mapper=rep(cfg.mapper, refine=parse_refine(args.refine)))
+        except ValueError as exc:
+            raise PolarrefError(f"--refine: {exc}") from exc
+    if args.single_camera or args.camera_per_image:
+        cfg = rep(cfg, camera_mode="single" if args.single_camera else "per-image")
     return cfg
 
 
@@ -103,6 +119,13 @@ def run(args: argparse.Namespace) -> int:
         line += (f"; vs GT: rotation error mean {m['gt']['rotation_error_deg_mean']:.3f} deg, "
                  f"centre error mean {m['gt']['center_error_rel_mean']:.2e} of scene size")
     print(line)
+    for c in m.get("cameras", []):
+        if m.get("refine"):
+            vals = ", ".join(f"{n}={v:.6g}" for n, v in zip(c["names"], c["refined"]))
+            gt_err = (f" (focal error {100 * c['focal_error_rel']:.3f} % vs GT)"
+                      if c.get("focal_error_rel") is not None else "")
+            print(f"camera {c['camera_id']} ({c['source']}, {c['num_images']} images): refined "
+                  f"{c['model']} {vals}{gt_err}")
     print(f"wrote {args.out / 'model'} ({args.model_format} + points3D.ply) and {args.out / 'metrics.json'} "
           f"in {m['runtime_s']['total']:.1f} s")
     return 0

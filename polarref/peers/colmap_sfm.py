@@ -1,4 +1,4 @@
-"""pycolmap (COLMAP 4.x / GLOMAP) structure from motion with the intrinsics held fixed.
+"""pycolmap (COLMAP 4.x / GLOMAP) structure from motion, intrinsics fixed unless ``refine``.
 
 The one place in polarref that drives pycolmap's SfM: used by ``polarref compare`` (as the
 reference methods), by ``polarref.sfm.export`` (our matches into a COLMAP database) and by the
@@ -48,6 +48,9 @@ class ColmapSfMOptions:
     max_num_features: int = 8192   # SIFT features per image (COLMAP's default)
     max_image_size: int = 3200     # SIFT downscales larger images to this side (COLMAP's default)
     multiple_models: bool = False  # incremental: keep mapping the leftovers into further models
+    # intrinsics groups the mappers' BAs refine (focal, pp, dist; issue 19), () = held fixed;
+    # set it to what polarref's mapper refines so both start from and estimate the same things
+    refine: tuple = ()
 
     def __post_init__(self) -> None:
         if self.seed < 0:
@@ -94,10 +97,11 @@ def incremental_options(opts: ColmapSfMOptions):
     o.random_seed = opts.seed
     o.mapper.random_seed = opts.seed
     o.multiple_models = opts.multiple_models
-    # Intrinsics are known: hold them fixed in every BA and in absolute pose estimation.
-    o.ba_refine_focal_length = False
-    o.ba_refine_principal_point = False
-    o.ba_refine_extra_params = False
+    # Intrinsics known: held fixed in every BA and in absolute pose estimation; with
+    # opts.refine the BAs refine those groups (absolute pose still holds them, like polarref).
+    o.ba_refine_focal_length = "focal" in opts.refine
+    o.ba_refine_principal_point = "pp" in opts.refine
+    o.ba_refine_extra_params = "dist" in opts.refine
     o.mapper.abs_pose_refine_focal_length = False
     o.mapper.abs_pose_refine_extra_params = False
     return o
@@ -111,9 +115,9 @@ def global_options(opts: ColmapSfMOptions):
     o.random_seed = opts.seed
     o.mapper.random_seed = opts.seed
     ba = o.mapper.bundle_adjustment
-    ba.refine_focal_length = False
-    ba.refine_principal_point = False
-    ba.refine_extra_params = False
+    ba.refine_focal_length = "focal" in opts.refine
+    ba.refine_principal_point = "pp" in opts.refine
+    ba.refine_extra_params = "dist" in opts.refine
     # Default True; on this CPU build they only warn. Say what we mean.
     ba.ceres.use_gpu = False
     o.mapper.global_positioning.use_gpu = False

@@ -1,7 +1,9 @@
 """Bundle adjustment of a :class:`MapState` through the shared :class:`Reconstruction` type.
 
 ``ba="colmap"`` runs pycolmap's Ceres adjuster (the reference); every other name runs
-``polarref.ba.adjust`` with that parameterization. Intrinsics are always held constant.
+``polarref.ba.adjust`` with that parameterization. Intrinsics are held constant unless
+``refine`` names groups (focal, pp, dist); refined cameras are copied back into the state and
+the cached bearings of their observations recomputed.
 """
 
 from __future__ import annotations
@@ -62,10 +64,18 @@ def _read_back(state, rec: Reconstruction, variable: list[int]) -> None:
         state.set_pose(i, rec.images[i + 1].cam_from_world)
     for pid, p in rec.points3D.items():
         state.X[pid - 1] = p.xyz
+    for cid, cam in rec.cameras.items():
+        c = cid - 1
+        if state.cameras[c] != cam:
+            from polarref.sfm import rays as R_
+
+            state.cameras[c] = cam
+            obs = np.flatnonzero(state.camera_of_image[state.tracks.image] == c)
+            state.ray[obs] = R_.bearings(cam, state.uv[obs])
 
 
 def _colmap_adjust(rec: Reconstruction, variable: list[int], fixed: list[int], max_iterations: int,
-                   loss: str) -> dict:
+                   loss: str, refine: tuple = ()) -> dict:
     import pycolmap
 
     prec = rec.to_pycolmap()
@@ -74,13 +84,16 @@ def _colmap_adjust(rec: Reconstruction, variable: list[int], fixed: list[int], m
         cfg.add_image(i + 1)
     for i in fixed:
         cfg.set_constant_rig_from_world_pose(prec.images[i + 1].frame_id)
-    for cam_id in prec.cameras:
-        cfg.set_constant_cam_intrinsics(cam_id)
+    if not refine:
+        for cam_id in prec.cameras:
+            cfg.set_constant_cam_intrinsics(cam_id)
     if len(fixed) < 2:
         # Gauge (7 DoF: rotation, translation, scale): pin two camera poses, COLMAP style.
         cfg.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
     opts = pycolmap.BundleAdjustmentOptions()
-    opts.refine_focal_length = opts.refine_principal_point = opts.refine_extra_params = False
+    opts.refine_focal_length = "focal" in refine
+    opts.refine_principal_point = "pp" in refine
+    opts.refine_extra_params = "dist" in refine
     opts.ceres.solver_options.max_num_iterations = max_iterations
     opts.ceres.solver_options.num_threads = 1
     opts.print_summary = False
@@ -97,7 +110,12 @@ def _colmap_adjust(rec: Reconstruction, variable: list[int], fixed: list[int], m
         rec.images[i + 1].cam_from_world = Rigid3(pose.rotation.matrix(), pose.translation)
     for pid, p in prec.points3D.items():
         rec.points3D[pid].xyz = np.array(p.xyz)
-    info = {"param": "colmap", "loss": loss, "wall_s": wall}
+    if refine:
+        from polarref.camera import Camera
+
+        for cid in rec.cameras:
+            rec.cameras[cid] = Camera.from_pycolmap(prec.cameras[cid])
+    info = {"param": "colmap", "loss": loss, "wall_s": wall, "refine": list(refine)}
     for key in ("initial_cost", "final_cost", "num_successful_steps", "num_unsuccessful_steps"):
         if hasattr(cs, key):
             info[key] = float(getattr(cs, key))
@@ -105,8 +123,9 @@ def _colmap_adjust(rec: Reconstruction, variable: list[int], fixed: list[int], m
 
 
 def adjust(state, variable: list[int], fixed: list[int], ba: str, max_iterations: int,
-           loss: str = "trivial", track_ids=None) -> dict:
-    """Adjust poses of ``variable`` images and the points (``track_ids`` or all) in place.
+           loss: str = "trivial", track_ids=None, refine: tuple = ()) -> dict:
+    """Adjust poses of ``variable`` images and the points (``track_ids`` or all) in place, and
+    the intrinsics groups ``refine`` of the cameras involved.
 
     Returns a JSON-ready summary (with the iteration trace for polarref's adjusters).
     """
@@ -116,15 +135,18 @@ def adjust(state, variable: list[int], fixed: list[int], ba: str, max_iterations
     if not rec.points3D:
         return {"param": ba, "skipped": "no points"}
     if ba == "colmap":
-        info = _colmap_adjust(rec, list(variable), list(fixed), max_iterations, loss)
+        info = _colmap_adjust(rec, list(variable), list(fixed), max_iterations, loss, tuple(refine))
     else:
         from polarref.ba import BAOptions, adjust as ba_adjust
 
-        opts = BAOptions(param=ba, loss=loss, max_iterations=max_iterations)
+        opts = BAOptions(param=ba, loss=loss, max_iterations=max_iterations, refine=tuple(refine))
         summary = ba_adjust(rec, opts, variable_image_ids=[i + 1 for i in variable],
                             fixed_image_ids=[i + 1 for i in fixed])
         info = dataclasses.asdict(summary)
         # keep scalars and the iteration trace (convergence plots); drop bulky state dumps
-        info = {k: v for k, v in info.items() if k == "trace" or not isinstance(v, (list, np.ndarray))}
+        info = {k: v for k, v in info.items()
+                if k in ("trace", "intrinsics") or not isinstance(v, (list, np.ndarray))}
+        if not info["intrinsics"]:
+            info.pop("intrinsics")
     _read_back(state, rec, list(variable))
     return info

@@ -47,6 +47,7 @@ class SfMConfig:
     track_conflicts: str = "drop"   # track with 2 keypoints of one image: "drop" it or "split" it (tracks.py);
     #                                 split: more points, rotations within +-0.005 deg of drop on our scenes
     use_cache: bool = True          # reuse features/matches from cache_dir
+    camera_mode: str = "per-model"  # EXIF cameras (no camera given): per-model | single | per-image
     cache_dir: str = ""             # "" = polarref.data.cache_root() / "sfm"
 
 
@@ -383,8 +384,20 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         result["num_images"] = len(feats) + len(skipped)
         if len(feats) < 2:
             raise PolarrefError(f"{len(feats)} readable image(s) in {image_dir}; need at least 2")
-        cameras, cam_idx = cameras_for_images([f.name for f in feats], [(f.width, f.height) for f in feats],
-                                              camera, gt)
+        sizes = [(f.width, f.height) for f in feats]
+        if camera is None and gt is None:  # a folder of photos: cameras from EXIF, self-calibrated
+            from polarref.sfm.calibration import EXIF_REFINE, cameras_from_exif
+
+            cameras, cam_idx, sources = cameras_from_exif(
+                [Path(image_dir) / f.name for f in feats], sizes, config.camera_mode)
+            auto_refine = EXIF_REFINE
+        else:
+            cameras, cam_idx = cameras_for_images([f.name for f in feats], sizes, camera, gt)
+            sources, auto_refine = ["given" if camera is not None else "gt"] * len(cameras), ()
+        if config.mapper.refine is None:
+            config = dataclasses.replace(config, mapper=dataclasses.replace(
+                config.mapper, refine=auto_refine))
+        initial_cameras = list(cameras)
         matches = match_and_verify(feats, cameras, cam_idx, config, fkey, timings)
         result["num_verified_pairs"] = len(matches.geometries)
         t0 = time.perf_counter()
@@ -395,7 +408,7 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         result["num_tracks"] = tracks.num_tracks
         result["num_conflicting_tracks_dropped"] = tracks.num_conflicting
         t0 = time.perf_counter()
-        state = MapState([f.name for f in feats], cameras, cam_idx, [f.keypoints for f in feats],
+        state = MapState([f.name for f in feats], list(cameras), cam_idx, [f.keypoints for f in feats],
                          tracks, config.triangulation)
         mlog = run_mapper(state, matches.geometries, config.mapper, [f.descriptors for f in feats])
         timings["mapping"] = time.perf_counter() - t0
@@ -405,6 +418,11 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         result["unregistered_images"] = [f.name for i, f in enumerate(feats) if not state.registered[i]]
         result["guided_observations"] = mlog.guided_observations
         result["ba"] = mlog.ba
+        from polarref.sfm.calibration import camera_reports
+
+        result["refine"] = list(config.mapper.refine)
+        result["cameras"] = [r.to_dict() for r in camera_reports(
+            initial_cameras, state.cameras, sources, cam_idx, [f.name for f in feats], gt)]
         rec = to_reconstruction(state, colors=[f.colors for f in feats])
     except PolarrefError as exc:
         result["status"] = "failed"
