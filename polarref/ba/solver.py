@@ -228,6 +228,16 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
 
     def rec_radius() -> float:  # the trace's trust radius: Ceres' only (Nielsen / GN: 0)
         return radius if not identity_damping else 0.0
+    def damp_more() -> str:
+        """After a failed or rejected step: more damping; a termination reason once exhausted."""
+        nonlocal mu_n, nu, radius, decrease_factor
+        if damping == "nielsen":
+            mu_n, nu = mu_n * nu, nu * 2.0
+            return "max_damping" if mu_n > _MAX_NIELSEN_MU else ""
+        radius /= decrease_factor
+        decrease_factor *= 2.0
+        return "min_trust_radius" if radius < options.min_trust_radius else ""
+
     trace: list[IterationRecord] = []
     termination = "max_iterations"
     accepted_n = 0
@@ -301,16 +311,9 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             if gn:
                 termination = "linear_solver_failure"
                 break
-            if damping == "nielsen":
-                mu_n, nu = mu_n * nu, nu * 2.0
-                if mu_n > _MAX_NIELSEN_MU:
-                    termination = "max_damping"
-                    break
-                continue
-            radius /= decrease_factor
-            decrease_factor *= 2.0
-            if radius < options.min_trust_radius:
-                termination = "min_trust_radius"
+            stop = damp_more()
+            if stop:
+                termination = stop
                 break
             continue
         tic = time.perf_counter()
@@ -376,16 +379,10 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             if rel < options.function_tolerance:
                 termination = "function_tolerance"
                 break
-        elif damping == "nielsen":
-            mu_n, nu = mu_n * nu, nu * 2.0
-            if mu_n > _MAX_NIELSEN_MU:
-                termination = "max_damping"
-                break
         else:
-            radius /= decrease_factor
-            decrease_factor *= 2.0
-            if radius < options.min_trust_radius:
-                termination = "min_trust_radius"
+            stop = damp_more()
+            if stop:
+                termination = stop
                 break
     problem.R, problem.C = R, C
     param.store(R, C, pts)
