@@ -21,6 +21,7 @@ EXAMPLES = {
     "PINHOLE": [500.0, 520.0, 320.0, 240.0],
     "SIMPLE_RADIAL": [500.0, 320.0, 240.0, -0.1],
     "RADIAL": [500.0, 320.0, 240.0, -0.1, 0.02],
+    "OPENCV": [500.0, 520.0, 320.0, 240.0, -0.1, 0.02, 0.001, -0.002],
     "OPENCV_FISHEYE": [300.0, 310.0, 320.0, 240.0, 0.05, -0.01, 0.002, -0.0003],
     "SIMPLE_FISHEYE": [300.0, 320.0, 240.0],
     "FISHEYE": [300.0, 310.0, 320.0, 240.0],
@@ -192,6 +193,8 @@ def params_strategy(model):
     c = st.floats(0, 2000)
     small = {"SIMPLE_RADIAL": [st.floats(-0.3, 0.3)],
              "RADIAL": [st.floats(-0.3, 0.3), st.floats(-0.1, 0.1)],
+             "OPENCV": [st.floats(-0.3, 0.3), st.floats(-0.1, 0.1),
+                        st.floats(-0.01, 0.01), st.floats(-0.01, 0.01)],
              "OPENCV_FISHEYE": [st.floats(-0.1, 0.1), st.floats(-0.03, 0.03),
                                 st.floats(-0.01, 0.01), st.floats(-0.003, 0.003)]}
     spec = MODELS[model]
@@ -303,8 +306,8 @@ def test_pycolmap_conversions():
         cam("STEREOGRAPHIC").to_pycolmap()
     import pycolmap
     with pytest.raises(ValueError, match="not supported"):
-        Camera.from_pycolmap(pycolmap.Camera(model="OPENCV", width=10, height=10,
-                                             params=[5, 5, 5, 5, 0, 0, 0, 0]))
+        Camera.from_pycolmap(pycolmap.Camera(model="FULL_OPENCV", width=10, height=10,
+                                             params=[5, 5, 5, 5] + [0] * 8))
 
 
 def test_rescaled_matches_resized_image():

@@ -9,7 +9,8 @@ Conventions (binding for polarref):
   image +y (down), in ``(-pi, pi]``: ``phi = atan2((v - cy) / fy, (u - cx) / fx)``, which is the
   plain pixel angle ``atan2(v - cy, u - cx)`` when fx == fy. So a camera-frame ray is
   ``(sin theta cos phi, sin theta sin phi, cos theta)`` for every model, and (theta, phi) do not
-  depend on the intrinsics. At the principal point phi is undefined; it is reported as 0 and its
+  depend on the intrinsics. phi is always the *ray's* azimuth: for OPENCV, whose tangential
+  distortion is not radially symmetric, it differs from the pixel angle formula above. At the principal point phi is undefined; it is reported as 0 and its
   Jacobian row as NaN.
 * Invalid input (a ray at or beyond the model's ``theta_max``, a zero vector, a pixel beyond
   the image radius the model can reach) gives NaN in the value and its Jacobian; pass
@@ -23,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from polarref.angular import ray_angles
+from polarref.camera import opencv
 from polarref.camera.models import MODELS, ModelSpec, radial_map
 from polarref.camera.radial import RadialMap
 
@@ -69,6 +71,7 @@ class Camera:
     _spec: ModelSpec = field(init=False, repr=False, compare=False)
     _radial: RadialMap = field(init=False, repr=False, compare=False)
     _theta_max: float = field(init=False, repr=False, compare=False)
+    _ru_lim: float = field(init=False, repr=False, compare=False)  # OPENCV's valid disc
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
@@ -93,6 +96,10 @@ class Camera:
         radial = radial_map(spec, params)
         object.__setattr__(self, "_radial", radial)
         object.__setattr__(self, "_theta_max", radial.theta_max)
+        if spec.kind == "opencv":
+            ru_lim = opencv.fold_radius(params[list(spec.extra)])
+            object.__setattr__(self, "_ru_lim", ru_lim)
+            object.__setattr__(self, "_theta_max", float(np.arctan(ru_lim)))
 
     # ---- identity ------------------------------------------------------------------------
     def __eq__(self, other: object) -> bool:
@@ -129,6 +136,8 @@ class Camera:
     @property
     def distortion(self) -> tuple[float, ...]:
         """The model's distortion coefficients (empty for distortion-free models)."""
+        if self._spec.kind == "opencv":
+            return tuple(float(self.params[i]) for i in self._spec.extra)
         return self._radial.coeffs
 
     @property
@@ -139,7 +148,7 @@ class Camera:
     @property
     def is_perspective(self) -> bool:
         """True for models whose rays are mapped through ``tan(theta)`` (z must be > 0)."""
-        return self._spec.kind == "perspective"
+        return self._spec.kind in ("perspective", "opencv")
 
     def calibration_matrix(self) -> Array:
         """(3, 3) ``K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]``.
@@ -172,7 +181,9 @@ class Camera:
     def project_with_jacobian(self, X_cam, *, strict: bool = False) -> tuple[Array, Array]:
         """Pixels (..., 2) and ``uv_D_Xcam`` (..., 2, 3) in one pass (the bundle adjuster's path)."""
         X = _last(X_cam, 3, "X_cam")
-        if self._spec.kind == "perspective":
+        if self._spec.kind == "opencv":
+            uv, J, valid = opencv.project(self, X)
+        elif self._spec.kind == "perspective":
             uv, J, valid = self._project_perspective(X)
         else:
             uv, J, valid = self._project_angle(X)
@@ -186,6 +197,9 @@ class Camera:
         """
         X = _last(X_cam, 3, "X_cam")
         spec, coeffs = self._spec, self._radial.coeffs
+        if spec.kind == "opencv":
+            J, valid = opencv.params_jacobian(self, X)
+            return _masked(J, valid, strict, "Camera.project")
         with np.errstate(**_ERR):
             if spec.kind == "perspective":
                 Z = X[..., 2]
@@ -290,6 +304,10 @@ class Camera:
     def to_angular_with_jacobian(self, uv, *, strict: bool = False) -> tuple[Array, Array]:
         """``(theta, phi)`` stacked as (..., 2) and ``angular_D_uv`` (..., 2, 2)."""
         uv = _last(uv, 2, "uv")
+        if self._spec.kind == "opencv":
+            ang, J, valid = opencv.to_angular(self, uv)
+            return _masked(ang, valid, strict, "Camera.to_angular"), \
+                _masked(J, valid, strict, "Camera.to_angular")
         x, y = self._normalized(uv)
         with np.errstate(**_ERR):
             rd = np.hypot(x, y)
@@ -315,6 +333,10 @@ class Camera:
     def from_angular_with_jacobian(self, theta, phi, *, strict: bool = False):
         theta, phi = np.broadcast_arrays(np.asarray(theta, dtype=np.float64),
                                          np.asarray(phi, dtype=np.float64))
+        if self._spec.kind == "opencv":
+            uv, J, valid = opencv.from_angular(self, theta, phi)
+            return _masked(uv, valid, strict, "Camera.from_angular"), \
+                _masked(J, valid, strict, "Camera.from_angular")
         with np.errstate(**_ERR):
             valid = (theta >= 0) & (theta < self._theta_max) & np.isfinite(phi)
             R, dR = self._radial.radius(np.where(valid, theta, 0.0))
@@ -336,6 +358,10 @@ class Camera:
 
     def unproject_with_jacobian(self, uv, *, strict: bool = False) -> tuple[Array, Array]:
         uv = _last(uv, 2, "uv")
+        if self._spec.kind == "opencv":
+            ray, J, valid = opencv.unproject(self, uv)
+            return _masked(ray, valid, strict, "Camera.unproject"), \
+                _masked(J, valid, strict, "Camera.unproject")
         x, y = self._normalized(uv)
         with np.errstate(**_ERR):
             rd = np.hypot(x, y)

@@ -10,6 +10,7 @@ SIMPLE_PINHOLE f, cx, cy                               tan(theta)               
 PINHOLE        fx, fy, cx, cy                          tan(theta)                      pi/2
 SIMPLE_RADIAL  f, cx, cy, k                            D(tan theta), D(r)=r(1+k r^2)   mono.
 RADIAL         f, cx, cy, k1, k2                       D(r) = r(1 + k1 r^2 + k2 r^4)   mono.
+OPENCV         fx, fy, cx, cy, k1, k2, p1, p2          not radial: see camera/opencv.py  det > 0
 OPENCV_FISHEYE fx, fy, cx, cy, k1, k2, k3, k4          theta(1+k1 t^2+..+k4 t^8)       mono., pi
 SIMPLE_FISHEYE f, cx, cy                               theta (equidistant, COLMAP)     pi
 FISHEYE        fx, fy, cx, cy                          theta (equidistant, COLMAP)     pi
@@ -41,7 +42,8 @@ class ModelSpec:
         names: parameter names in order.
         fx, fy, cx, cy: indices of the focal lengths and principal point (fx == fy for one-focal models).
         extra: indices of the distortion coefficients, in polynomial order.
-        kind, family: the radial map (see :class:`RadialMap`).
+        kind, family: the radial map (see :class:`RadialMap`); kind ``"opencv"`` is COLMAP's
+            radial + tangential model (:mod:`polarref.camera.opencv`).
         colmap: the COLMAP model with identical maths, or None.
     """
 
@@ -71,6 +73,7 @@ MODELS: dict[str, ModelSpec] = {
     "PINHOLE": _two_focal("perspective", "", "PINHOLE"),
     "SIMPLE_RADIAL": _one_focal("perspective", "", "SIMPLE_RADIAL", ("k",)),
     "RADIAL": _one_focal("perspective", "", "RADIAL", ("k1", "k2")),
+    "OPENCV": _two_focal("opencv", "", "OPENCV", ("k1", "k2", "p1", "p2")),
     "OPENCV_FISHEYE": _two_focal("angle", "poly", "OPENCV_FISHEYE", ("k1", "k2", "k3", "k4")),
     "SIMPLE_FISHEYE": _one_focal("angle", "poly", "SIMPLE_FISHEYE"),
     "FISHEYE": _two_focal("angle", "poly", "FISHEYE"),
@@ -83,4 +86,7 @@ MODELS: dict[str, ModelSpec] = {
 
 
 def radial_map(spec: ModelSpec, params) -> RadialMap:
+    """The model's radial map; for OPENCV (not radially symmetric) the radial part k1, k2 only."""
+    if spec.kind == "opencv":
+        return RadialMap("perspective", "", (float(params[spec.extra[0]]), float(params[spec.extra[1]])))
     return RadialMap(spec.kind, spec.family, tuple(float(params[i]) for i in spec.extra))

@@ -33,6 +33,9 @@ def angular_covariance(camera, uv, sigma_px: float) -> Array:
 def phi_sigma(camera, uv, sigma_px: float) -> Array:
     """First-order standard deviation of phi (...) [rad]; +inf at the principal point."""
     uv = np.asarray(uv, dtype=np.float64)
+    if camera.model == "OPENCV":  # tangential terms: phi is not the pixel angle, use its gradient
+        s = sigma_px * np.linalg.norm(camera.to_angular_jacobian(uv)[..., 1, :], axis=-1)
+        return np.where(np.isfinite(s), s, np.inf)
     x = (uv[..., 0] - camera.principal_point[0]) / camera.fx
     y = (uv[..., 1] - camera.principal_point[1]) / camera.fy
     rd2 = x * x + y * y
@@ -46,7 +49,8 @@ def phi_usable(camera, *, sigma_px: float, max_sigma_phi: float, uv=None, theta=
     """Boolean mask (...): is phi informative enough to use as an observation?
 
     Give either ``uv`` (..., 2) (exact first-order sigma_phi) or ``theta`` (...) [rad] (the
-    worst case over phi, ``sigma_px / (min(fx, fy) R(theta))``, exact for fx == fy).
+    worst case over phi, ``sigma_px / (min(fx, fy) R(theta))``, exact for fx == fy; for OPENCV
+    R is its radial part, ignoring the small tangential terms).
     Pixels/angles outside the model's valid range are reported unusable.
     """
     if (uv is None) == (theta is None):
