@@ -59,7 +59,10 @@ def parse_refine(value) -> tuple[str, ...]:
 
 
 def free_indices(model: str, refine: tuple[str, ...]) -> np.ndarray:
-    """Indices into the model's parameter vector refined for the groups ``refine``."""
+    """Indices into the model's parameter vector refined for the groups ``refine``.
+
+    ``dist`` is every distortion coefficient of the model, e.g. OPENCV's k1, k2, p1, p2.
+    """
     spec = MODELS[model]
     idx = []
     if "focal" in refine:
@@ -80,7 +83,8 @@ def uv_D_params(cam: Camera, Xc: np.ndarray) -> np.ndarray:
     """``uv_D_params`` (M, 2, P) of ``cam`` at camera-frame points Xc (M, 3), params in order.
 
     Pinhole+radial models use the closed form of the BA's fast kernel (defined for any depth,
-    like the kernel itself); other models ``Camera.project_params_jacobian``.
+    like the kernel itself); other models (OPENCV_FISHEYE, OPENCV, ...)
+    ``Camera.project_params_jacobian``, zero outside the model's field of view.
     """
     K = radial_params(cam)
     if K is None:

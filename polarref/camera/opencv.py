@@ -54,8 +54,16 @@ def distort_D_coeffs(x: Array, y: Array) -> Array:
 
 
 def _det(r: Array, alpha: Array, coeffs) -> Array:
-    J = distort(r * np.cos(alpha), r * np.sin(alpha), coeffs)[2]
-    return J[..., 0, 0] * J[..., 1, 1] - J[..., 0, 1] * J[..., 1, 0]
+    """det of :func:`distort`'s Jacobian at ``r (cos alpha, sin alpha)`` (no stacked arrays:
+    this is the hot part of every OPENCV camera's construction)."""
+    k1, k2, p1, p2 = coeffs
+    x, y = r * np.cos(alpha), r * np.sin(alpha)
+    r2 = r * r
+    radial = 1.0 + r2 * (k1 + k2 * r2)
+    a = 2.0 * (k1 + 2.0 * k2 * r2)
+    jxy = a * x * y + 2.0 * p1 * x + 2.0 * p2 * y
+    return ((radial + a * x * x + 2.0 * p1 * y + 6.0 * p2 * x)
+            * (radial + a * y * y + 6.0 * p1 * y + 2.0 * p2 * x) - jxy * jxy)
 
 
 def _first_fold(alpha: Array, coeffs, grid: Array) -> Array:
@@ -80,18 +88,18 @@ def _first_fold(alpha: Array, coeffs, grid: Array) -> Array:
 def fold_radius(coeffs) -> float:
     """``ru_lim``: radius of the largest disc (undistorted normalized) with det > 0; inf if none.
 
-    Azimuths are scanned on a 256-point grid and the worst one is refined on a 64-point grid
+    Azimuths are scanned on a 128-point grid and the worst one is refined on a 64-point grid
     around it; the fold radius is smooth in the azimuth, so this finds its minimum to ~1e-7.
     """
     k1, k2, p1, p2 = (float(c) for c in coeffs)
     if p1 == 0.0 and p2 == 0.0:  # radially symmetric: the RADIAL model's fold, bit for bit
         return odd_poly_limit((k1, k2))
     grid = np.tan(np.linspace(0.0, np.pi / 2, 2049)[:-1])
-    alpha = np.linspace(-np.pi, np.pi, 256, endpoint=False)
+    alpha = np.linspace(-np.pi, np.pi, 128, endpoint=False)
     rho = _first_fold(alpha, coeffs, grid)
     if not np.isfinite(rho).any():
         return float("inf")
-    best, step = alpha[int(np.argmin(rho))], 2 * np.pi / 256
+    best, step = alpha[int(np.argmin(rho))], 2 * np.pi / 128
     fine = _first_fold(np.linspace(best - step, best + step, 65), coeffs, grid)
     return float(min(rho.min(), fine.min()))
 
