@@ -69,6 +69,21 @@ def markdown(doc: dict) -> str:
     return "\n".join(out) + "\n"
 
 
+def _readme_cell(row: dict, target: float | None) -> str:
+    """Ratio to the fastest Ceres; else why there is none (a form may reach a target no Ceres
+    setting reaches, or stop above it: the polar objective is not the pixel cost)."""
+    r = row.get("ratio_to_fastest_ceres")
+    if r is not None:
+        return f"{r:.2f}x"
+    t = (row.get("time_to_target_s") or {}).get("median")
+    if row.get("reached_target") and t is not None:
+        return f"{t:.3f} s (no Ceres setting reached it)"
+    cost = row.get("final_cost")
+    if target and cost is not None and cost > target:
+        return f"did not reach (stops {100.0 * (cost / target - 1.0):+.1f}%)"
+    return "did not reach"
+
+
 def readme_table(doc: dict) -> str:
     """Per problem: fastest Ceres setting and our forms' time-to-target ratios against it."""
     out = ["| problem | fastest Ceres setting (t to target, s) | euclidean | parallax | polar | angular |",
@@ -78,8 +93,7 @@ def readme_table(doc: dict) -> str:
         f = res.get("fastest_ceres")
         cells = []
         for p in ("euclidean", "parallax", "polar", "angular"):
-            r = (t.get(p) or {}).get("ratio_to_fastest_ceres")
-            cells.append("did not reach" if r is None else f"{r:.2f}x")
+            cells.append(_readme_cell(t.get(p) or {}, res.get("target_cost")))
         head = "none reached the target" if f is None else f"{f} ({res['fastest_ceres_time_to_target_s']:.3f})"
         out.append(f"| {res['problem']} | {head} | " + " | ".join(cells) + " |")
     return "\n".join(out) + "\n"
