@@ -32,7 +32,9 @@ def _git(repo: Path, *args: str) -> str | None:
 def git_state(repo: Path | None = None) -> tuple[str, bool | None]:
     """(HEAD commit as 40 hex digits or "", dirty flag or None outside a git checkout).
 
-    Dirty means a tracked file differs from HEAD; untracked files (caches, outputs) do not count.
+    Dirty means a tracked file outside ``reports/`` differs from HEAD. Untracked files (caches,
+    outputs) do not count, nor do the committed example reports: regenerating them one after
+    another rewrites tracked files, which says nothing about the code that produced the numbers.
     """
     from polarref.data import REPO_ROOT
 
@@ -40,7 +42,7 @@ def git_state(repo: Path | None = None) -> tuple[str, bool | None]:
     head = (_git(repo, "rev-parse", "HEAD") or "").strip()
     if len(head) != 40:
         return "", None
-    status = _git(repo, "status", "--porcelain", "--untracked-files=no")
+    status = _git(repo, "status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)reports")
     return head, None if status is None else bool(status.strip())
 
 
