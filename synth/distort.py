@@ -112,19 +112,17 @@ def render_distorted_scene(scene: str, out, config, k1: float, k2: float = 0.0, 
     Returns a :class:`synth.render.SceneResult`.
     """
     import dataclasses
-    import json
     import time
     from pathlib import Path
 
     from polarref import progress
     from polarref.errors import PolarrefError
-    from synth import meshes
     from synth.conventions import mitsuba_to_world, pinhole_params
     from synth.mitsuba_variant import load_mitsuba
     from synth.render import (WHITE_ALBEDO, SceneResult, _encode_npy, _encode_png, _is_complete,
                               _mitsuba_scene, _prepare_out, _scene_json, _srgb8, build_geometry,
-                              view_names)
-    from synth.scene import SCENE_JSON, PinholeCamera, atomic_write_bytes, write_gt
+                              view_names, write_scene_files)
+    from synth.scene import PinholeCamera, atomic_write_bytes
 
     t_start = time.perf_counter()
     cfg = config
@@ -152,12 +150,7 @@ def render_distorted_scene(scene: str, out, config, k1: float, k2: float = 0.0, 
     meta["camera"] = {"model": "RADIAL", "width": W, "height": H, "params": camera.params.tolist(),
                       "fov_x_deg": cfg.fov_deg, "distortion": {"k1": k1, "k2": k2},
                       "render": f"undistorted {wb}x{hb} render resampled (synth/distort.py)"}
-    atomic_write_bytes(out / SCENE_JSON, (json.dumps(meta, indent=1) + "\n").encode())
-    meshes.write_ply(out / "mesh.ply", geo.vertices, geo.faces,
-                     np.repeat(np.round(geo.albedo * 255).astype(np.uint8)[:, None], 3, 1))
-    write_gt(out, camera, names, geo.poses)
-    (out / "images").mkdir(exist_ok=True)
-    (out / "depth").mkdir(exist_ok=True)
+    write_scene_files(out, meta, geo, camera, names)
     dists = np.array([np.linalg.norm(p.center - geo.center) for p in geo.poses])
     near = max(1e-3 * geo.radius, 0.5 * float((dists - geo.radius).min()))
     far = 4.0 * float(dists.max() + geo.radius)

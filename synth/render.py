@@ -215,6 +215,17 @@ def _encode_npy(a: np.ndarray) -> bytes:
     return bio.getvalue()
 
 
+def write_scene_files(out: Path, meta: dict, geo, camera: PinholeCamera, names: list[str]) -> None:
+    """Everything of a scene folder but the views: scene.json, mesh.ply, the GT model, and the
+    empty images/ and depth/ folders."""
+    atomic_write_bytes(out / SCENE_JSON, (json.dumps(meta, indent=1) + "\n").encode())
+    meshes.write_ply(out / "mesh.ply", geo.vertices, geo.faces,
+                     np.repeat(np.round(geo.albedo * 255).astype(np.uint8)[:, None], 3, 1))
+    write_gt(out, camera, names, geo.poses)
+    (out / "images").mkdir(exist_ok=True)
+    (out / "depth").mkdir(exist_ok=True)
+
+
 def _render_views(out: Path, scene: str, cfg: SceneConfig, digest: str, geo, camera, executor, variant,
                   names: list[str], overwrite: bool) -> tuple[list[int], float]:
     """Write scene.json, mesh, GT and every missing view into ``out``; (rendered views, start time).
@@ -222,13 +233,7 @@ def _render_views(out: Path, scene: str, cfg: SceneConfig, digest: str, geo, cam
     One task per view through ``executor`` (polarref.execution): in this process, or on Dask workers
     that each build the Mitsuba scene once.
     """
-    meta = _scene_json(cfg, digest, geo, camera, variant, names)
-    atomic_write_bytes(out / SCENE_JSON, (json.dumps(meta, indent=1) + "\n").encode())
-    meshes.write_ply(out / "mesh.ply", geo.vertices, geo.faces,
-                     np.repeat(np.round(geo.albedo * 255).astype(np.uint8)[:, None], 3, 1))
-    write_gt(out, camera, names, geo.poses)
-    (out / "images").mkdir(exist_ok=True)
-    (out / "depth").mkdir(exist_ok=True)
+    write_scene_files(out, _scene_json(cfg, digest, geo, camera, variant, names), geo, camera, names)
 
     todo = [i for i, nm in enumerate(names) if overwrite or not (
         (out / "images" / nm).is_file() and (out / "depth" / (nm[:-4] + ".npy")).is_file())]

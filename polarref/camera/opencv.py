@@ -158,14 +158,19 @@ def undistort(xd: Array, yd: Array, coeffs, ru_lim: float) -> tuple[Array, Array
 # ---- the Camera methods for this model (called from polarref.camera.core) -------------------
 # Each returns (value, jacobian, valid) like core's private helpers; core masks and raises.
 
+def _normalized(cam, X: Array) -> tuple[Array, Array, Array, Array]:
+    """1/Z, the normalized coordinates x, y, and the mask: in front and inside the valid disc."""
+    Z = X[..., 2]
+    valid = Z > 0
+    iz = 1.0 / np.where(valid, Z, 1.0)
+    x, y = X[..., 0] * iz, X[..., 1] * iz
+    return iz, x, y, valid & (x * x + y * y < cam._ru_lim ** 2)
+
+
 def project(cam, X: Array):
     """Pixels, ``uv_D_Xcam`` (..., 2, 3) and the valid mask."""
     with np.errstate(**_ERR):
-        Z = X[..., 2]
-        valid = Z > 0
-        iz = 1.0 / np.where(valid, Z, 1.0)
-        x, y = X[..., 0] * iz, X[..., 1] * iz
-        valid &= x * x + y * y < cam._ru_lim ** 2
+        iz, x, y, valid = _normalized(cam, X)
         xd, yd, Jd = distort(x, y, cam.distortion)
         zero = np.zeros_like(x)
         dxy = np.stack([np.stack([iz, zero, -x * iz], -1),
@@ -177,11 +182,7 @@ def project(cam, X: Array):
 def params_jacobian(cam, X: Array) -> tuple[Array, Array]:
     """``uv_D_params`` (..., 2, 8) and the valid mask."""
     with np.errstate(**_ERR):
-        Z = X[..., 2]
-        valid = Z > 0
-        iz = 1.0 / np.where(valid, Z, 1.0)
-        x, y = X[..., 0] * iz, X[..., 1] * iz
-        valid &= x * x + y * y < cam._ru_lim ** 2
+        iz, x, y, valid = _normalized(cam, X)
         xd, yd, _ = distort(x, y, cam.distortion)
         J = np.zeros(X.shape[:-1] + (2, 8))
         J[..., 0, 0], J[..., 1, 1] = xd, yd
