@@ -122,7 +122,8 @@ def choose_variant() -> VariantChoice:
             return VariantChoice(SCALAR, f"DRJIT_LIBLLVM_PATH={env_llvm} does not exist; "
                                          f"{wanted} unavailable, using {SCALAR}")
         llvm_path = env_llvm
-        origin = "DRJIT_LIBLLVM_PATH"
+        origin = ("found in the library folders" if os.environ.get(_FOUND_BY_US) == env_llvm
+                  else "DRJIT_LIBLLVM_PATH")
     else:
         llvm_path = find_libllvm()
         origin = "found in the library folders"
@@ -137,6 +138,7 @@ def choose_variant() -> VariantChoice:
 
 
 _CHOICE: VariantChoice | None = None
+_FOUND_BY_US = "POLARREF_LIBLLVM_FOUND"  # DRJIT_LIBLLVM_PATH was set by load_mitsuba, not the user
 
 
 def selected_variant() -> VariantChoice:
@@ -160,6 +162,9 @@ def load_mitsuba():
         raise PolarrefError(f"cannot render: {choice.reason}")
     if choice.llvm_path:
         os.environ["DRJIT_LIBLLVM_PATH"] = choice.llvm_path  # must precede drjit's first LLVM use
+        # Child processes (Dask workers, isolated methods) inherit the variable: they must still
+        # report the origin the user saw, or scene.json would depend on the process that wrote it.
+        os.environ[_FOUND_BY_US] = choice.llvm_path
     import mitsuba as mi
 
     mi.set_variant(choice.variant)

@@ -59,3 +59,28 @@ def test_fallback_renders_and_doctor_says_so():
     report = json.loads(proc.stdout)
     assert report["mitsuba_variant"] == "scalar_rgb"
     assert "does not exist" in report["mitsuba_variant_reason"]
+
+
+def test_child_process_reports_the_choice_of_its_parent(monkeypatch):
+    """load_mitsuba hands DRJIT_LIBLLVM_PATH to child processes (Dask workers, isolated methods);
+    their scene.json must still name the origin the parent saw, or a render's metadata depends on
+    the process that wrote it (seen: serial vs Dask renders differing in scene.json only)."""
+    from polarref.data import REPO_ROOT
+
+    monkeypatch.delenv("POLARREF_MITSUBA_VARIANT", raising=False)
+    monkeypatch.delenv("DRJIT_LIBLLVM_PATH", raising=False)
+    monkeypatch.delenv(mv._FOUND_BY_US, raising=False)
+    monkeypatch.setattr(mv, "_CHOICE", None)
+    parent = mv.choose_variant()
+    if parent.llvm_path is None:
+        pytest.skip(f"no LLVM variant here ({parent.reason}); nothing is handed to children")
+    monkeypatch.setattr(mv, "_CHOICE", parent)
+    mv.load_mitsuba()  # sets the variables a child inherits
+    code = "from synth.mitsuba_variant import choose_variant as c; print(c().reason)"
+    child = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO_ROOT,
+                           env=dict(os.environ), timeout=120)
+    assert child.returncode == 0, child.stderr
+    assert child.stdout.strip() == parent.reason
+    # a path the user sets is still reported as the user's
+    monkeypatch.delenv(mv._FOUND_BY_US)
+    assert "(DRJIT_LIBLLVM_PATH)" in mv.choose_variant().reason
