@@ -116,9 +116,10 @@ class _Interrupts:
             logging.disable(logging.NOTSET)
         if self._previous is None:
             return
-        # A process about to exit after Ctrl-C ignores further SIGINTs (drjit re-raises one
-        # from its own handler): they would kill it with -SIGINT after the exit line.
-        signal.signal(signal.SIGINT, signal.SIG_IGN if exiting and self.seen else self._previous)
+        # A process about to exit ignores further SIGINTs, whether or not the command was
+        # interrupted: its outputs are final, and a SIGINT during interpreter or drjit teardown
+        # (drjit also re-raises one from its own handler) would kill it with -SIGINT and no line.
+        signal.signal(signal.SIGINT, signal.SIG_IGN if exiting else self._previous)
 
 
 def _primary_input(args: argparse.Namespace) -> str | None:

@@ -286,3 +286,13 @@ def test_memory_error_and_warnings_are_one_line(monkeypatch, capsys, tmp_path):
     assert main(["ba", "p.txt", "--out", str(tmp_path / "o.json")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1] == "polarref ba: p.txt: out of memory (use a smaller input or preset, or free memory)"
+
+
+def test_finished_process_ignores_sigint_during_teardown():
+    """A real process (argv from sys.argv) whose command finished ignores SIGINT from then on: a
+    Ctrl-C during interpreter/drjit teardown killed it with -2 and no line (seen in CI)."""
+    code = ("import signal, sys; from polarref.cli import main; sys.argv = ['polarref', '-q', 'doctor'];"
+            " rc = main(); print(rc, signal.getsignal(signal.SIGINT) is signal.SIG_IGN)")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip().splitlines()[-1] == "0 True"
