@@ -110,28 +110,17 @@ def test_bal_mutations(tmp_path, data):
     _check(path)
 
 
-@pytest.mark.parametrize("which", sorted(COLMAP))
+FOLDER_FORMATS = {"model": COLMAP, "pba": PARALLAXBA, "pvl": PVLBA}  # folder name -> its files
+
+
+@pytest.mark.parametrize("folder,which", [(d, w) for d, files in FOLDER_FORMATS.items() for w in sorted(files)])
 @SETTINGS
 @given(data=st.data())
-def test_colmap_text_mutations(tmp_path, which, data):
-    blob = data.draw(mutated(COLMAP[which].encode()))
-    _check(_write(tmp_path / "model", COLMAP, which, blob))
-
-
-@pytest.mark.parametrize("which", sorted(PARALLAXBA))
-@SETTINGS
-@given(data=st.data())
-def test_parallaxba_mutations(tmp_path, which, data):
-    blob = data.draw(mutated(PARALLAXBA[which].encode()))
-    _check(_write(tmp_path / "pba", PARALLAXBA, which, blob))
-
-
-@pytest.mark.parametrize("which", sorted(PVLBA))
-@SETTINGS
-@given(data=st.data())
-def test_pvlba_mutations(tmp_path, which, data):
-    blob = data.draw(mutated(PVLBA[which].encode()))
-    _check(_write(tmp_path / "pvl", PVLBA, which, blob))
+def test_folder_format_mutations(tmp_path, folder, which, data):
+    """COLMAP text, ParallaxBA and PVL-BA: one file of the folder mutated, the others intact."""
+    files = FOLDER_FORMATS[folder]
+    blob = data.draw(mutated(files[which].encode()))
+    _check(_write(tmp_path / folder, files, which, blob))
 
 
 def test_bal_with_byte_order_mark_reads_like_without(tmp_path):
