@@ -29,6 +29,7 @@ class MapperConfig:
     local_ba_images: int = 6           # new image + its most covisible registered images are variable
     local_ba_iterations: int = 25      # LM iteration cap of a local BA
     local_ba_loss: str = "cauchy"      # robust loss for local BA (outliers not yet filtered)
+    local_ba_function_tolerance: float = 1e-6  # relative cost decrease that ends a local BA
     global_ba_growth: float = 1.25     # global BA when the registered count grew by this factor
     global_ba_iterations: int = 50     # LM iteration cap of a global BA
     global_ba_loss: str = "trivial"    # global BA runs after filtering: plain least squares
@@ -89,7 +90,7 @@ def _local_ba(state: MapState, image: int, cfg: MapperConfig, log_: MapperLog, g
     obs_imgs = np.unique(tr.image[state.active & np.isin(tr.track, pts)])
     fixed = [int(i) for i in obs_imgs if not var_mask[i]]
     info = bundle.adjust(state, variable, fixed, cfg.ba, cfg.local_ba_iterations, cfg.local_ba_loss,
-                         track_ids=pts)
+                         track_ids=pts, function_tolerance=cfg.local_ba_function_tolerance)
     info.update(kind="local", image=image, num_variable=len(variable), num_fixed=len(fixed))
     log_.ba.append(info)
     state.filter(pts)
