@@ -136,8 +136,8 @@ def problem_from_state(state, variable: list[int], fixed: list[int], track_ids=N
     imgs = np.unique(np.asarray(list(variable) + list(fixed), np.int64))
     in_img = np.zeros(len(state.keypoints), bool)
     in_img[imgs] = True
-    sel_t = state.has_point if track_ids is None else state.has_point & state.track_mask(track_ids)
-    obs = np.flatnonzero(state.active & in_img[tr.image] & sel_t[tr.track])
+    obs = state.obs_of_tracks(track_ids)
+    obs = obs[state.active[obs] & in_img[tr.image[obs]] & state.has_point[tr.track[obs]]]
     if not len(obs):
         return None
     pts, obs_pt = np.unique(tr.track[obs], return_inverse=True)
