@@ -72,16 +72,6 @@ class Reconstruction:
         xyz = np.array([self.points3D[i].xyz for i in ids]).reshape(-1, 3)
         return ids, xyz
 
-    def observations(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """All observations in track order: (image_ids (K,), point_ids (K,), point2D_idx (K,))."""
-        rows = [(np.full(len(p.track), pid), p.track) for pid, p in self.points3D.items()]
-        if not rows:
-            empty = np.zeros(0, dtype=np.int64)
-            return empty, empty, empty
-        pids = np.concatenate([r[0] for r in rows]).astype(np.int64)
-        tracks = np.concatenate([r[1] for r in rows]).astype(np.int64).reshape(-1, 2)
-        return tracks[:, 0], pids, tracks[:, 1]
-
     def observation_errors(self) -> tuple[np.ndarray, np.ndarray]:
         """(errors (K,) px, point index (K,)) of every observation, vectorized per image.
 
