@@ -237,3 +237,21 @@ def test_pycolmap_round_trip_keeps_ids_and_poses(synthetic):
         np.testing.assert_allclose(back.images[i].cam_from_world.R, im.cam_from_world.R, atol=1e-12)
         np.testing.assert_allclose(back.images[i].cam_from_world.t, im.cam_from_world.t, atol=1e-12)
     np.testing.assert_allclose(back.reprojection_errors(), rec.reprojection_errors(), atol=1e-9)
+
+
+def test_flat_observations_mark_unknown_images_and_keypoints():
+    cam = Camera("PINHOLE", 100, 80, [90.0, 90.0, 50.0, 40.0])
+    rec = Reconstruction(cameras={1: cam})
+    X = np.array([[0.1, 0.0, 4.0], [0.0, 0.2, 3.0]])
+    for i in (3, 7):
+        rec.images[i] = Image(i, f"{i}", 1, Rigid3.identity(), cam.project(X))
+    rec.points3D[5] = Point3D(X[1], np.array([[7, 1], [9, 0], [3, 1]]))  # image 9 is not registered
+    rec.points3D[2] = Point3D(X[0], np.array([[3, 0], [7, 4]]))          # keypoint 4 does not exist
+    obs, image_ids, pids = rec.flat_observations()
+    assert image_ids.tolist() == [3, 7] and pids.tolist() == [2, 5]
+    assert obs.image.tolist() == [0, 1, 1, -1, 0] and obs.point.tolist() == [0, 0, 1, 1, 1]
+    assert np.isnan(obs.uv[[1, 3]]).all() and np.isfinite(obs.uv[[0, 2, 4]]).all()
+    errs, pidx = rec.observation_errors()
+    np.testing.assert_allclose(errs, [0, np.inf, 0, np.inf, 0], atol=1e-12)
+    p = problem_from_reconstruction(rec)
+    assert p.exclusions["observations_unknown_image"] == 1

@@ -6,11 +6,10 @@ import numpy as np
 
 from polarref.ba.options import BAOptions, BASummary
 from polarref.ba.problem import BAProblem, prepare
-from polarref.ba.projection import camera_groups
 from polarref.ba.solver import solve
 from polarref.errors import PolarrefError
 from polarref.geometry import Rigid3
-from polarref.model import Observations, build_reconstruction
+from polarref.model import build_reconstruction
 
 
 def problem_from_reconstruction(rec, *, variable_image_ids=None, fixed_image_ids=None,
@@ -47,29 +46,17 @@ def problem_from_reconstruction(rec, *, variable_image_ids=None, fixed_image_ids
         pids = sorted(rec.points3D)
     if not pids:
         raise PolarrefError("bundle adjustment: no 3D points to adjust")
-    tracks = [np.asarray(rec.points3D[p].track, np.int64).reshape(-1, 2) for p in pids]
-    lens = np.array([len(t) for t in tracks])
-    track = np.concatenate(tracks) if tracks else np.zeros((0, 2), np.int64)
-    obs_pt = np.repeat(np.arange(len(pids)), lens)
-    image_ids = np.array(sorted(set(track[:, 0].tolist()) & set(rec.images)), np.int64)
+    obs, image_ids, _ = rec.flat_observations(pids)
     if len(image_ids) == 0:
         raise PolarrefError("bundle adjustment: the chosen points have no observations")
-    index = {int(i): k for k, i in enumerate(image_ids)}
-    obs_cam = np.array([index.get(int(i), -1) for i in track[:, 0]], np.int64)
-    known = obs_cam >= 0
-    uv = np.full((len(track), 2), np.nan)
-    for i, sel in camera_groups(image_ids, obs_cam):  # one vectorized gather per image
-        kp = rec.images[int(i)].keypoints
-        idx = track[sel, 1]
-        ok = (idx >= 0) & (idx < len(kp))
-        uv[sel[ok]] = kp[idx[ok]]
+    known = obs.image >= 0
     imgs = [rec.images[int(i)] for i in image_ids]
     R = np.array([im.cam_from_world.R for im in imgs])
     C = np.array([im.cam_from_world.center for im in imgs])
     X = np.array([rec.points3D[p].xyz for p in pids], np.float64)
     cam_fixed = np.array([int(i) not in variable for i in image_ids])
     problem = BAProblem(cameras=[rec.cameras[im.camera_id] for im in imgs], R=R, C=C, X=X,
-                        obs=Observations(obs_cam, obs_pt, uv),
+                        obs=obs,
                         cam_fixed=cam_fixed, image_ids=image_ids,
                         point_ids=np.array(pids, np.int64))
     problem.exclusions["observations_unknown_image"] = int((~known).sum())

@@ -108,6 +108,14 @@ class Observations:
         """Indices (K,) of the observations of point ``j``, in input order."""
         return np.flatnonzero(self.point == j)
 
+    def by_image(self) -> list[tuple[int, np.ndarray]]:
+        """(image index, its observations' indices ascending) per observed image, ascending;
+        negative image indices (no image) are left out. For work done image by image."""
+        order = np.argsort(self.image, kind="stable")
+        images, starts = np.unique(self.image[order], return_index=True)
+        ends = np.r_[starts[1:], len(order)]
+        return [(int(i), order[a:b]) for i, a, b in zip(images, starts, ends) if i >= 0]
+
     def order_by_point(self) -> np.ndarray:
         """Permutation (M,) sorting by point, then image (the solver's layout)."""
         return np.lexsort((self.image, self.point))

@@ -72,32 +72,55 @@ class Reconstruction:
         xyz = np.array([self.points3D[i].xyz for i in ids]).reshape(-1, 3)
         return ids, xyz
 
+    def flat_observations(self, point_ids=None) -> tuple[Observations, np.ndarray, np.ndarray]:
+        """The observations of ``point_ids`` (default: all, sorted) as flat arrays.
+
+        Returns:
+            (obs, image_ids (N,), point_ids (P,)): ``obs.point`` indexes ``point_ids``, in point
+            then track order; ``obs.image`` indexes ``image_ids`` (the sorted ids of the
+            registered images that observe them), -1 for a track element naming an image not in
+            the reconstruction; ``obs.uv`` the keypoint, NaN where the image is unknown or the
+            keypoint index is out of range (the callers count or score those).
+        """
+        pids = np.array(sorted(self.points3D) if point_ids is None else list(point_ids), np.int64)
+        tracks = [np.asarray(self.points3D[int(p)].track, np.int64).reshape(-1, 2) for p in pids]
+        rows = np.concatenate(tracks) if tracks else np.zeros((0, 2), np.int64)
+        point = np.repeat(np.arange(len(pids)), [len(t) for t in tracks]).astype(np.int64)
+        image_ids = np.array(sorted(set(rows[:, 0].tolist()) & set(self.images)), np.int64)
+        image = np.searchsorted(image_ids, rows[:, 0]).astype(np.int64)
+        known = image < len(image_ids)
+        known[known] = image_ids[image[known]] == rows[known, 0]
+        image[~known] = -1
+        obs = Observations(image, point, np.full((len(rows), 2), np.nan))
+        for k, sel in obs.by_image():  # one vectorized gather per image
+            kp = self.images[int(image_ids[k])].keypoints
+            idx = rows[sel, 1]
+            ok = (idx >= 0) & (idx < len(kp))
+            obs.uv[sel[ok]] = kp[idx[ok]]
+        return obs, image_ids, pids
+
     def observation_errors(self) -> tuple[np.ndarray, np.ndarray]:
         """(errors (K,) px, point index (K,)) of every observation, vectorized per image.
 
         Order: points by sorted id, each point's track in order; the point index refers to
         ``sorted(self.points3D)``. The one behind-camera rule of polarref's metrics: an
-        observation whose point has depth <= 0 in its camera, or whose projection is not
-        finite, gets error ``inf`` (so "finite" selects the usable errors, and every
-        observation is still counted).
+        observation whose point has depth <= 0 in its camera, or whose projection or keypoint
+        is not finite (unknown image or keypoint), gets error ``inf`` (so "finite" selects the
+        usable errors, and every observation is still counted).
         """
-        pids = np.array(sorted(self.points3D), dtype=np.int64)
+        obs, image_ids, pids = self.flat_observations()
         if not len(pids):
             return np.zeros(0), np.zeros(0, np.int64)
         xyz = np.array([self.points3D[p].xyz for p in pids], dtype=np.float64).reshape(-1, 3)
-        tracks = [np.asarray(self.points3D[p].track, np.int64).reshape(-1, 2) for p in pids]
-        rows = np.concatenate(tracks, 0)
-        pidx = np.repeat(np.arange(len(pids)), [len(t) for t in tracks])
-        errs = np.full(len(rows), np.inf)
-        for image_id in np.unique(rows[:, 0]):  # one project call per image
-            sel = rows[:, 0] == image_id
-            im = self.images[int(image_id)]
-            Xc = im.cam_from_world.apply(xyz[pidx[sel]])
+        errs = np.full(len(obs), np.inf)
+        for k, sel in obs.by_image():  # one project call per image
+            im = self.images[int(image_ids[k])]
+            Xc = im.cam_from_world.apply(xyz[obs.point[sel]])
             uv = np.asarray(self.cameras[im.camera_id].project(Xc), dtype=np.float64)
-            e = np.linalg.norm(uv - im.keypoints[rows[sel, 1]], axis=1)
+            e = np.linalg.norm(uv - obs.uv[sel], axis=1)
             e[~(Xc[:, 2] > 0) | ~np.isfinite(e)] = np.inf
             errs[sel] = e
-        return errs, pidx
+        return errs, obs.point
 
     def reprojection_errors(self) -> np.ndarray:
         """Per-observation reprojection error in px, (num_observations,); order and the
