@@ -235,12 +235,17 @@ def traces_from(exp: dict | None) -> list[BATrace]:
     return out
 
 
-def evaluate_into(metrics: MetricsFile, job_results: dict, runs: Path, seed: int,
-                  budget_s: float, timeout_s: float) -> None:
-    """Run the claim experiments (isolated) and append the scorecard and BA traces to ``metrics``."""
-    d = run_isolated("polarref.compare.jobs:derivation_evidence",
+def evaluate_into(metrics: MetricsFile, runs: Path, seed: int, budget_s: float, timeout_s: float,
+                  reuse: bool = False) -> None:
+    """Run the claim experiments (isolated) and append the scorecard and BA traces to ``metrics``.
+
+    With ``reuse``, finished experiment jobs of an earlier run (same arguments) are loaded.
+    """
+    from polarref.compare import jobs
+
+    d = run_isolated(jobs.derivation_evidence,
                      dict(n=DERIVATION_SAMPLES, out_json=str(runs / "claims" / "derivations.json")),
-                     timeout_s, runs / "claims", "derivations")
+                     timeout_s, runs / "claims", "derivations", reuse)
     evidence = d.result if d.status == STATUS_OK else None
     if budget_s < MIN_EXPERIMENT_BUDGET_S:
         exp, why = None, (f"skipped: {budget_s:.0f} s of the run's time budget were left "
@@ -248,9 +253,9 @@ def evaluate_into(metrics: MetricsFile, job_results: dict, runs: Path, seed: int
     else:
         limit = (NO_DEADLINE_TIMEOUT_S if not np.isfinite(budget_s)
                  else min(max(timeout_s, 3 * budget_s), 2 * budget_s + 10))
-        e = run_isolated("polarref.compare.jobs:claim_experiments",
+        e = run_isolated(jobs.claim_experiments,
                          dict(seed=seed, budget_s=budget_s, out_json=str(runs / "claims" / "experiments.json")),
-                         limit, runs / "claims", "experiments")
+                         limit, runs / "claims", "experiments", reuse)
         exp, why = (e.result if e.status == STATUS_OK else None), e.reason
     claims = equation_claims(evidence, d.reason)
     claims += scene_claims(metrics, exp)
