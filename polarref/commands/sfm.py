@@ -85,17 +85,16 @@ def _config(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from polarref.reconstruction import Reconstruction
+    from polarref.scene_folder import discover
     from polarref.sfm import features as F
     from polarref.sfm.pipeline import parse_camera, run_sfm
 
     root: Path = args.dir
-    if not root.is_dir():
-        raise PolarrefError(f"scene folder not found: {root}")
-    image_dir = root / "images" if (root / "images").is_dir() else root
-    gt = Reconstruction.read(root / "gt") if (root / "gt").is_dir() else None
+    found = discover(root)
+    image_dir = found.image_dir
+    gt = found.read_ground_truth()
     mesh = None
-    if (root / "scene.json").is_file() and (root / "mesh.ply").is_file():
+    if found.rendered and found.mesh_path is not None:
         from synth.scene import load_scene
 
         mesh = load_scene(root).mesh()
@@ -111,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
                   model_format=args.model_format)
     m = res.metrics
     if m.get("gt_skipped"):
-        raise PolarrefError(f"{root / 'gt'}: metrics vs ground truth skipped: {m['gt_skipped']}; the model "
+        raise PolarrefError(f"{root / ('gt' if found.gt_kind == 'colmap' else 'gt_dense_cameras')}: metrics vs ground truth skipped: {m['gt_skipped']}; the model "
                             f"and metrics.json were written to {args.out}")
     line = (f"registered {m['registered_images']}/{m['num_images']} images, {m['tie_points']} tie points, "
             f"{m['reprojected_px']} observations, mean reprojection error {m['mean_reprojection_error_px']:.3f} px")

@@ -94,7 +94,8 @@ def default_out(scene: scenes.PreparedScene, preset: str) -> Path:
 
 def _refuse_finished(out: Path, overwrite: bool) -> None:
     if (out / "metrics.json").is_file() and not overwrite:
-        raise PolarrefError(f"{out} holds a finished comparison (metrics.json); use --overwrite or another --out")
+        raise PolarrefError(f"{out} holds a finished comparison (metrics.json); replace it or choose another "
+                            "output folder", option="overwrite")
 
 
 def _shared(ctx: _Context, key: str):
@@ -248,7 +249,7 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
     scene = scenes.prepare(cfg.scene, cfg.preset, cfg.seed)
     out = Path(cfg.out) if cfg.out else default_out(scene, cfg.preset)
     if out.exists() and not out.is_dir():
-        raise PolarrefError(f"--out {out} exists and is not a directory")
+        raise PolarrefError(f"output folder {out} exists and is not a directory")
     _refuse_finished(out, cfg.overwrite)
     try:
         out.mkdir(parents=True, exist_ok=True)

@@ -322,7 +322,7 @@ def _match_on_cluster(executor, feats: list[F.Features], pairs: list[tuple[int, 
 
 def _prepare_out(out_dir: Path, overwrite: bool) -> None:
     if out_dir.exists() and any(out_dir.iterdir()) and not overwrite:
-        raise PolarrefError(f"output folder {out_dir} exists and is not empty; use --overwrite")
+        raise PolarrefError(f"output folder {out_dir} exists and is not empty", option="overwrite")
     out_dir.mkdir(parents=True, exist_ok=True)
 SFM_OUTPUTS = ("model", "metrics.json")  # what a run writes into its folder (the rest is the user's)
 
