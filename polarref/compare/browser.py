@@ -21,6 +21,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from polarref.atomic import atomic_write
 from polarref.errors import PolarrefError
 
 FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
@@ -281,7 +282,5 @@ def screenshot(html_path: str | Path, png_path: str | Path, width: int = 1280, h
     """Write the top ``width`` x ``height`` of the page as PNG (atomically); returns the page check."""
     check = check_page(html_path, width, height, screenshot=True)
     png_path = Path(png_path)
-    tmp = png_path.with_name(f".{png_path.name}.tmp")
-    tmp.write_bytes(check.screenshot_png or b"")
-    tmp.replace(png_path)
+    atomic_write(png_path, check.screenshot_png or b"")
     return check

@@ -15,6 +15,7 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from polarref.atomic import atomic_write
 from polarref.camera import Camera
 from polarref.data import cache_root
 from polarref.errors import PolarrefError
@@ -100,9 +101,10 @@ def _downscale(src_dir: Path, names: list[str], factor: int, dst_dir: Path) -> N
             raise PolarrefError(f"cannot read image {src_dir / name}")
         h, w = img.shape[:2]
         small = cv2.resize(img, (w // factor, h // factor), interpolation=cv2.INTER_AREA)
-        tmp = out.with_name(f".{out.stem}.tmp.png")
-        cv2.imwrite(str(tmp), small)
-        tmp.replace(out)
+        ok, png = cv2.imencode(".png", small)
+        if not ok:
+            raise PolarrefError(f"cannot encode {out} as PNG")
+        atomic_write(out, png.tobytes())
 
 
 def _real(folder: Path, source: str, preset: str) -> PreparedScene:
