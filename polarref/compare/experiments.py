@@ -33,6 +33,7 @@ import numpy as np
 
 from polarref.compare.experiment_problems import (bearing_errors_deg, low_parallax_problem,
                                                   relative_rotation_errors_deg)
+from polarref.compare.thresholds import SUCCESS_BEARING_DEG, SUCCESS_RMS_NOISE_FACTOR, SUCCESS_ROT_DEG
 
 log = logging.getLogger(__name__)
 
@@ -58,9 +59,7 @@ LOW_PARALLAX_PROBLEM = (8, 150)
 # disparity at f = 1280 px, below the noise: points effectively at infinity)
 PARALLAX_RATIOS = (0.3, 0.03, 0.003, 0.0003)
 # A run succeeds when it reaches the noise floor with correct geometry:
-SUCCESS_RMS_PX = 2.0 * NOISE_PX      # final pixel RMS below this
-SUCCESS_ROT_DEG = 0.5                # mean relative-rotation error below this
-SUCCESS_BEARING_DEG = 1.0            # 95th percentile of the bearing error below this
+SUCCESS_RMS_PX = SUCCESS_RMS_NOISE_FACTOR * NOISE_PX   # final pixel RMS below this (thresholds.py)
 
 
 def _params() -> tuple[str, ...]:
