@@ -111,7 +111,7 @@ def timing(seed: int, deadline: float, seeds: int = CONTROLLED_SEEDS, repeats: i
                 walls[p].append(summ.wall_s)
                 if rep == 0:
                     result[p] = {"seed": s, "iterations": summ.iterations, "final_rms_px": summ.final_rms_px,
-                                 "final_pixel_cost": summ.final_pixel_cost, "termination": summ.termination,
+                                 "final_pixel_cost": summ.final_pixel_cost, "termination": summ.termination_text,
                                  "rotation_error_deg": float(relative_rotation_errors_deg(rec, truth).mean())}
                     if k == 0:
                         tr = [[r.iteration, r.wall_s, r.cost] for r in summ.trace if r.accepted]
