@@ -27,11 +27,12 @@ from polarref.compare import scenes, view3d
 from polarref.compare import jobs
 from polarref.compare.jobs import MethodJobResult, camera_to_json
 from polarref.compare.methods import METHOD_NAMES, PAIRS, RUN_ORDER, MethodSpec, select
-from polarref.compare.runner import JobOutcome, run_isolated, run_isolated_with
+from polarref.compare.runner import JobOutcome, has_finished_result, run_isolated, run_isolated_with
 from polarref.compare.schema import (SCHEMA_VERSION, STATUS_FAILED, STATUS_OK, STATUS_TIMEOUT, BATrace,
                                      Environment, MethodResult, MetricsFile, SceneInfo, save)
 from polarref.errors import PolarrefError
 from polarref.progress import track
+from polarref.provenance import Provenance, collect_record
 
 if TYPE_CHECKING:
     from polarref.reconstruction import Reconstruction
@@ -214,7 +215,7 @@ PYCOLMAP_THREADS = 1   # pycolmap extraction, matching, mapping: one thread, so 
 
 
 def _environment(cfg: CompareConfig, scene: scenes.PreparedScene, timeout: float, total_s: float,
-                 prov: dict) -> Environment:
+                 prov: Provenance) -> Environment:
     variant = scene.mitsuba_variant if scene.kind == "synthetic" else "not used (real images)"
     if scene.kind == "synthetic" and not variant:
         try:
@@ -225,21 +226,19 @@ def _environment(cfg: CompareConfig, scene: scenes.PreparedScene, timeout: float
             variant = f"unknown ({type(exc).__name__})"
     return Environment(
         command=cfg.command or "polarref compare", created=datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        versions=prov["versions"], cpu_count=prov["cpu_count"], mitsuba_variant=variant,
+        versions=prov.versions, cpu_count=prov.cpu_count, mitsuba_variant=variant,
         seeds={"scene": scene.seed, "methods": cfg.seed, "claims": cfg.seed}, preset=cfg.preset,
-        method_timeout_s=timeout, total_runtime_s=total_s, git_commit=prov["git_commit"],
-        git_dirty=prov["git_dirty"], cpu_model=prov["cpu_model"], machine=prov["machine"],
-        platform=prov["platform"], threads=prov["threads"])
+        method_timeout_s=timeout, total_runtime_s=total_s, git_commit=prov.git_commit,
+        git_dirty=prov.git_dirty, cpu_model=prov.cpu_model, machine=prov.machine,
+        platform=prov.platform, threads=prov.threads)
 
 
 def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
     """Run the comparison and write OUT/metrics.json, OUT/report.md, OUT/report.html, OUT/figures/."""
     from polarref.compare.report import build_report
-    from polarref.provenance import collect
-
     t_start = time.perf_counter()
     # Taken before anything is written: regenerating a committed report must not mark the run dirty.
-    prov = collect(threads={"pycolmap": PYCOLMAP_THREADS, "ba_blas": 1})
+    prov = collect_record(threads={"pycolmap": PYCOLMAP_THREADS, "ba_blas": 1})
     specs = select(list(cfg.methods) or None)
     if cfg.preset not in METHOD_TIMEOUT_S:
         raise PolarrefError(f"unknown preset {cfg.preset!r} (choose from {', '.join(METHOD_TIMEOUT_S)})")
@@ -261,7 +260,7 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
     from polarref.compare.scoring import load_mesh
     from polarref.metrics import scene_size
 
-    resumed = ctx.reuse and (ctx.runs / "ours-features" / "job.result.json").is_file()
+    resumed = ctx.reuse and has_finished_result(ctx.runs / "ours-features" / "job.result.json")
     if ctx.cache.is_dir() and not resumed:  # an earlier run's cache: the shared stage must be timed afresh
         for f in ctx.cache.iterdir():
             if f.is_file() and f.name.startswith(("features-", "matches-")):

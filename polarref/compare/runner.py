@@ -94,6 +94,15 @@ def _last_log_line(log_path: Path) -> str:
     return lines[-1][:300] if lines else ""
 
 
+def has_finished_result(result_path: Path) -> bool:
+    """Whether ``result_path`` holds a successful, timed result (of whichever call)."""
+    try:
+        payload = json.loads(Path(result_path).read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(payload, dict) and bool(payload.get("ok")) and "wall_s" in payload
+
+
 def _finished(job: Callable, kwargs: dict, result_path: Path) -> JobOutcome | None:
     """The earlier successful result of this very job call, or None (absent, failed, other inputs)."""
     try:
