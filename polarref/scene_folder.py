@@ -29,6 +29,14 @@ def list_images(image_dir: str | Path) -> list[Path]:
 
 
 @dataclass
+class SkippedImage:
+    """An image file a stage could not read, and why."""
+
+    name: str
+    reason: str
+
+
+@dataclass
 class SceneFolder:
     """What a scene folder holds (nothing is read yet but the listing)."""
 

@@ -14,16 +14,9 @@ from pathlib import Path
 
 from polarref.camera import Camera
 from polarref.compare.schema import TracePoint
+from polarref.scene_folder import SkippedImage
 from polarref.peers.colmap_sfm import (ColmapSfMOptions, copy_database, count_verified_pairs,
                                        extract_and_match_sift, run_mapper)
-
-
-@dataclass
-class SkippedImage:
-    """An image the feature stage could not read."""
-
-    name: str
-    reason: str
 
 
 @dataclass

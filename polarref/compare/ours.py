@@ -67,8 +67,8 @@ def run(image_dir: Path, cam: Camera, ba: str, work_dir: Path, preset: str, cach
     t0 = time.perf_counter()
     result = run_sfm(image_dir, work_dir / "sfm", config, camera=cam, overwrite=True)
     wall = time.perf_counter() - t0
-    t = result.metrics.get("runtime_s", {})
-    stages = {k: float(v) for k, v in t.items() if k not in _NOT_STAGES and isinstance(v, (int, float))}
+    t = result.report.runtime_s
+    stages = {k: float(v) for k, v in t.items() if k not in _NOT_STAGES and not isinstance(v, bool)}
     # features/matching/verification came from the shared cache: their real cost is the shared stage's.
     for k in ("features", "matching", "verification"):
         stages.pop(k, None)
@@ -76,7 +76,7 @@ def run(image_dir: Path, cam: Camera, ba: str, work_dir: Path, preset: str, cach
     if "mapping" in stages:
         stages["mapping (excl. BA)"] = max(0.0, stages.pop("mapping") - ba_s)
     stages["bundle adjustment"] = ba_s
-    bas = [b for b in result.metrics.get("ba", []) if isinstance(b, dict)]
+    bas = list(result.report.ba or [])
     final = next((b for b in reversed(bas) if b.get("kind") == "global" and b.get("trace")), None)
     trace = None
     if final is not None:  # accepted steps, starting at the initial cost

@@ -1,0 +1,62 @@
+"""The typed record of one ``polarref sfm`` run (``OUT/metrics.json``).
+
+:func:`polarref.sfm.pipeline.run_sfm` fills one :class:`SfMReport` stage by stage; the scores of
+the finished model are one :class:`polarref.metrics.ReconstructionMetrics`, embedded, not copied.
+The file keeps its flat layout (the metrics' keys at the top level, keys of stages that did not
+run left out), written by :meth:`SfMReport.to_json`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+from polarref import records
+from polarref.metrics import ReconstructionMetrics
+from polarref.provenance import Provenance
+from polarref.scene_folder import SkippedImage
+
+STATUS_RUNNING, STATUS_OK, STATUS_FAILED = "running", "ok", "failed"
+
+
+@dataclass
+class SfMReport:
+    """What one SfM run did and how good its model is."""
+
+    image_dir: str
+    config: Any                          # polarref.sfm.pipeline.SfMConfig (frozen dataclass)
+    environment: Provenance
+    status: str = STATUS_RUNNING         # running | ok | failed
+    error: str = ""                      # why it failed ("" unless failed)
+    skipped_images: list[SkippedImage] = field(default_factory=list)
+    num_images: int | None = None        # readable + skipped
+    num_verified_pairs: int | None = None
+    num_tracks: int | None = None
+    num_conflicting_tracks_dropped: int | None = None
+    initial_pair: list[str] | None = None
+    registration_order: list[str] | None = None
+    unregistered_images: list[str] | None = None
+    guided_observations: int | None = None
+    ba: list[dict[str, Any]] | None = None   # every BA summary in order (JSON form, from polarref.sfm.bundle)
+    refine: list[str] | None = None          # intrinsics groups refined
+    cameras: list[Any] | None = None         # polarref.sfm.calibration.CameraReport per camera
+    metrics: ReconstructionMetrics | None = None   # scores of the finished model
+    gt_skipped: str = ""                 # why the GT comparison was not made ("" when made or no GT)
+    runtime_s: dict[str, float | bool] = field(default_factory=dict)   # stage -> s; *_cached flags
+
+    def to_json(self) -> dict[str, Any]:
+        """The metrics.json object: flat, stages that did not run and empty reasons left out."""
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.name == "metrics":
+                if value is not None:
+                    out.update(records.to_dict(value))
+                continue
+            if value is None or (f.name in ("error", "gt_skipped") and not value):
+                continue
+            out[f.name] = records._clean(dataclasses.asdict(value) if dataclasses.is_dataclass(value) else
+                                         [dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v
+                                          for v in value] if isinstance(value, list) else value)
+        return out
