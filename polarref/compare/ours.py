@@ -77,11 +77,10 @@ def run(image_dir: Path, cam: Camera, ba: str, work_dir: Path, preset: str, cach
         stages["mapping (excl. BA)"] = max(0.0, stages.pop("mapping") - ba_s)
     stages["bundle adjustment"] = ba_s
     bas = list(result.report.ba or [])
-    final = next((b for b in reversed(bas) if b.get("kind") == "global" and b.get("trace")), None)
+    final = next((b for b in reversed(bas) if b.kind == "global" and b.trace), None)
     trace = None
     if final is not None:  # accepted steps, starting at the initial cost
-        trace = [TracePoint(0, 0.0, float(final["initial_cost"]))] + [
-            TracePoint(int(r["iteration"]), float(r["wall_s"]), float(r["cost"]))
-            for r in final["trace"] if r.get("accepted")]
+        trace = [TracePoint(0, 0.0, float(final.initial_cost))] + [
+            TracePoint(int(r.iteration), float(r.wall_s), float(r.cost)) for r in final.trace if r.accepted]
     return MethodJobResult(str(work_dir / "sfm" / "model"), stages, wall_s=wall, num_ba_runs=len(bas),
                            final_ba_trace=trace)

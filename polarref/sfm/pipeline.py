@@ -418,7 +418,7 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
                          tracks, config.triangulation)
         mlog = run_mapper(state, matches.geometries, config.mapper, [f.descriptors for f in feats])
         timings["mapping"] = time.perf_counter() - t0
-        timings["ba"] = float(sum(b.get("wall_s", 0.0) for b in mlog.ba))
+        timings["ba"] = float(sum(b.wall_s for b in mlog.ba))
         report.initial_pair = [feats[i].name for i in mlog.initial_pair]
         report.registration_order = [feats[i].name for i in mlog.registration_order]
         report.unregistered_images = [f.name for i, f in enumerate(feats) if not state.registered[i]]

@@ -12,12 +12,75 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from polarref import records
+from polarref.ba.options import BASummary, IterationRecord
 from polarref.metrics import ReconstructionMetrics
 from polarref.provenance import Provenance
 from polarref.scene_folder import SkippedImage
 
 STATUS_RUNNING, STATUS_OK, STATUS_FAILED = "running", "ok", "failed"
+
+
+@dataclass
+class ColmapBARun:
+    """pycolmap's (Ceres) bundle adjustment of one mapper step."""
+
+    loss: str
+    wall_s: float
+    refine: list[str]
+    initial_cost: float | None = None
+    final_cost: float | None = None
+    num_successful_steps: float | None = None
+    num_unsuccessful_steps: float | None = None
+
+
+@dataclass
+class BARun:
+    """One bundle adjustment inside the mapper (``polarref.sfm.bundle.adjust``)."""
+
+    param: str                           # BA parameterization, or "colmap"
+    kind: str = ""                       # global | local (set by the mapper)
+    skipped: str = ""                    # why it did not run ("" when it ran)
+    summary: BASummary | None = None     # polarref's adjusters
+    colmap: ColmapBARun | None = None    # ba="colmap"
+    num_registered: int | None = None    # global: registered images
+    image: int | None = None             # local: the image just registered
+    num_variable: int | None = None      # local: images with variable poses
+    num_fixed: int | None = None         # local: images held fixed
+
+    @property
+    def wall_s(self) -> float:
+        run = self.summary or self.colmap
+        return float(run.wall_s) if run is not None else 0.0
+
+    @property
+    def initial_cost(self) -> float | None:
+        run = self.summary or self.colmap
+        return None if run is None else run.initial_cost
+
+    @property
+    def trace(self) -> list[IterationRecord]:
+        return list(self.summary.trace) if self.summary is not None else []
+
+    def to_json(self) -> dict[str, Any]:
+        """Flat JSON form: the adjuster's scalars and iteration trace, then the mapper's fields."""
+        out: dict[str, Any] = {"param": self.param}
+        if self.skipped:
+            out["skipped"] = self.skipped
+        elif self.colmap is not None:
+            out.update({k: v for k, v in dataclasses.asdict(self.colmap).items() if v is not None})
+        elif self.summary is not None:
+            # keep scalars and the iteration trace (convergence plots); drop bulky state dumps
+            info = {k: v for k, v in dataclasses.asdict(self.summary).items() if k != "points_state"
+                    and (k in ("trace", "intrinsics") or not isinstance(v, (list, np.ndarray)))}
+            if not info["intrinsics"]:
+                info.pop("intrinsics")
+            out.update(info)
+        out.update({k: getattr(self, k) for k in ("kind", "num_registered", "image", "num_variable", "num_fixed")
+                    if getattr(self, k) not in (None, "")})
+        return out
 
 
 @dataclass
@@ -38,7 +101,7 @@ class SfMReport:
     registration_order: list[str] | None = None
     unregistered_images: list[str] | None = None
     guided_observations: int | None = None
-    ba: list[dict[str, Any]] | None = None   # every BA summary in order (JSON form, from polarref.sfm.bundle)
+    ba: list[BARun] | None = None        # every bundle adjustment of the mapper, in order
     refine: list[str] | None = None          # intrinsics groups refined
     cameras: list[Any] | None = None         # polarref.sfm.calibration.CameraReport per camera
     metrics: ReconstructionMetrics | None = None   # scores of the finished model
@@ -54,6 +117,8 @@ class SfMReport:
                 if value is not None:
                     out.update(records.to_dict(value))
                 continue
+            if f.name == "ba" and value is not None:
+                value = [b.to_json() for b in value]
             if value is None or (f.name in ("error", "gt_skipped") and not value):
                 continue
             out[f.name] = records._clean(dataclasses.asdict(value) if dataclasses.is_dataclass(value) else
