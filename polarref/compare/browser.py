@@ -20,6 +20,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from polarref.atomic import atomic_write
 from polarref.errors import PolarrefError
@@ -169,9 +170,9 @@ class PageCheck:
     network_requests: list[str] = field(default_factory=list)   # anything not file: or data:
     images: int = 0
     broken_images: int = 0
-    summary_table: dict | None = None    # bounding rect + whether it is the element seen at its centre
-    canvas: dict | None = None           # pixel statistics of the 3D view
-    canvas_after_drag: dict | None = None  # the same after a mouse drag across it (orbit)
+    summary_table: dict[str, Any] | None = None    # bounding rect + whether it is the element seen at its centre
+    canvas: dict[str, Any] | None = None           # pixel statistics of the 3D view
+    canvas_after_drag: dict[str, Any] | None = None  # the same after a mouse drag across it (orbit)
     screenshot_png: bytes | None = None
 
 

@@ -14,12 +14,16 @@ import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from polarref.atomic import atomic_write
 from polarref.camera import Camera
 from polarref.data import cache_root
 from polarref.errors import PolarrefError
 from polarref.scene_folder import IMAGE_SUFFIXES, discover
+
+if TYPE_CHECKING:
+    from polarref.reconstruction import Reconstruction
 
 log = logging.getLogger(__name__)
 
@@ -39,7 +43,7 @@ class PreparedScene:
     image_dir: Path                 # images actually used (maybe downscaled copies)
     image_names: list[str]
     camera: Camera                  # fixed intrinsics every method uses
-    gt: object | None               # polarref.reconstruction.Reconstruction or None
+    gt: Reconstruction | None       # ground truth keyed by image_names, or None
     mesh_path: Path | None
     preset: str
     seed: int

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -19,6 +19,9 @@ from polarref.ba.options import BASummary, IterationRecord
 from polarref.metrics import ReconstructionMetrics
 from polarref.provenance import Provenance
 from polarref.scene_folder import SkippedImage
+
+if TYPE_CHECKING:
+    from polarref.sfm.pipeline import SfMConfig
 
 STATUS_RUNNING, STATUS_OK, STATUS_FAILED = "running", "ok", "failed"
 
@@ -74,7 +77,8 @@ class BARun:
         elif self.summary is not None:
             # keep scalars and the iteration trace (convergence plots); drop bulky state dumps
             info = {k: v for k, v in dataclasses.asdict(self.summary).items() if k != "points_state"
-                    and (k in ("trace", "intrinsics") or not isinstance(v, (list, np.ndarray)))}
+                    and (k in ("trace", "intrinsics") or not isinstance(v, (list, np.ndarray)))
+                    and not (k == "first_stage_termination" and v is None)}
             if not info["intrinsics"]:
                 info.pop("intrinsics")
             out.update(info)
@@ -88,7 +92,7 @@ class SfMReport:
     """What one SfM run did and how good its model is."""
 
     image_dir: str
-    config: Any                          # polarref.sfm.pipeline.SfMConfig (frozen dataclass)
+    config: SfMConfig
     environment: Provenance
     status: str = STATUS_RUNNING         # running | ok | failed
     error: str = ""                      # why it failed ("" unless failed)
