@@ -100,3 +100,18 @@ def test_bad_files_name_the_problem(tmp_path, text, message):
         records.load(Inner, path)
     with pytest.raises(RecordError, match="not found"):
         records.load(Inner, tmp_path / "absent.json")
+
+
+def test_reconstruction_metrics_round_trip(tmp_path):
+    """The one metrics record (with GT errors per image) survives save -> strict load unchanged."""
+    from polarref.ba.synthetic import synthetic_reconstruction
+    from polarref.metrics import ReconstructionMetrics, evaluate
+
+    noisy, truth = synthetic_reconstruction(5, 80, seed=4, noise_px=0.5)
+    m = evaluate(noisy, gt=truth)
+    assert m.gt is not None and len(m.gt.per_image) == 5
+    assert m.mean_reprojection_error_px > 0.0 and m.gt.rotation_error_deg_max > 0.0   # a perturbed start
+    back = records.load(ReconstructionMetrics, records.save(m, tmp_path / "m.json"))
+    assert back == m
+    name = next(iter(m.gt.per_image))
+    assert back.gt.per_image[name].rotation_error_deg == m.gt.per_image[name].rotation_error_deg
