@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from polarref.atomic import atomic_write
 from polarref.compare.experiment_problems import (bearing_errors_deg, low_parallax_problem,
                                                   relative_rotation_errors_deg)
 from polarref.compare.thresholds import SUCCESS_BEARING_DEG, SUCCESS_RMS_NOISE_FACTOR, SUCCESS_ROT_DEG
@@ -341,5 +342,5 @@ def _run_all(seed: int, budget_s: float, out_json: Path, t0: float) -> dict:
             result[name] = {"error": _err(exc)}
         result.setdefault("wall_s", {})[name] = time.perf_counter() - tic
     out_json.parent.mkdir(parents=True, exist_ok=True)
-    out_json.write_text(json.dumps(result, indent=1, default=float))
+    atomic_write(out_json, json.dumps(result, indent=1, default=float))
     return result

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from polarref.atomic import atomic_write
 from polarref.camera import Camera
 from polarref.compare.schema import TracePoint
 from polarref.scene_folder import SkippedImage
@@ -122,5 +123,5 @@ def derivation_evidence(n: int, out_json: str) -> dict:
 
     cases = [dataclasses.asdict(c) for c in paper.all_case_evidence(n=n)]
     result = {"cases": cases, "samples_per_case": n, "seed": paper.SEED}
-    Path(out_json).write_text(json.dumps(result, indent=1, default=float))
+    atomic_write(out_json, json.dumps(result, indent=1, default=float))
     return result
