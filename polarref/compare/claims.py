@@ -1,6 +1,6 @@
 """The claims scorecard: for each claim of the paper, a test, measured figures and a verdict.
 
-Verdict rules are written here once (their thresholds in ``thresholds.py``), so a reader can check them:
+Verdict rules are written here once (thresholds in ``thresholds.py``) so a reader can check them:
 
 * equation claims: "supported" when the max error over every sampled case is below
   ``EXACT_RAD``; otherwise "not supported" (the figures say by how much).

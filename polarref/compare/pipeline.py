@@ -199,15 +199,11 @@ def _score_into(res: MethodResult, rec, scene: scenes.PreparedScene, mesh, seed:
         log.exception("scoring %s failed", res.name)
         res.status, res.reason = STATUS_FAILED, f"scoring failed: {type(exc).__name__}: {exc}"
         return
-    res.registered_images = s.registered_images
-    res.tie_points = s.tie_points
-    res.reprojected_px = s.reprojected_px
-    res.mean_reprojection_error_px = s.mean_reprojection_error_px
-    res.mean_reprojection_error_per_point_px = s.mean_reprojection_error_per_point_px
+    res.set_metrics(s.metrics)
     res.gt = s.gt
     res.plot = s.plot
     notes += [f"{res.name}: {n}" for n in s.notes]
-    if s.registered_images == 0:
+    if res.registered_images == 0:
         res.status, res.reason = STATUS_FAILED, "no image registered"
 
 

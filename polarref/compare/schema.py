@@ -8,6 +8,7 @@ fails loudly instead of rendering half a report.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar
@@ -130,6 +131,18 @@ class MethodResult:
     mean_reprojection_error_per_point_px: float | None = None  # COLMAP's per-point average
     gt: GtAccuracy | None = None
     plot: MethodPlot | None = None
+
+    def set_metrics(self, m) -> None:
+        """Fill the counts and reprojection errors from ``m`` (a polarref.metrics.ReconstructionMetrics).
+
+        The one mapping from the metrics record to this file's names (non-finite -> None).
+        """
+        finite = lambda x: float(x) if x is not None and math.isfinite(x) else None  # noqa: E731
+        self.registered_images = int(m.registered_images)
+        self.tie_points = int(m.tie_points)
+        self.reprojected_px = int(m.reprojected_px)
+        self.mean_reprojection_error_px = finite(m.mean_reprojection_error_px)
+        self.mean_reprojection_error_per_point_px = finite(m.mean_reprojection_error_px_per_point)
 
 
 @dataclass
