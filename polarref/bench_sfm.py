@@ -131,7 +131,7 @@ def _run_ours(root: Path, settings: BenchSfMSettings) -> dict:
     names, camera, gt = _scene(root)
     config = _ours_config(settings)
     res = run_sfm(root / "images", None, config, camera=camera, gt=gt)
-    t = res.metrics["runtime_s"]
+    t = res.report.runtime_s
     stages = {s: float(t.get(s, 0.0)) for s in STAGES["ours"]}
     stages["ba"] = float(t.get("ba", 0.0))  # part of mapping
     pairs = pairs_for(len(names), settings)

@@ -84,7 +84,7 @@ def test_adjust_writes_back_only_the_variable_poses_and_the_window_points():
     obs = np.flatnonzero(state.active & np.isin(tr.track, pts))
     before = state.errors(obs)
     info = bundle.adjust(state, [3], [2, 4], "euclidean", 20, "cauchy", track_ids=pts)
-    assert info["final_cost"] < info["initial_cost"]
+    assert info.summary.final_cost < info.summary.initial_cost
     moved = np.flatnonzero(np.abs(state.t - t0).max(1) > 0)
     np.testing.assert_array_equal(moved, [3])
     np.testing.assert_array_equal(state.R[[0, 1, 2, 4, 5]], R0[[0, 1, 2, 4, 5]])

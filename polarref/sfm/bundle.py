@@ -1,4 +1,4 @@
-"""Bundle adjustment of a :class:`MapState` through the shared :class:`Reconstruction` type.
+"""Bundle adjustment of a :class:`MapState`: polarref's adjusters straight from its arrays.
 
 ``ba="colmap"`` runs pycolmap's Ceres adjuster (the reference); every other name runs
 ``polarref.ba.adjust`` with that parameterization. Intrinsics are held constant unless
@@ -8,15 +8,18 @@ the cached bearings of their observations recomputed.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from polarref.errors import PolarrefError
 from polarref.geometry import Rigid3
 from polarref.reconstruction import Image, Point3D, Reconstruction
+
+if TYPE_CHECKING:
+    from polarref.sfm.report import BARun, ColmapBARun
 
 log = logging.getLogger(__name__)
 
@@ -75,31 +78,16 @@ def _read_back(state, rec: Reconstruction, variable: list[int]) -> None:
 
 
 def _colmap_adjust(rec: Reconstruction, variable: list[int], fixed: list[int], max_iterations: int,
-                   loss: str, refine: tuple = ()) -> dict:
+                   loss: str, refine: tuple = ()) -> ColmapBARun:
     import pycolmap
 
+    from polarref.model.colmap import CeresSettings, bundle_adjustment_config, bundle_adjustment_options
+
     prec = rec.to_pycolmap()
-    cfg = pycolmap.BundleAdjustmentConfig()
-    for i in variable + fixed:
-        cfg.add_image(i + 1)
-    for i in fixed:
-        cfg.set_constant_rig_from_world_pose(prec.images[i + 1].frame_id)
-    if not refine:
-        for cam_id in prec.cameras:
-            cfg.set_constant_cam_intrinsics(cam_id)
-    if len(fixed) < 2:
-        # Gauge (7 DoF: rotation, translation, scale): pin two camera poses, COLMAP style.
-        cfg.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
-    opts = pycolmap.BundleAdjustmentOptions()
-    opts.refine_focal_length = "focal" in refine
-    opts.refine_principal_point = "pp" in refine
-    opts.refine_extra_params = "dist" in refine
-    opts.ceres.solver_options.max_num_iterations = max_iterations
-    opts.ceres.solver_options.num_threads = 1
-    opts.print_summary = False
-    opts.ceres.solver_options.function_tolerance = 1e-6
-    if loss != "trivial":
-        opts.ceres.loss_function_type = getattr(pycolmap.LossFunctionType, loss.upper())
+    cfg = bundle_adjustment_config(prec, [i + 1 for i in variable + fixed], [i + 1 for i in fixed],
+                                   constant_intrinsics=not refine)
+    opts = bundle_adjustment_options(CeresSettings("sfm", function_tolerance=1e-6, max_num_iterations=max_iterations,
+                                                   num_threads=1), loss, 1.0, refine)
     t0 = time.perf_counter()
     ba = pycolmap.create_default_bundle_adjuster(opts, cfg, prec)
     summary = ba.solve()
@@ -115,11 +103,11 @@ def _colmap_adjust(rec: Reconstruction, variable: list[int], fixed: list[int], m
 
         for cid in rec.cameras:
             rec.cameras[cid] = Camera.from_pycolmap(prec.cameras[cid])
-    info = {"param": "colmap", "loss": loss, "wall_s": wall, "refine": list(refine)}
-    for key in ("initial_cost", "final_cost", "num_successful_steps", "num_unsuccessful_steps"):
-        if hasattr(cs, key):
-            info[key] = float(getattr(cs, key))
-    return info
+    from polarref.sfm.report import ColmapBARun
+
+    return ColmapBARun(loss, wall, list(refine), **{
+        key: float(getattr(cs, key)) for key in ("initial_cost", "final_cost", "num_successful_steps",
+                                                 "num_unsuccessful_steps") if hasattr(cs, key)})
 
 
 def problem_from_state(state, variable: list[int], fixed: list[int], track_ids=None):
@@ -131,6 +119,7 @@ def problem_from_state(state, variable: list[int], fixed: list[int], track_ids=N
     Returns None when no observation is left.
     """
     from polarref.ba import BAProblem
+    from polarref.model.observations import Observations
 
     tr = state.tracks
     imgs = np.unique(np.asarray(list(variable) + list(fixed), np.int64))
@@ -148,8 +137,9 @@ def problem_from_state(state, variable: list[int], fixed: list[int], track_ids=N
     cam_of = state.camera_of_image[imgs]
     p = BAProblem(cameras=[state.cameras[c] for c in cam_of], R=state.R[imgs].copy(),
                   C=state.centers()[imgs] if len(imgs) else np.zeros((0, 3)), X=state.X[pts].copy(),
-                  obs_cam=obs_cam.astype(np.int64), obs_pt=obs_pt.astype(np.int64),
-                  obs_uv=state.uv[obs].copy(), cam_fixed=~var[imgs], image_ids=imgs + 1,
+                  obs=Observations.from_arrays(obs_cam.astype(np.int64), obs_pt.astype(np.int64),
+                                               state.uv[obs].copy()),
+                  cam_fixed=~var[imgs], image_ids=imgs + 1,
                   point_ids=pts + 1)
     p.camera_group = np.unique(cam_of, return_inverse=True)[1].astype(np.int64)
     return p
@@ -173,43 +163,37 @@ def _write_back_state(state, problem) -> None:
             state.ray[obs] = R_.bearings(problem.cameras[k], state.uv[obs])
 
 
-def _summary_info(summary) -> dict:
-    info = dataclasses.asdict(summary)
-    # keep scalars and the iteration trace (convergence plots); drop bulky state dumps
-    info = {k: v for k, v in info.items()
-            if k in ("trace", "intrinsics") or not isinstance(v, (list, np.ndarray))}
-    if not info["intrinsics"]:
-        info.pop("intrinsics")
-    return info
-
-
 def adjust(state, variable: list[int], fixed: list[int], ba: str, max_iterations: int,
            loss: str = "trivial", track_ids=None, refine: tuple = (),
-           function_tolerance: float = 1e-6) -> dict:
+           function_tolerance: float = 1e-6) -> BARun:
     """Adjust poses of ``variable`` images and the points (``track_ids`` or all) in place, and
     the intrinsics groups ``refine`` of the cameras involved.
 
     polarref's adjusters get their problem straight from the map arrays (only the window's
     observations are gathered); pycolmap's goes through a Reconstruction.
-    Returns a JSON-ready summary (with the iteration trace for polarref's adjusters).
+    Returns the typed record of the run (the adjuster's summary with its iteration trace).
     """
+    from polarref.sfm.report import BARun
+
     if ba not in BA_NAMES:
         raise PolarrefError(f"unknown bundle adjuster {ba!r}; choose one of {', '.join(BA_NAMES)}")
     if ba == "colmap":
         rec = to_reconstruction(state, sorted(set(variable) | set(fixed)), track_ids)
         if not rec.points3D:
-            return {"param": ba, "skipped": "no points"}
-        info = _colmap_adjust(rec, list(variable), list(fixed), max_iterations, loss, tuple(refine))
+            return BARun(ba, skipped="no points")
+        info = BARun(ba, colmap=_colmap_adjust(rec, list(variable), list(fixed), max_iterations, loss,
+                                               tuple(refine)))
         _read_back(state, rec, list(variable))
         return info
     from polarref.ba import BAOptions, prepare, solve
 
     problem = problem_from_state(state, variable, fixed, track_ids)
     if problem is None:
-        return {"param": ba, "skipped": "no points"}
+        return BARun(ba, skipped="no points")
     opts = BAOptions(param=ba, loss=loss, max_iterations=max_iterations, refine=tuple(refine),
                      function_tolerance=function_tolerance)
     prepare(problem)
     summary = solve(problem, opts, prepared=True)
     _write_back_state(state, problem)
-    return _summary_info(summary)
+    summary.points_state = None  # internal landmark parameters: not part of the record
+    return BARun(ba, summary=summary)
