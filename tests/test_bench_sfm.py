@@ -123,3 +123,21 @@ def test_real_cells_on_small_comet(tmp_path):
     assert by[("ours", 8)]["method_settings"]["matching"]["pairing"] == "sequential"
     assert by[("pycolmap", 8)]["method_settings"]["colmap_sfm_options"]["num_threads"] == 1
     assert by[("pycolmap", 8)]["method_settings"]["incremental_options"]["ba_refine_focal_length"] is False
+
+
+def test_cli_bench_sfm_usage_and_one_line_errors(tmp_path, fake_spawn, capsys):
+    from polarref.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", "sfm", "--views", "3", "--out", str(tmp_path / "b")])  # below 4 views
+    assert exc.value.code == 2
+    assert main(["bench", "sfm", "--views", "84", "168", "--out", str(tmp_path / "b")]) == 0
+    assert "ours/pycolmap total time" in capsys.readouterr().out
+    # the finished cells were made with overlap 10: another overlap is refused in one line
+    assert main(["bench", "sfm", "--views", "84", "--overlap", "5", "--out", str(tmp_path / "b")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "other settings" in err[0] and "Traceback" not in err[0]
+    assert len(fake_spawn) == 4
+    assert main(["bench", "sfm", "--views", "84", "--overlap", "5", "--out", str(tmp_path / "b"),
+                 "--overwrite"]) == 0
+    assert len(fake_spawn) == 6
