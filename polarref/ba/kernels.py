@@ -1,0 +1,176 @@
+"""Compiled kernels (numba) for the per-iteration sums of the bundle adjuster.
+
+The numpy path (schur.py, anchor_terms.py) is the reference; these kernels compute the same
+sums in one pass over observations or entry pairs, without the gathers that numpy needs to
+vectorize them: the camera-pair Schur products, the slot Gram blocks of U, and the W / g
+blocks. Sums are taken in a different order than in numpy, so results agree to rounding
+(tests: 1e-9 relative). ``BAOptions.kernels`` picks the path; "auto" uses these when numba
+imports. Everything runs on one thread (no ``parallel=True``): the bench compares against
+one-thread Ceres.
+
+Compiled code is cached on disk (``cache=True``, numba's ``__pycache__``); the first call in a
+fresh environment compiles (seconds), so the bench calls :func:`warm_up` before timing.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+try:
+    import numba
+except ImportError:  # the numpy path still works; "auto" falls back to it
+    numba = None
+
+AVAILABLE = numba is not None
+
+
+def use_kernels(choice: str) -> bool:
+    """Whether a solve with ``BAOptions.kernels == choice`` runs the compiled kernels."""
+    if choice == "numpy":
+        return False
+    if choice == "numba" and not AVAILABLE:
+        from polarref.errors import PolarrefError
+        raise PolarrefError("BA kernels 'numba' requested but numba is not installed "
+                            "(pip install numba, or use kernels='numpy')")
+    return AVAILABLE
+
+
+def _njit(fn):
+    return numba.njit(cache=True, nogil=True)(fn) if AVAILABLE else fn
+
+
+@_njit
+def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b):
+    """Point elimination into the dense reduced system, per point p with entries a <= b:
+    ``S[6 ca:, 6 cb:] -= Z_a Z_b^T`` (6x6) and ``b[ca] += Z_a q_p``, ``Z = W L^-T``.
+
+    W (E, 6, 3); Li (P, 3, 3) = L^-1 of the damped point blocks; q (P, 3) = L^-1 g_p; bounds
+    (G + 1,) entry ranges of the G points with entries (entries sorted by point, then camera,
+    so ca < cb for a < b: the upper triangle of the C-ordered S); S (6 Nv, 6 Nv) and
+    b (Nv, 6), updated in place.
+    """
+    nmax = 0
+    for g in range(len(bounds) - 1):
+        nmax = max(nmax, bounds[g + 1] - bounds[g])
+    Z = np.empty((nmax, 6, 3))
+    for g in range(len(bounds) - 1):
+        e0, e1 = bounds[g], bounds[g + 1]
+        p = entry_pt[e0]
+        for a in range(e0, e1):
+            za = Z[a - e0]
+            ca = entry_cam[a]
+            for i in range(6):
+                for j in range(3):  # (W Li^T)[i, j] = sum_l W[i, l] Li[j, l], Li lower
+                    s = 0.0
+                    for l in range(j + 1):
+                        s += W[a, i, l] * Li[p, j, l]
+                    za[i, j] = s
+                b[ca, i] += za[i, 0] * q[p, 0] + za[i, 1] * q[p, 1] + za[i, 2] * q[p, 2]
+        for a in range(e0, e1):
+            za = Z[a - e0]
+            ra = 6 * entry_cam[a]
+            for bb in range(a, e1):
+                zb = Z[bb - e0]
+                rb = 6 * entry_cam[bb]
+                for i in range(6):
+                    z0, z1, z2 = za[i, 0], za[i, 1], za[i, 2]
+                    for j in range(6):
+                        S[ra + i, rb + j] -= z0 * zb[j, 0] + z1 * zb[j, 1] + z2 * zb[j, 2]
+
+
+@_njit
+def slot_gram(Ja, ca, Jb, cb, idx, idx_t, U):
+    """``U[idx[m], ca:, cb:] += Ja[m]^T Jb[m]`` and, where ``idx_t[m] >= 0``, the transpose
+    into ``U[idx_t[m], cb:, ca:]``. Ja (M, k, na), Jb (M, k, nb); idx/idx_t (M,), -1 = skip."""
+    M, k, na = Ja.shape
+    nb = Jb.shape[2]
+    for m in range(M):
+        i, t = idx[m], idx_t[m]
+        if i < 0:
+            continue
+        for p in range(na):
+            for q in range(nb):
+                s = 0.0
+                for r in range(k):
+                    s += Ja[m, r, p] * Jb[m, r, q]
+                U[i, ca + p, cb + q] += s
+                if t >= 0:
+                    U[t, cb + q, ca + p] += s
+
+
+@_njit
+def slot_w_g(J, c0, Jp, res, w_idx, g_idx, W, g):
+    """``W[w_idx[m], c0:, :] += J[m]^T Jp[m]`` and ``g[g_idx[m], c0:] += J[m]^T res[m]``.
+    J (M, k, n), Jp (M, k, 3), res (M, k); indices (M,), -1 = skip (fixed camera)."""
+    M, k, n = J.shape
+    for m in range(M):
+        e, c = w_idx[m], g_idx[m]
+        if c < 0:
+            continue
+        for p in range(n):
+            s = 0.0
+            for r in range(k):
+                s += J[m, r, p] * res[m, r]
+            g[c, c0 + p] += s
+            if e >= 0:
+                for q in range(3):
+                    s = 0.0
+                    for r in range(k):
+                        s += J[m, r, p] * Jp[m, r, q]
+                    W[e, c0 + p, q] += s
+
+
+@_njit
+def point_sums(Jp, res, obs_pt, V, g):
+    """``V[p] += Jp^T Jp`` and ``g[p] += Jp^T res`` over each point's observations."""
+    M, k, _ = Jp.shape
+    for m in range(M):
+        p = obs_pt[m]
+        for i in range(3):
+            s = 0.0
+            for r in range(k):
+                s += Jp[m, r, i] * res[m, r]
+            g[p, i] += s
+            for j in range(3):
+                s = 0.0
+                for r in range(k):
+                    s += Jp[m, r, i] * Jp[m, r, j]
+                V[p, i, j] += s
+
+
+@_njit
+def back_substitute_rhs(W, dc, entry_pt, entry_cam, rhs):
+    """``rhs[pt(e)] -= W_e^T dc[cam(e)]`` for every entry e."""
+    for e in range(len(entry_pt)):
+        p, c = entry_pt[e], entry_cam[e]
+        for q in range(3):
+            s = 0.0
+            for i in range(6):
+                s += W[e, i, q] * dc[c, i]
+            rhs[p, q] -= s
+
+
+def warm_up() -> float:
+    """Compile (or load from the disk cache) every kernel on tiny inputs; seconds taken."""
+    if not AVAILABLE:
+        return 0.0
+    t = time.perf_counter()
+    f, i = np.zeros, np.zeros
+    one = np.zeros(1, np.int64)
+    J6, Jp, r = f((1, 2, 6)), f((1, 2, 3)), f((1, 2))
+    U, W, g = f((1, 6, 6)), f((1, 6, 3)), f((1, 6))
+    schur_dense(W, f((1, 3, 3)), f((1, 3)), np.array([0, 1], np.int64), one, one, f((6, 6)), g)
+    slot_gram(J6, 0, J6, 0, one, -np.ones(1, np.int64), U)
+    slot_gram(J6, 0, Jp, 3, one, one, U)
+    slot_w_g(J6, 0, Jp, r, one, one, W, g)
+    slot_w_g(Jp, 3, Jp, r, one, one, W, g)
+    point_sums(Jp, r, one, f((1, 3, 3)), f((1, 3)))
+    back_substitute_rhs(W, g, one, one, i((1, 3)))
+    dt = time.perf_counter() - t
+    log.debug("BA kernels ready in %.2f s", dt)
+    return dt
