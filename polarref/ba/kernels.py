@@ -155,6 +155,59 @@ def back_substitute_rhs(W, dc, entry_pt, entry_cam, rhs):
             rhs[p, q] -= s
 
 
+@_njit
+def parallax_rays(R, C, obs_cam, obs_pt, Cm, sw, hd):
+    """Camera-frame rays ``Xc[m] = R_i (sin(w) (C_m - C_i) + h d)`` (M, 3) of parallax
+    landmarks (parallax.py); Cm, hd = h d (P, 3) and sw (P,) per point."""
+    M = len(obs_cam)
+    Xc = np.empty((M, 3))
+    for m in range(M):
+        i, p = obs_cam[m], obs_pt[m]
+        v0 = sw[p] * (Cm[p, 0] - C[i, 0]) + hd[p, 0]
+        v1 = sw[p] * (Cm[p, 1] - C[i, 1]) + hd[p, 1]
+        v2 = sw[p] * (Cm[p, 2] - C[i, 2]) + hd[p, 2]
+        for r in range(3):
+            Xc[m, r] = R[i, r, 0] * v0 + R[i, r, 1] * v1 + R[i, r, 2] * v2
+    return Xc
+
+
+@_njit
+def parallax_jacobians(Jx, Xc, R, C, obs_cam, obs_pt, Cm, d, sw, cw, dh_dw, dh_de, dv_dab):
+    """Chain rule from ``res_D_Xc`` (M, k, 3) to the parameters of parallax landmarks:
+    ``res_D_point`` (M, k, 3) and the dense slot Jacobians ``res_D_obs`` (M, k, 6),
+    ``res_D_main_centre`` and ``res_D_assoc_centre`` (M, k, 3) (see parallax.py, anchor_terms.py:
+    with ``A = Jx R_i``: point ``[A dv/d(alpha, beta), A dv/dw]``, observer ``[Xc x Jx, -sin(w) A]``,
+    associate ``(A d) dh/de^T``, main ``sin(w) A - associate``)."""
+    M, k, _ = Jx.shape
+    Jp = np.empty((M, k, 3))
+    Jo = np.empty((M, k, 6))
+    Jm = np.empty((M, k, 3))
+    Ja = np.empty((M, k, 3))
+    A = np.empty(3)
+    dvw = np.empty(3)
+    for m in range(M):
+        i, p = obs_cam[m], obs_pt[m]
+        for j in range(3):
+            dvw[j] = dh_dw[p] * d[p, j] + cw[p] * (Cm[p, j] - C[i, j])
+        x, y, z = Xc[m, 0], Xc[m, 1], Xc[m, 2]
+        for r in range(k):
+            a0, a1, a2 = Jx[m, r, 0], Jx[m, r, 1], Jx[m, r, 2]
+            for j in range(3):
+                A[j] = a0 * R[i, 0, j] + a1 * R[i, 1, j] + a2 * R[i, 2, j]
+            Jp[m, r, 0] = A[0] * dv_dab[p, 0, 0] + A[1] * dv_dab[p, 1, 0] + A[2] * dv_dab[p, 2, 0]
+            Jp[m, r, 1] = A[0] * dv_dab[p, 0, 1] + A[1] * dv_dab[p, 1, 1] + A[2] * dv_dab[p, 2, 1]
+            Jp[m, r, 2] = A[0] * dvw[0] + A[1] * dvw[1] + A[2] * dvw[2]
+            Jo[m, r, 0] = y * a2 - z * a1
+            Jo[m, r, 1] = z * a0 - x * a2
+            Jo[m, r, 2] = x * a1 - y * a0
+            ad = A[0] * d[p, 0] + A[1] * d[p, 1] + A[2] * d[p, 2]
+            for j in range(3):
+                Jo[m, r, 3 + j] = -sw[p] * A[j]
+                Ja[m, r, j] = ad * dh_de[p, j]
+                Jm[m, r, j] = sw[p] * A[j] - Ja[m, r, j]
+    return Jp, Jo, Jm, Ja
+
+
 def warm_up() -> float:
     """Compile (or load from the disk cache) every kernel on tiny inputs; seconds taken."""
     if not AVAILABLE:
@@ -171,6 +224,9 @@ def warm_up() -> float:
     slot_w_g(Jp, 3, Jp, r, one, one, W, g)
     point_sums(Jp, r, one, f((1, 3, 3)), f((1, 3)))
     back_substitute_rhs(W, g, one, one, i((1, 3)))
+    R, x3, x1 = np.eye(3)[None].copy(), f((1, 3)), f(1)
+    parallax_rays(R, x3, one, one, x3, x1, x3)
+    parallax_jacobians(Jp, x3, R, x3, one, one, x3, x3, x1, x1, x1, x3, f((1, 3, 2)))
     dt = time.perf_counter() - t
     log.debug("BA kernels ready in %.2f s", dt)
     return dt
