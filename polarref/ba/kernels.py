@@ -84,6 +84,37 @@ def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b):
 
 
 @_njit
+def cross_blocks(J0, J1, J2, vc, S):
+    """Camera blocks of observations with three slots (observer (M, k, 6), main and associate
+    anchor centres (M, k, 3), parallax forms) that couple two different variable cameras,
+    added to the upper triangle of the dense S (6 Nv, 6 Nv); vc (3, M) variable-camera index
+    per slot (-1 = fixed). Same-camera blocks are in U (slot_gram)."""
+    M, k, _ = J0.shape
+    for m in range(M):
+        c0, c1, c2 = vc[0, m], vc[1, m], vc[2, m]
+        for a in range(3):
+            for b in range(a + 1, 3):
+                ca = c0 if a == 0 else c1
+                cb = c1 if b == 1 else c2
+                if ca < 0 or cb < 0 or ca == cb:
+                    continue
+                na = 6 if a == 0 else 3
+                oa = 0 if a == 0 else 3
+                for i in range(na):
+                    for j in range(3):
+                        s = 0.0
+                        for r in range(k):
+                            if a == 0:
+                                s += J0[m, r, i] * (J1[m, r, j] if b == 1 else J2[m, r, j])
+                            else:
+                                s += J1[m, r, i] * J2[m, r, j]
+                        if ca < cb:
+                            S[6 * ca + oa + i, 6 * cb + 3 + j] += s
+                        else:
+                            S[6 * cb + 3 + j, 6 * ca + oa + i] += s
+
+
+@_njit
 def slot_gram(Ja, ca, Jb, cb, idx, idx_t, U):
     """``U[idx[m], ca:, cb:] += Ja[m]^T Jb[m]`` and, where ``idx_t[m] >= 0``, the transpose
     into ``U[idx_t[m], cb:, ca:]``. Ja (M, k, na), Jb (M, k, nb); idx/idx_t (M,), -1 = skip."""
@@ -224,6 +255,7 @@ def warm_up() -> float:
     slot_w_g(Jp, 3, Jp, r, one, one, W, g)
     point_sums(Jp, r, one, f((1, 3, 3)), f((1, 3)))
     back_substitute_rhs(W, g, one, one, i((1, 3)))
+    cross_blocks(J6, Jp, Jp, np.zeros((3, 1), np.int64), f((6, 6)))
     R, x3, x1 = np.eye(3)[None].copy(), f((1, 3)), f(1)
     parallax_rays(R, x3, one, one, x3, x1, x3)
     parallax_jacobians(Jp, x3, R, x3, one, one, x3, x3, x1, x1, x1, x3, f((1, 3, 2)))

@@ -139,10 +139,6 @@ class SchurStructure:
         self.slot_entry = slot_entry
         self.entry_cam_reduce = Reducer(self.entry_cam, Nv)
         self.entry_pt_starts, self.pts_with_entries = _group_starts(self.entry_pt)
-        if fast:
-            self._build_u_fast(vc)
-        else:
-            self._build_u_reducers(vc, slot_entry)
         # -- choose how to form Z Z^T ----------------------------------------------------------
         counts = np.diff(np.r_[self.entry_pt_starts, E])
         self.num_pairs = int((counts * (counts + 1) // 2).sum())
@@ -154,10 +150,19 @@ class SchurStructure:
             segments = min(Nv * (Nv + 1) // 2, self.num_pairs)  # upper bound, without building
             pair_s = self.num_pairs * _PAIR_S + segments * _SEGMENT_S
         self.use_gemm = (not self.sparse_S) and gemm_s < pair_s
+        # Kernel path, dense S by entry pairs, three slots (parallax forms): the camera blocks
+        # that couple two different cameras of one observation go straight into S inside the
+        # Schur kernel (both cameras are entries of the observation's point, so the kernel
+        # touches that block of S anyway); U keeps only the diagonal camera blocks.
+        self.fused = fast and S == 3 and not self.sparse_S and not self.use_gemm
+        if fast:
+            self._build_u_fast(vc)
+            self.entry_bounds = np.r_[self.entry_pt_starts, E].astype(np.int64)
+            self.obs_bounds = np.r_[self.pt_starts, M].astype(np.int64)
+        else:
+            self._build_u_reducers(vc, slot_entry)
         if not self.use_gemm and (self.sparse_S or not fast):
             self._build_pairs(counts)
-        if fast:
-            self.entry_bounds = np.r_[self.entry_pt_starts, E].astype(np.int64)
 
     def _build_u_reducers(self, vc: np.ndarray, slot_entry: np.ndarray) -> None:
         """numpy path: sparse 0/1 reducers per slot and slot pair (U, W, g)."""
@@ -196,16 +201,19 @@ class SchurStructure:
 
     def _build_u_fast(self, vc: np.ndarray) -> None:
         """Kernel path: the U block of every observation and slot pair (a <= b), and of its
-        transpose (a < b), as (M,) index arrays (-1 = a fixed camera)."""
+        transpose (a < b), as (M,) index arrays (-1 = a fixed camera). Fused: only the blocks
+        of slot pairs on one camera (the rest goes into S, see __init__)."""
         S, nv = self.S, max(self.Nv, 1)
         pairs = [(a, b) for a in range(S) for b in range(a, S)]
         keys = []
         for a, b in pairs:
             ok = (vc[a] >= 0) & (vc[b] >= 0)
+            if self.fused:
+                ok &= vc[a] == vc[b]
             keys.append(np.where(ok, vc[a] * nv + vc[b], -1))
             if a != b:
                 keys.append(np.where(ok, vc[b] * nv + vc[a], -1))
-        allk = np.unique(np.concatenate(keys))
+        allk = np.arange(self.Nv) * (nv + 1) if self.fused else np.unique(np.concatenate(keys))
         allk = allk[allk >= 0]
         self.u_ca, self.u_cb = allk // nv, allk % nv
         self.B = len(allk)
@@ -283,6 +291,7 @@ class SchurStructure:
 
         mask_v: (Nv, 6) 1 = free. Fully fixed cameras have no entries at all.
         """
+        self.mask_v = mask_v
         partial = ~(mask_v > 0).all(1)
         if not partial.any():
             return g_c, W, U
@@ -310,6 +319,8 @@ class SchurStructure:
         for a, b, idx, idx_t in self.u_pairs:
             kernels.slot_gram(Jc[a], self.slot_cols[a][0], Jc[b], self.slot_cols[b][0],
                               idx, idx_t, U)
+        if self.fused:  # the cross-camera blocks, added to S in reduced_system
+            self.cross_jacobians = Jc
         return g_c, W, U
 
     def add_diagonal_gram(self, U: np.ndarray, s: int, J: np.ndarray) -> None:
@@ -367,6 +378,14 @@ class SchurStructure:
             if E:
                 kernels.schur_dense(_c(W), Li, q, self.entry_bounds, self.entry_pt,
                                     self.entry_cam, S, b)
+            if self.fused:
+                J0, J1, J2 = self.cross_jacobians
+                kernels.cross_blocks(J0, J1, J2, self.slot_vc, S)
+                mask_v = getattr(self, "mask_v", None)  # from apply_mask: the held gauge columns
+                if mask_v is not None:
+                    held = np.flatnonzero(mask_v.reshape(-1) == 0)
+                    S[held, :] = 0.0
+                    S[:, held] = 0.0
             S[np.diag_indices_from(S)] += diag_c.reshape(-1)
             return S, b.reshape(-1), Li
         Z = np.matmul(W, Li[self.entry_pt].transpose(0, 2, 1)) if E else np.zeros((0, 6, 3))
