@@ -84,34 +84,34 @@ def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b):
 
 
 @_njit
+def _cross(Ja, oa, Jb, m, ca, cb, S):
+    """``Ja[m]^T Jb[m]`` (na x 3; Jb an anchor's centre columns 3:6) into S's upper triangle
+    at the block of cameras (ca, cb), columns oa: of ca."""
+    if ca < 0 or cb < 0 or ca == cb:
+        return
+    k, na = Ja.shape[1], Ja.shape[2]
+    for i in range(na):
+        for j in range(3):
+            s = 0.0
+            for r in range(k):
+                s += Ja[m, r, i] * Jb[m, r, j]
+            if ca < cb:
+                S[6 * ca + oa + i, 6 * cb + 3 + j] += s
+            else:
+                S[6 * cb + 3 + j, 6 * ca + oa + i] += s
+
+
+@_njit
 def cross_blocks(J0, J1, J2, vc, S):
     """Camera blocks of observations with three slots (observer (M, k, 6), main and associate
     anchor centres (M, k, 3), parallax forms) that couple two different variable cameras,
     added to the upper triangle of the dense S (6 Nv, 6 Nv); vc (3, M) variable-camera index
     per slot (-1 = fixed). Same-camera blocks are in U (slot_gram)."""
-    M, k, _ = J0.shape
-    for m in range(M):
+    for m in range(J0.shape[0]):
         c0, c1, c2 = vc[0, m], vc[1, m], vc[2, m]
-        for a in range(3):
-            for b in range(a + 1, 3):
-                ca = c0 if a == 0 else c1
-                cb = c1 if b == 1 else c2
-                if ca < 0 or cb < 0 or ca == cb:
-                    continue
-                na = 6 if a == 0 else 3
-                oa = 0 if a == 0 else 3
-                for i in range(na):
-                    for j in range(3):
-                        s = 0.0
-                        for r in range(k):
-                            if a == 0:
-                                s += J0[m, r, i] * (J1[m, r, j] if b == 1 else J2[m, r, j])
-                            else:
-                                s += J1[m, r, i] * J2[m, r, j]
-                        if ca < cb:
-                            S[6 * ca + oa + i, 6 * cb + 3 + j] += s
-                        else:
-                            S[6 * cb + 3 + j, 6 * ca + oa + i] += s
+        _cross(J0, 0, J1, m, c0, c1, S)
+        _cross(J0, 0, J2, m, c0, c2, S)
+        _cross(J1, 3, J2, m, c1, c2, S)
 
 
 @_njit
