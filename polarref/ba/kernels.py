@@ -41,7 +41,8 @@ def use_kernels(choice: str) -> bool:
 
 
 def _njit(fn):
-    return numba.njit(cache=True, nogil=True)(fn) if AVAILABLE else fn
+    # numpy semantics for x / 0 (inf or nan, as the reference path), not ZeroDivisionError
+    return numba.njit(cache=True, nogil=True, error_model="numpy")(fn) if AVAILABLE else fn
 
 
 @_njit
@@ -157,6 +158,58 @@ def slot_w_g(J, c0, Jp, res, w_idx, g_idx, W, g):
 
 
 @_njit
+def _wg(J, off, m, c, e, Jp, res, W, g):
+    k, n = J.shape[1], J.shape[2]
+    for p in range(n):
+        s = 0.0
+        for r in range(k):
+            s += J[m, r, p] * res[m, r]
+        g[c, off + p] += s
+        for q in range(3):
+            s = 0.0
+            for r in range(k):
+                s += J[m, r, p] * Jp[m, r, q]
+            W[e, off + p, q] += s
+
+
+@_njit
+def _ugram(Ja, oa, Jb, ob, m, c, U, both):
+    k, na, nb = Ja.shape[1], Ja.shape[2], Jb.shape[2]
+    for i in range(na):
+        for j in range(nb):
+            s = 0.0
+            for r in range(k):
+                s += Ja[m, r, i] * Jb[m, r, j]
+            U[c, oa + i, ob + j] += s
+            if both:
+                U[c, ob + j, oa + i] += s
+
+
+@_njit
+def build_three_slots(J0, J1, J2, Jp, res, vc, ent, W, g, U):
+    """One pass of :func:`slot_w_g` and the same-camera :func:`slot_gram` blocks for the
+    three-slot layout (observer (M, k, 6), anchor centres (M, k, 3) at columns 3:6); U holds
+    the diagonal camera blocks only, indexed by variable camera (see schur.py ``fused``)."""
+    for m in range(J0.shape[0]):
+        c0, c1, c2 = vc[0, m], vc[1, m], vc[2, m]
+        if c0 >= 0:
+            _wg(J0, 0, m, c0, ent[0, m], Jp, res, W, g)
+            _ugram(J0, 0, J0, 0, m, c0, U, False)
+            if c1 == c0:
+                _ugram(J0, 0, J1, 3, m, c0, U, True)
+            if c2 == c0:
+                _ugram(J0, 0, J2, 3, m, c0, U, True)
+        if c1 >= 0:
+            _wg(J1, 3, m, c1, ent[1, m], Jp, res, W, g)
+            _ugram(J1, 3, J1, 3, m, c1, U, False)
+            if c2 == c1:
+                _ugram(J1, 3, J2, 3, m, c1, U, True)
+        if c2 >= 0:
+            _wg(J2, 3, m, c2, ent[2, m], Jp, res, W, g)
+            _ugram(J2, 3, J2, 3, m, c2, U, False)
+
+
+@_njit
 def point_sums(Jp, res, obs_pt, V, g):
     """``V[p] += Jp^T Jp`` and ``g[p] += Jp^T res`` over each point's observations."""
     M, k, _ = Jp.shape
@@ -184,6 +237,93 @@ def back_substitute_rhs(W, dc, entry_pt, entry_cam, rhs):
             for i in range(6):
                 s += W[e, i, q] * dc[c, i]
             rhs[p, q] -= s
+
+
+@_njit
+def euclidean_rays(R, C, X, obs_cam, obs_pt):
+    """Camera-frame points ``Xc[m] = R_i (X_p - C_i)`` (M, 3)."""
+    M = len(obs_cam)
+    Xc = np.empty((M, 3))
+    for m in range(M):
+        i, p = obs_cam[m], obs_pt[m]
+        v0, v1, v2 = X[p, 0] - C[i, 0], X[p, 1] - C[i, 1], X[p, 2] - C[i, 2]
+        for r in range(3):
+            Xc[m, r] = R[i, r, 0] * v0 + R[i, r, 1] * v1 + R[i, r, 2] * v2
+    return Xc
+
+
+@_njit
+def euclidean_jacobians(Jx, Xc, R, obs_cam):
+    """``res_D_point = Jx R_i`` (M, k, 3) and ``res_D_cam = [Xc x Jx, -res_D_point]`` (M, k, 6)
+    from ``res_D_Xc`` (M, k, 3) (euclidean.py)."""
+    M, k, _ = Jx.shape
+    Jp = np.empty((M, k, 3))
+    Jc = np.empty((M, k, 6))
+    for m in range(M):
+        i = obs_cam[m]
+        x, y, z = Xc[m, 0], Xc[m, 1], Xc[m, 2]
+        for r in range(k):
+            a0, a1, a2 = Jx[m, r, 0], Jx[m, r, 1], Jx[m, r, 2]
+            for j in range(3):
+                v = a0 * R[i, 0, j] + a1 * R[i, 1, j] + a2 * R[i, 2, j]
+                Jp[m, r, j] = v
+                Jc[m, r, 3 + j] = -v
+            Jc[m, r, 0] = y * a2 - z * a1
+            Jc[m, r, 1] = z * a0 - x * a2
+            Jc[m, r, 2] = x * a1 - y * a0
+    return Jp, Jc
+
+
+@_njit
+def parallax_points(frame, pts, C, main, assoc, jac):
+    """Per-point terms of parallax landmarks (parallax.py ``landmark_terms`` and
+    ``point_derivatives``): main centre Cm (P, 3), direction d (P, 3), sin(w), cos(w) (P,),
+    h d (P, 3); with ``jac`` also dh/dw (P,), dh/de (P, 3), dv/d(alpha, beta) (P, 3, 2)."""
+    P = len(pts)
+    Cm, d, hd = np.empty((P, 3)), np.empty((P, 3)), np.empty((P, 3))
+    sw, cw, dh_dw = np.empty(P), np.empty(P), np.empty(P)
+    dh_de, dv_dab = np.empty((P, 3)), np.empty((P, 3, 2))
+    u, e, ua, ub, dd = np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.empty(3)
+    for p in range(P):
+        ca, sa = np.cos(pts[p, 0]), np.sin(pts[p, 0])
+        cb, sb = np.cos(pts[p, 1]), np.sin(pts[p, 1])
+        u[0], u[1], u[2] = cb * ca, cb * sa, sb
+        m, a = main[p], assoc[p]
+        for i in range(3):
+            d[p, i] = frame[p, i, 0] * u[0] + frame[p, i, 1] * u[1] + frame[p, i, 2] * u[2]
+            Cm[p, i] = C[m, i]
+            e[i] = C[a, i] - C[m, i]
+        c = d[p, 0] * e[0] + d[p, 1] * e[1] + d[p, 2] * e[2]
+        x0 = d[p, 1] * e[2] - d[p, 2] * e[1]
+        x1 = d[p, 2] * e[0] - d[p, 0] * e[2]
+        x2 = d[p, 0] * e[1] - d[p, 1] * e[0]
+        s = np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+        sw[p], cw[p] = np.sin(pts[p, 2]), np.cos(pts[p, 2])
+        h = sw[p] * c + cw[p] * s
+        for i in range(3):
+            hd[p, i] = h * d[p, i]
+        if not jac:
+            continue
+        dh_dw[p] = cw[p] * c - sw[p] * s
+        e2 = e[0] * e[0] + e[1] * e[1] + e[2] * e[2]
+        f = cw[p] / s
+        for i in range(3):
+            dd[i] = sw[p] * e[i] + f * (e2 * d[p, i] - c * e[i])  # dh/dd
+            dh_de[p, i] = sw[p] * d[p, i] + f * (e[i] - c * d[p, i])
+        ua[0], ua[1], ua[2] = -cb * sa, cb * ca, 0.0  # d u / d alpha, d u / d beta
+        ub[0], ub[1], ub[2] = -sb * ca, -sb * sa, cb
+        ga = gb = 0.0
+        for i in range(3):
+            Da = frame[p, i, 0] * ua[0] + frame[p, i, 1] * ua[1] + frame[p, i, 2] * ua[2]
+            Db = frame[p, i, 0] * ub[0] + frame[p, i, 1] * ub[1] + frame[p, i, 2] * ub[2]
+            ga += dd[i] * Da
+            gb += dd[i] * Db
+            dv_dab[p, i, 0] = h * Da
+            dv_dab[p, i, 1] = h * Db
+        for i in range(3):
+            dv_dab[p, i, 0] += d[p, i] * ga
+            dv_dab[p, i, 1] += d[p, i] * gb
+    return Cm, d, sw, cw, hd, dh_dw, dh_de, dv_dab
 
 
 @_njit
@@ -256,7 +396,11 @@ def warm_up() -> float:
     point_sums(Jp, r, one, f((1, 3, 3)), f((1, 3)))
     back_substitute_rhs(W, g, one, one, i((1, 3)))
     cross_blocks(J6, Jp, Jp, np.zeros((3, 1), np.int64), f((6, 6)))
+    build_three_slots(J6, Jp, Jp, Jp, r, np.zeros((3, 1), np.int64), np.zeros((3, 1), np.int64),
+                      W, g, U)
     R, x3, x1 = np.eye(3)[None].copy(), f((1, 3)), f(1)
+    euclidean_jacobians(Jp, euclidean_rays(R, x3, x3, one, one), R, one)
+    parallax_points(R, x3, x3, one, one, True)
     parallax_rays(R, x3, one, one, x3, x1, x3)
     parallax_jacobians(Jp, x3, R, x3, one, one, x3, x3, x1, x1, x1, x3, f((1, 3, 2)))
     dt = time.perf_counter() - t

@@ -149,11 +149,12 @@ class Parallax:
     def rays(self, R, C, pts, jac: bool):
         """Camera-frame rays Xc (M, 3) = R_i v_i and, with jac, the pieces of their Jacobians."""
         p = self.p
-        Cm, d, e, c, s, sw, cw, h = self.landmark_terms(C, pts)
         if self.fast and not jac:
             from polarref.ba import kernels
-            return kernels.parallax_rays(R, C, p.obs_cam, p.obs_pt, Cm, sw,
-                                         np.ascontiguousarray(h[:, None] * d)), None
+            Cm, _, sw, _, hd, *_ = kernels.parallax_points(self.frame, pts, C, self.main,
+                                                           self.assoc, False)
+            return kernels.parallax_rays(R, C, p.obs_cam, p.obs_pt, Cm, sw, hd), None
+        Cm, d, e, c, s, sw, cw, h = self.landmark_terms(C, pts)
         op, oc = p.obs_pt, p.obs_cam
         sw_o = sw[op]
         base = Cm[op] - C[oc]
@@ -207,11 +208,10 @@ class Parallax:
         """:meth:`evaluate` with dense slot Jacobians through the compiled kernels."""
         from polarref.ba import kernels
         p = self.p
-        Cm, d, e, c, s, sw, cw, h = self.landmark_terms(C, pts)
-        Xc = kernels.parallax_rays(R, C, p.obs_cam, p.obs_pt, Cm, sw,
-                                   np.ascontiguousarray(h[:, None] * d))
+        Cm, d, sw, cw, hd, dh_dw, dh_de, dv_dab = kernels.parallax_points(
+            self.frame, pts, C, self.main, self.assoc, True)
+        Xc = kernels.parallax_rays(R, C, p.obs_cam, p.obs_pt, Cm, sw, hd)
         res, Jx = self.residual_rows(Xc, True)
-        dh_de, dv_dab, dh_dw = self.point_derivatives(pts, d, e, c, s, sw, cw, h)
         Jp, J_obs, J_m, J_a = kernels.parallax_jacobians(
             np.ascontiguousarray(Jx), Xc, R, C, p.obs_cam, p.obs_pt, Cm, d, sw, cw,
             dh_dw, dh_de, dv_dab)

@@ -201,19 +201,21 @@ class SchurStructure:
 
     def _build_u_fast(self, vc: np.ndarray) -> None:
         """Kernel path: the U block of every observation and slot pair (a <= b), and of its
-        transpose (a < b), as (M,) index arrays (-1 = a fixed camera). Fused: only the blocks
-        of slot pairs on one camera (the rest goes into S, see __init__)."""
+        transpose (a < b), as (M,) index arrays (-1 = a fixed camera). Fused: the diagonal
+        camera blocks only (the rest goes into S, see __init__)."""
         S, nv = self.S, max(self.Nv, 1)
+        if self.fused:  # kernels.build_three_slots: U block index = variable camera
+            self.u_ca = self.u_cb = np.arange(self.Nv)
+            self.B = self.Nv
+            return
         pairs = [(a, b) for a in range(S) for b in range(a, S)]
         keys = []
         for a, b in pairs:
             ok = (vc[a] >= 0) & (vc[b] >= 0)
-            if self.fused:
-                ok &= vc[a] == vc[b]
             keys.append(np.where(ok, vc[a] * nv + vc[b], -1))
             if a != b:
                 keys.append(np.where(ok, vc[b] * nv + vc[a], -1))
-        allk = np.arange(self.Nv) * (nv + 1) if self.fused else np.unique(np.concatenate(keys))
+        allk = np.unique(np.concatenate(keys))
         allk = allk[allk >= 0]
         self.u_ca, self.u_cb = allk // nv, allk % nv
         self.B = len(allk)
@@ -313,14 +315,16 @@ class SchurStructure:
         g_c, W, U = np.zeros((self.Nv, 6)), np.zeros((self.E, 6, 3)), np.zeros((self.B, 6, 6))
         Jc = [_c(J) for J in Jc]
         Jp, r = _c(Jp), _c(r)
+        if self.fused:  # one pass; the cross-camera blocks are added to S in reduced_system
+            kernels.build_three_slots(*Jc, Jp, r, self.slot_vc, self.slot_entry, W, g_c, U)
+            self.cross_jacobians = Jc
+            return g_c, W, U
         for s, J in enumerate(Jc):
             kernels.slot_w_g(J, self.slot_cols[s][0], Jp, r, self.slot_entry[s],
                              self.slot_vc[s], W, g_c)
         for a, b, idx, idx_t in self.u_pairs:
             kernels.slot_gram(Jc[a], self.slot_cols[a][0], Jc[b], self.slot_cols[b][0],
                               idx, idx_t, U)
-        if self.fused:  # the cross-camera blocks, added to S in reduced_system
-            self.cross_jacobians = Jc
         return g_c, W, U
 
     def add_diagonal_gram(self, U: np.ndarray, s: int, J: np.ndarray) -> None:
