@@ -46,7 +46,7 @@ def _njit(fn):
 
 
 @_njit
-def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b):
+def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, J0, J1, J2, ent, obs_bounds):
     """Point elimination into the dense reduced system, per point p with entries a <= b:
     ``S[6 ca:, 6 cb:] -= Z_a Z_b^T`` (6x6) and ``b[ca] += Z_a q_p``, ``Z = W L^-T``.
 
@@ -54,13 +54,22 @@ def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b):
     (G + 1,) entry ranges of the G points with entries (entries sorted by point, then camera,
     so ca < cb for a < b: the upper triangle of the C-ordered S); S (6 Nv, 6 Nv) and
     b (Nv, 6), updated in place.
+
+    With ``cross`` (three-slot forms, see schur.py ``fused``) the camera blocks of U that couple
+    two different cameras of one observation (observer x main / associate anchor, main x
+    associate; J0 (M, k, 6), J1 and J2 (M, k, 3) at columns 3:6, ent (3, M) their entries,
+    obs_bounds (P + 1,) each point's observations) are summed per point into a local buffer
+    and added with the point's Schur products, one write per block of S.
     """
     nmax = 0
     for g in range(len(bounds) - 1):
         nmax = max(nmax, bounds[g + 1] - bounds[g])
     Z = np.empty((nmax, 6, 3))
+    L = np.zeros((nmax, nmax, 6, 6) if cross else (1, 1, 6, 6))
+    k = J0.shape[1]
     for g in range(len(bounds) - 1):
         e0, e1 = bounds[g], bounds[g + 1]
+        n = e1 - e0
         p = entry_pt[e0]
         for a in range(e0, e1):
             za = Z[a - e0]
@@ -72,47 +81,50 @@ def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b):
                         s += W[a, i, l] * Li[p, j, l]
                     za[i, j] = s
                 b[ca, i] += za[i, 0] * q[p, 0] + za[i, 1] * q[p, 1] + za[i, 2] * q[p, 2]
+        if cross:
+            L[:n, :n] = 0.0
+            for m in range(obs_bounds[p], obs_bounds[p + 1]):
+                t0, t1, t2 = ent[0, m], ent[1, m], ent[2, m]
+                if t0 >= 0 and t1 >= 0 and t0 != t1:
+                    _local_cross(J0, 0, J1, m, t0 - e0, t1 - e0, L, k)
+                if t0 >= 0 and t2 >= 0 and t0 != t2:
+                    _local_cross(J0, 0, J2, m, t0 - e0, t2 - e0, L, k)
+                if t1 >= 0 and t2 >= 0 and t1 != t2:
+                    _local_cross(J1, 3, J2, m, t1 - e0, t2 - e0, L, k)
         for a in range(e0, e1):
             za = Z[a - e0]
             ra = 6 * entry_cam[a]
             for bb in range(a, e1):
                 zb = Z[bb - e0]
                 rb = 6 * entry_cam[bb]
-                for i in range(6):
-                    z0, z1, z2 = za[i, 0], za[i, 1], za[i, 2]
-                    for j in range(6):
-                        S[ra + i, rb + j] -= z0 * zb[j, 0] + z1 * zb[j, 1] + z2 * zb[j, 2]
+                if cross and bb > a:
+                    blk = L[a - e0, bb - e0]
+                    for i in range(6):
+                        z0, z1, z2 = za[i, 0], za[i, 1], za[i, 2]
+                        for j in range(6):
+                            S[ra + i, rb + j] += blk[i, j] - (
+                                z0 * zb[j, 0] + z1 * zb[j, 1] + z2 * zb[j, 2])
+                else:
+                    for i in range(6):
+                        z0, z1, z2 = za[i, 0], za[i, 1], za[i, 2]
+                        for j in range(6):
+                            S[ra + i, rb + j] -= z0 * zb[j, 0] + z1 * zb[j, 1] + z2 * zb[j, 2]
 
 
 @_njit
-def _cross(Ja, oa, Jb, m, ca, cb, S):
-    """``Ja[m]^T Jb[m]`` (na x 3; Jb an anchor's centre columns 3:6) into S's upper triangle
-    at the block of cameras (ca, cb), columns oa: of ca."""
-    if ca < 0 or cb < 0 or ca == cb:
-        return
-    k, na = Ja.shape[1], Ja.shape[2]
+def _local_cross(Ja, oa, Jb, m, la, lb, L, k):
+    """``Ja[m]^T Jb[m]`` (columns oa: of entry la, 3:6 of entry lb) into the point's local
+    block buffer, upper triangle (la < lb; else transposed)."""
+    na = Ja.shape[2]
     for i in range(na):
         for j in range(3):
             s = 0.0
             for r in range(k):
                 s += Ja[m, r, i] * Jb[m, r, j]
-            if ca < cb:
-                S[6 * ca + oa + i, 6 * cb + 3 + j] += s
+            if la < lb:
+                L[la, lb, oa + i, 3 + j] += s
             else:
-                S[6 * cb + 3 + j, 6 * ca + oa + i] += s
-
-
-@_njit
-def cross_blocks(J0, J1, J2, vc, S):
-    """Camera blocks of observations with three slots (observer (M, k, 6), main and associate
-    anchor centres (M, k, 3), parallax forms) that couple two different variable cameras,
-    added to the upper triangle of the dense S (6 Nv, 6 Nv); vc (3, M) variable-camera index
-    per slot (-1 = fixed). Same-camera blocks are in U (slot_gram)."""
-    for m in range(J0.shape[0]):
-        c0, c1, c2 = vc[0, m], vc[1, m], vc[2, m]
-        _cross(J0, 0, J1, m, c0, c1, S)
-        _cross(J0, 0, J2, m, c0, c2, S)
-        _cross(J1, 3, J2, m, c1, c2, S)
+                L[lb, la, 3 + j, oa + i] += s
 
 
 @_njit
@@ -388,14 +400,16 @@ def warm_up() -> float:
     one = np.zeros(1, np.int64)
     J6, Jp, r = f((1, 2, 6)), f((1, 2, 3)), f((1, 2))
     U, W, g = f((1, 6, 6)), f((1, 6, 3)), f((1, 6))
-    schur_dense(W, f((1, 3, 3)), f((1, 3)), np.array([0, 1], np.int64), one, one, f((6, 6)), g)
+    z3 = np.zeros((3, 1), np.int64)
+    for cross in (False, True):
+        schur_dense(W, f((1, 3, 3)), f((1, 3)), np.array([0, 1], np.int64), one, one, f((6, 6)),
+                    g, cross, J6, Jp, Jp, z3, np.array([0, 1], np.int64))
     slot_gram(J6, 0, J6, 0, one, -np.ones(1, np.int64), U)
     slot_gram(J6, 0, Jp, 3, one, one, U)
     slot_w_g(J6, 0, Jp, r, one, one, W, g)
     slot_w_g(Jp, 3, Jp, r, one, one, W, g)
     point_sums(Jp, r, one, f((1, 3, 3)), f((1, 3)))
     back_substitute_rhs(W, g, one, one, i((1, 3)))
-    cross_blocks(J6, Jp, Jp, np.zeros((3, 1), np.int64), f((6, 6)))
     build_three_slots(J6, Jp, Jp, Jp, r, np.zeros((3, 1), np.int64), np.zeros((3, 1), np.int64),
                       W, g, U)
     R, x3, x1 = np.eye(3)[None].copy(), f((1, 3)), f(1)

@@ -42,6 +42,9 @@ def _group_starts(sorted_keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return starts, sorted_keys[starts]
 
 
+_EMPTY_J6, _EMPTY_J3 = np.zeros((0, 2, 6)), np.zeros((0, 2, 3))  # schur_dense without cross terms
+
+
 def _c(a: np.ndarray) -> np.ndarray:
     """C-contiguous float64 (the kernels are compiled for that layout only)."""
     return np.ascontiguousarray(a, dtype=np.float64)
@@ -154,7 +157,8 @@ class SchurStructure:
         # that couple two different cameras of one observation go straight into S inside the
         # Schur kernel (both cameras are entries of the observation's point, so the kernel
         # touches that block of S anyway); U keeps only the diagonal camera blocks.
-        self.fused = fast and S == 3 and not self.sparse_S and not self.use_gemm
+        self.fused = (fast and self.slot_cols == [(0, 6), (3, 6), (3, 6)] and not self.sparse_S
+                      and not self.use_gemm)
         if fast:
             self._build_u_fast(vc)
             self.entry_bounds = np.r_[self.entry_pt_starts, E].astype(np.int64)
@@ -380,11 +384,11 @@ class SchurStructure:
             S[self.u_ca, :, self.u_cb, :] = U_blocks
             S = S.reshape(6 * Nv, 6 * Nv)
             if E:
+                J = self.cross_jacobians if self.fused else (_EMPTY_J6, _EMPTY_J3, _EMPTY_J3)
                 kernels.schur_dense(_c(W), Li, q, self.entry_bounds, self.entry_pt,
-                                    self.entry_cam, S, b)
+                                    self.entry_cam, S, b, self.fused, *J, self.slot_entry,
+                                    self.obs_bounds)
             if self.fused:
-                J0, J1, J2 = self.cross_jacobians
-                kernels.cross_blocks(J0, J1, J2, self.slot_vc, S)
                 mask_v = getattr(self, "mask_v", None)  # from apply_mask: the held gauge columns
                 if mask_v is not None:
                     held = np.flatnonzero(mask_v.reshape(-1) == 0)
