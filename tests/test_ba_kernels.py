@@ -82,7 +82,7 @@ def test_kernels_choice(monkeypatch):
     from polarref.errors import PolarrefError
     assert kernels.use_kernels("auto") and kernels.use_kernels("numba")
     assert not kernels.use_kernels("numpy")
-    monkeypatch.setattr(kernels, "AVAILABLE", False)
+    monkeypatch.setattr(kernels, "available", lambda: False)
     assert not kernels.use_kernels("auto")
     with pytest.raises(PolarrefError, match="numba"):
         kernels.use_kernels("numba")

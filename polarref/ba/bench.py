@@ -296,7 +296,7 @@ def run_bench(problems, out_dir: Path, options: BAOptions = BAOptions(),
                         "converged_rel": CONVERGED_REL, "ours": dataclasses.asdict(options),
                         "ceres": [f"{w} tolerances, {t} thread(s)" for w, t in CERES],
                         "kernels": {"used": "numba" if fast else "numpy",
-                                    "numba": getattr(kernels.numba, "__version__", None),
+                                    "numba": kernels.numba_version(),
                                     "warm_up_s": warm, "threads": 1}},
            "problems": results}
     for spec in problems:
