@@ -8,15 +8,18 @@ the cached bearings of their observations recomputed.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from polarref.errors import PolarrefError
 from polarref.geometry import Rigid3
 from polarref.reconstruction import Image, Point3D, Reconstruction
+
+if TYPE_CHECKING:
+    from polarref.sfm.report import BARun, ColmapBARun
 
 log = logging.getLogger(__name__)
 
@@ -75,31 +78,16 @@ def _read_back(state, rec: Reconstruction, variable: list[int]) -> None:
 
 
 def _colmap_adjust(rec: Reconstruction, variable: list[int], fixed: list[int], max_iterations: int,
-                   loss: str, refine: tuple = ()) -> dict:
+                   loss: str, refine: tuple = ()) -> ColmapBARun:
     import pycolmap
 
+    from polarref.model.colmap import CeresSettings, bundle_adjustment_config, bundle_adjustment_options
+
     prec = rec.to_pycolmap()
-    cfg = pycolmap.BundleAdjustmentConfig()
-    for i in variable + fixed:
-        cfg.add_image(i + 1)
-    for i in fixed:
-        cfg.set_constant_rig_from_world_pose(prec.images[i + 1].frame_id)
-    if not refine:
-        for cam_id in prec.cameras:
-            cfg.set_constant_cam_intrinsics(cam_id)
-    if len(fixed) < 2:
-        # Gauge (7 DoF: rotation, translation, scale): pin two camera poses, COLMAP style.
-        cfg.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
-    opts = pycolmap.BundleAdjustmentOptions()
-    opts.refine_focal_length = "focal" in refine
-    opts.refine_principal_point = "pp" in refine
-    opts.refine_extra_params = "dist" in refine
-    opts.ceres.solver_options.max_num_iterations = max_iterations
-    opts.ceres.solver_options.num_threads = 1
-    opts.print_summary = False
-    opts.ceres.solver_options.function_tolerance = 1e-6
-    if loss != "trivial":
-        opts.ceres.loss_function_type = getattr(pycolmap.LossFunctionType, loss.upper())
+    cfg = bundle_adjustment_config(prec, [i + 1 for i in variable + fixed], [i + 1 for i in fixed],
+                                   constant_intrinsics=not refine)
+    opts = bundle_adjustment_options(CeresSettings("sfm", function_tolerance=1e-6, max_num_iterations=max_iterations,
+                                                   num_threads=1), loss, 1.0, refine)
     t0 = time.perf_counter()
     ba = pycolmap.create_default_bundle_adjuster(opts, cfg, prec)
     summary = ba.solve()
@@ -115,38 +103,37 @@ def _colmap_adjust(rec: Reconstruction, variable: list[int], fixed: list[int], m
 
         for cid in rec.cameras:
             rec.cameras[cid] = Camera.from_pycolmap(prec.cameras[cid])
-    info = {"param": "colmap", "loss": loss, "wall_s": wall, "refine": list(refine)}
-    for key in ("initial_cost", "final_cost", "num_successful_steps", "num_unsuccessful_steps"):
-        if hasattr(cs, key):
-            info[key] = float(getattr(cs, key))
-    return info
+    from polarref.sfm.report import ColmapBARun
+
+    return ColmapBARun(loss, wall, list(refine), **{
+        key: float(getattr(cs, key)) for key in ("initial_cost", "final_cost", "num_successful_steps",
+                                                 "num_unsuccessful_steps") if hasattr(cs, key)})
 
 
 def adjust(state, variable: list[int], fixed: list[int], ba: str, max_iterations: int,
-           loss: str = "trivial", track_ids=None, refine: tuple = ()) -> dict:
+           loss: str = "trivial", track_ids=None, refine: tuple = ()) -> BARun:
     """Adjust poses of ``variable`` images and the points (``track_ids`` or all) in place, and
     the intrinsics groups ``refine`` of the cameras involved.
 
-    Returns a JSON-ready summary (with the iteration trace for polarref's adjusters).
+    Returns the typed record of the run (the adjuster's summary with its iteration trace).
     """
+    from polarref.sfm.report import BARun
+
     if ba not in BA_NAMES:
         raise PolarrefError(f"unknown bundle adjuster {ba!r}; choose one of {', '.join(BA_NAMES)}")
     rec = to_reconstruction(state, sorted(set(variable) | set(fixed)), track_ids)
     if not rec.points3D:
-        return {"param": ba, "skipped": "no points"}
+        return BARun(ba, skipped="no points")
     if ba == "colmap":
-        info = _colmap_adjust(rec, list(variable), list(fixed), max_iterations, loss, tuple(refine))
+        info = BARun(ba, colmap=_colmap_adjust(rec, list(variable), list(fixed), max_iterations, loss,
+                                               tuple(refine)))
     else:
         from polarref.ba import BAOptions, adjust as ba_adjust
 
         opts = BAOptions(param=ba, loss=loss, max_iterations=max_iterations, refine=tuple(refine))
         summary = ba_adjust(rec, opts, variable_image_ids=[i + 1 for i in variable],
                             fixed_image_ids=[i + 1 for i in fixed])
-        info = dataclasses.asdict(summary)
-        # keep scalars and the iteration trace (convergence plots); drop bulky state dumps
-        info = {k: v for k, v in info.items()
-                if k in ("trace", "intrinsics") or not isinstance(v, (list, np.ndarray))}
-        if not info["intrinsics"]:
-            info.pop("intrinsics")
+        summary.points_state = None  # internal landmark parameters: not part of the record
+        info = BARun(ba, summary=summary)
     _read_back(state, rec, list(variable))
     return info
