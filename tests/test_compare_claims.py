@@ -14,10 +14,12 @@ def _metrics(euclid_runtime, polar_runtime, euclid_tp=1000, polar_tp=1000, eucli
              euclid_err=0.30, polar_err=0.30, euclid_rot=0.10, polar_rot=0.10):
     data = copy.deepcopy(synthetic_metrics())
     eu, po = data["methods"][0], data["methods"][1]
-    eu.update(runtime_s=euclid_runtime, tie_points=euclid_tp, reprojected_px=euclid_rp,
-              mean_reprojection_error_px=euclid_err)
-    po.update(runtime_s=polar_runtime, tie_points=polar_tp, reprojected_px=polar_rp,
-              mean_reprojection_error_px=polar_err)
+    for meth, runtime, tp, rp, err in ((eu, euclid_runtime, euclid_tp, euclid_rp, euclid_err),
+                                       (po, polar_runtime, polar_tp, polar_rp, polar_err)):
+        meth["runtime_s"] = runtime
+        meth["metrics"].update(tie_points=tp, reprojected_px=rp, mean_reprojection_error_px=err)
+        if tp is None:   # an ok method without metrics (counts unknown)
+            meth["metrics"] = None
     eu["gt"]["rotation_error_deg_mean"] = euclid_rot
     po["gt"]["rotation_error_deg_mean"] = polar_rot
     return schema.from_dict(data)
@@ -66,7 +68,8 @@ def test_more_tie_points_verdict(kw, verdict):
 def test_missing_reprojection_error_is_not_tested():
     m = _metrics(10, 10)
     for meth in m.methods:
-        meth.mean_reprojection_error_px = None
+        if meth.metrics is not None:   # the failed method has none
+            meth.metrics.mean_reprojection_error_px = None
     assert _verdict(claims.scene_claims(m), "C3").verdict == "not tested"
 
 
