@@ -32,6 +32,7 @@ from polarref.compare import claims_experiments as cx
 from polarref.compare.runner import run_isolated
 from polarref.compare.claims_experiments import fig as _fig
 from polarref.compare.claims_experiments import not_tested as _not_tested
+from polarref.compare.experiment_records import DerivationEvidence, Experiments
 from polarref.compare.schema import STATUS_OK, BATrace, ClaimResult, MetricsFile, TracePoint
 from polarref.compare.thresholds import (EQUIVALENT_PX, EQUIVALENT_REL, EXACT_RAD, ROT_EQUIV_DEG,
                                          ROT_EQUIV_REL, SPEEDUP_CLAIM, TIMING_SLACK)
@@ -47,7 +48,7 @@ BASELINES = ("ours-euclidean", "pycolmap-incremental-sift")
 
 # ---- claims 1-2: the printed equation and claim 7 ------------------------------------------
 
-def equation_claims(evidence: dict | None, reason: str) -> list[ClaimResult]:
+def equation_claims(evidence: DerivationEvidence | None, reason: str) -> list[ClaimResult]:
     c1 = ("C1", "The printed view-angle equation (Eq. 3 with Eq. 4-7) gives the view angle theta",
           "Section 2.4, Eq. 3-7", "Evaluate the printed formula literally (asin form, sigma_1 = -sigma_2, "
           "Eq. 6 is lost from our copy of the paper, so sigma_1 is derived) on seeded random angles and edge cases; compare with the exact "
@@ -57,8 +58,8 @@ def equation_claims(evidence: dict | None, reason: str) -> list[ClaimResult]:
           "and take the largest change.")
     if evidence is None:
         return [_not_tested(*c1, reason), _not_tested(*c2, reason)]
-    cases = evidence["cases"]
-    n = int(evidence["samples_per_case"])
+    cases = evidence.cases
+    n = evidence.samples_per_case
 
     def worst(key):
         vals = [c[key] for c in cases if c[key] is not None and np.isfinite(c[key])]
@@ -199,18 +200,18 @@ def _merge(res: ClaimResult, controlled: tuple, problem: str, unit: str = "seeds
                        verdict, rationale)
 
 
-def scene_claims(metrics: MetricsFile, exp: dict | None = None) -> list[ClaimResult]:
-    """C3-C5. With ``exp`` (the experiments' JSON), C3 and C4 are decided by the controlled
+def scene_claims(metrics: MetricsFile, exp: Experiments | None = None) -> list[ClaimResult]:
+    """C3-C5. With ``exp`` (the experiments' record), C3 and C4 are decided by the controlled
     multi-seed BA experiment and the scene's single run is reported beside it."""
     res3, res4, res5 = _scene_only(metrics)
-    timing = (exp or {}).get("timing")
+    timing = exp.timing if exp is not None else None
     if timing is not None:
-        problem = timing.get("problem", timing.get("error", ""))
+        problem = timing.problem or timing.error
         res3 = _merge(res3, cx.equal_accuracy(timing), problem)
         res4 = _merge(res4, cx.speedup(timing), problem)
-    rob = (exp or {}).get("robustness")
+    rob = exp.robustness if exp is not None else None
     if rob is not None:
-        res5 = _merge(res5, cx.more_tie_points(rob), rob.get("outlier_problem", rob.get("error", "")),
+        res5 = _merge(res5, cx.more_tie_points(rob), rob.outlier_problem or rob.error,
                       "paired runs (seeds x outlier levels)")
     return [res3, res4, res5]
 
@@ -220,15 +221,13 @@ def scene_claims(metrics: MetricsFile, exp: dict | None = None) -> list[ClaimRes
 experiment_claims = cx.experiment_claims
 
 
-def traces_from(exp: dict | None) -> list[BATrace]:
-    if not exp or "timing" not in exp or "params" not in exp["timing"]:
+def traces_from(exp: Experiments | None) -> list[BATrace]:
+    timing = exp.timing if exp is not None else None
+    if timing is None or timing.error:
         return []
-    out = []
-    for p, v in exp["timing"]["params"].items():
-        if v.get("trace"):
-            out.append(BATrace(p, exp["timing"].get("trace_problem", exp["timing"].get("problem", "")),
-                               [TracePoint(int(i), float(t), float(c)) for i, t, c in v["trace"]]))
-    return out
+    return [BATrace(p, timing.trace_problem or timing.problem,
+                    [TracePoint(int(i), float(t), float(c)) for i, t, c in v.trace])
+            for p, v in timing.params.items() if v.trace]
 
 
 def evaluate_into(metrics: MetricsFile, runs: Path, seed: int, budget_s: float, timeout_s: float,
