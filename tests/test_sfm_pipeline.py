@@ -96,10 +96,12 @@ def test_cache_reused_and_results_identical(request, tmp_path):
     assert a.metrics["runtime_s"]["features_cached"] is False and a.metrics["runtime_s"]["matches_cached"] is False
     assert b.metrics["runtime_s"]["features_cached"] is True and b.metrics["runtime_s"]["matches_cached"] is True
     for key in ("registered_images", "tie_points", "reprojected_px"):
-        assert a.metrics[key] == b.metrics[key]
-    assert a.metrics["metrics"]["gt"]["rotation_error_deg_mean"] == pytest.approx(b.metrics["metrics"]["gt"]["rotation_error_deg_mean"], abs=1e-9)
+        assert getattr(a.report.metrics, key) == getattr(b.report.metrics, key)
+    assert a.report.metrics.gt.rotation_error_deg_mean == pytest.approx(b.report.metrics.gt.rotation_error_deg_mean,
+                                                                        abs=1e-9)
     # DLT instead of the MOCI triangulation gives the same reconstruction quality
     d = run_sfm(scene_dir / "images", None, dataclasses.replace(
         cfg, triangulation=dataclasses.replace(cfg.triangulation, method="dlt")), gt=gt)
-    assert d.metrics["metrics"]["registered_images"] == a.metrics["metrics"]["registered_images"]
-    assert abs(d.metrics["metrics"]["tie_points"] - a.metrics["metrics"]["tie_points"]) < 0.05 * a.metrics["metrics"]["tie_points"]
+    dm, am = d.report.metrics, a.report.metrics
+    assert dm.registered_images == am.registered_images
+    assert abs(dm.tie_points - am.tie_points) < 0.05 * am.tie_points

@@ -116,11 +116,12 @@ def _scene_only(metrics: MetricsFile) -> list[ClaimResult]:
         why = f"{CANDIDATE} did not succeed" if cand is None else "no baseline succeeded"
         return [_not_tested(*c, why) for c in (c3, c4, c5)]
     # C3 -------------------------------------------------------------------------------
-    figs3 = [_fig("err_polar", f"{cand.label}: mean reprojection error", cand.metric('mean_reprojection_error_px'), "px")]
+    err = "mean_reprojection_error_px"
+    figs3 = [_fig("err_polar", f"{cand.label}: mean reprojection error", cand.metric(err), "px")]
     verdicts3, parts = [], []
     for k, b in enumerate(bases):
-        figs3.append(_fig(f"err_b{k}", f"{b.label}: mean reprojection error", b.metric('mean_reprojection_error_px'), "px"))
-        ec, eb = cand.metric("mean_reprojection_error_px"), b.metric("mean_reprojection_error_px")
+        figs3.append(_fig(f"err_b{k}", f"{b.label}: mean reprojection error", b.metric(err), "px"))
+        ec, eb = cand.metric(err), b.metric(err)
         parts.append(f"{b.label} {{err_b{k}}}")
         if ec is None or eb is None:      # a missing value is not tested, never 0
             parts[-1] += " (not tested: reprojection error missing)"
@@ -165,13 +166,14 @@ def _scene_only(metrics: MetricsFile) -> list[ClaimResult]:
           f"{1 + TIMING_SLACK:.2f}. One timed run per method on a shared 2-core machine.")
     res4 = ClaimResult(*c4, figs4, f"1 run per method on {scene}", verdict4, r4)
     # C5 -------------------------------------------------------------------------------
-    figs5 = [_fig("tp_polar", f"{cand.label}: #tie points", cand.metric('tie_points'), "count"),
-             _fig("rp_polar", f"{cand.label}: #reprojected px", cand.metric('reprojected_px'), "count")]
+    figs5 = [_fig("tp_polar", f"{cand.label}: #tie points", cand.metric("tie_points"), "count"),
+             _fig("rp_polar", f"{cand.label}: #reprojected px", cand.metric("reprojected_px"), "count")]
     more = None
     for k, b in enumerate(bases):
-        figs5 += [_fig(f"tp_b{k}", f"{b.label}: #tie points", b.metric('tie_points'), "count"),
-                  _fig(f"rp_b{k}", f"{b.label}: #reprojected px", b.metric('reprojected_px'), "count")]
-        counts = (cand.metric("tie_points"), b.metric("tie_points"), cand.metric("reprojected_px"), b.metric("reprojected_px"))
+        figs5 += [_fig(f"tp_b{k}", f"{b.label}: #tie points", b.metric("tie_points"), "count"),
+                  _fig(f"rp_b{k}", f"{b.label}: #reprojected px", b.metric("reprojected_px"), "count")]
+        counts = (cand.metric("tie_points"), b.metric("tie_points"),
+                  cand.metric("reprojected_px"), b.metric("reprojected_px"))
         if k == 0 and eu is not None and None not in counts:   # a missing count is not tested, never 0
             more = all(c - e > max(1.0, cx.TIE_MARGIN_REL * e) for c, e in ((counts[0], counts[1]), (counts[2], counts[3])))
     r5 = ("ours-polar: {tp_polar} tie points / {rp_polar} reprojected px; "
