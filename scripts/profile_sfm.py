@@ -59,8 +59,8 @@ def main() -> None:
     if prof:
         prof.disable()
     cpu = _cpu() - cpu0
-    m = res.metrics
-    t = m["runtime_s"]
+    m = res.metrics  # the metrics.json form: BA runs as flat dicts
+    t = res.report.runtime_s
     print(over, f"cpu {cpu:.1f} s", {k: round(v, 2) for k, v in t.items() if isinstance(v, float)})
     for kind in ("local", "global"):
         b = [x for x in m["ba"] if x.get("kind") == kind]
@@ -68,9 +68,9 @@ def main() -> None:
             print(f"{kind} BA: {len(b)} calls, {sum(x.get('wall_s', 0) for x in b):.1f} s, "
                   f"{sum(x.get('iterations', 0) for x in b)} iterations, "
                   f"mean {np.mean([x.get('num_observations', 0) for x in b]):.0f} observations")
-    g = m["gt"]
-    print(f"registered {m['registered_images']}, tie points {m['tie_points']}, rotation error "
-          f"{g['rotation_error_deg_mean']:.4f} deg (rotation-aligned {g['rotation_error_rotalign_deg_mean']:.4f})")
+    q = res.report.metrics
+    print(f"registered {q.registered_images}, tie points {q.tie_points}, rotation error "
+          f"{q.gt.rotation_error_deg_mean:.4f} deg (rotation-aligned {q.gt.rotation_error_rotalign_deg_mean:.4f})")
     if prof:
         prof.dump_stats(a.profile)
         pstats.Stats(a.profile).sort_stats("tottime").print_stats(25)
