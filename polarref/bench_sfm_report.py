@@ -156,19 +156,25 @@ def plot(bench: dict, path: Path) -> None:
 
     fig, (ax, am) = plt.subplots(1, 2, figsize=(11, 4.2))
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    names = list(dict.fromkeys([s for st in STAGES.values() for s in st] + ["total"]))
+    color_of = {s: colors[k % len(colors)] for k, s in enumerate(names)}  # one colour per stage name
+    views = sorted({c["views"] for c in bench["cells"]})
     for m, (method, stages) in enumerate(STAGES.items()):
         style = "-" if method == "ours" else "--"
-        for k, s in enumerate((*stages, "total")):
+        for s in (*stages, "total"):
             key = (lambda c: c["total_s"]) if s == "total" else (lambda c, s=s: c["stages_s"].get(s))
             n, y = _series(bench["cells"], method, key)
             if n:
                 exp = bench["growth_exponents"][method].get(s)
-                ax.loglog(n, y, style, marker="o", color=colors[k % len(colors)], lw=2.5 if s == "total" else 1.2,
+                ax.loglog(n, y, style, marker="o", color=color_of[s], lw=2.5 if s == "total" else 1.2,
                           label=f"{method} {s} (k={_fmt(exp, '.2f')})")
         n, y = _series(bench["cells"], method, lambda c: c["peak_memory_mb"]["ru_maxrss_mb"])
         if n:
             am.loglog(n, y, style, marker="o", color=colors[m], label=method)
-    ax.set(xlabel="views", ylabel="time (s)", title="time per stage vs views")
+    for a in (ax, am):
+        a.set_xticks(views, [str(v) for v in views])
+        a.minorticks_off()
+    ax.set(xlabel="views", ylabel="time (s)", title="time per stage vs views (ours solid, pycolmap dashed)")
     ax.legend(fontsize=6, ncol=2)
     am.axhline(MEMORY_LIMIT_MB, color="grey", lw=0.8, ls=":")
     am.set(xlabel="views", ylabel="peak memory (MiB)", title="peak memory per method process")
