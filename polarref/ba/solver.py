@@ -182,8 +182,10 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
                         problem.num_points, options.dense_max_cameras,
                         fast=use_kernels(options.kernels))
     builder = st
-    # the kernels take the anchors' Jacobians dense; numpy keeps them factored (anchor_terms.py)
-    if isinstance(param, AnchoredJacobians) and param.anchor_cams is not None and not st.fast:
+    # anchors' Jacobians factored (anchor_terms.py): numpy path, and the kernels' fused
+    # three-slot build; the kernels' generic slot path (sparse S) takes them dense
+    anchored = isinstance(param, AnchoredJacobians) and param.anchor_cams is not None
+    if anchored and not st.fast:
         from polarref.ba.anchor_terms import AnchorTerms
         builder = AnchorTerms(st, problem.obs_pt, *param.anchor_cams)
     mask_v = problem.cam_mask[st.var_cams].astype(np.float64)  # (Nv, 6)
@@ -197,7 +199,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     loss, scale = options.loss, options.loss_scale
 
     tic = time.perf_counter()
-    factored = builder is not st
+    factored = anchored and (not st.fast or st.fused)
     r, Jp, Jc = param.evaluate(R, C, pts, jac=True, factored=factored)
     times["evaluate"] += time.perf_counter() - tic
     if not np.isfinite(r).all():
