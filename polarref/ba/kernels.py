@@ -71,10 +71,10 @@ def warm_up() -> float:
     """Compile (or load from the disk cache) every kernel on tiny inputs; seconds taken."""
     if not available():
         return 0.0
-    from polarref.ba.kernels_jit import (back_substitute_rhs, build_anchored,
+    from polarref.ba.kernels_jit import (angular_rows, back_substitute_rhs, build_anchored,
                                          euclidean_jacobians, euclidean_rays, parallax_jacobians,
-                                         parallax_points, parallax_rays, point_sums, schur_dense,
-                                         slot_gram, slot_w_g)
+                                         parallax_points, parallax_rays, point_sums, polar_rows,
+                                         schur_dense, slot_gram, slot_w_g)
     t = time.perf_counter()
     f, i = np.zeros, np.zeros
     one = np.zeros(1, np.int64)
@@ -99,6 +99,9 @@ def warm_up() -> float:
     parallax_rays(R, x3, one, one, x3, x1, x3)
     for dense in (True, False):
         parallax_jacobians(Jp, x3, R, x3, one, one, x3, x3, x1, x1, x1, x3, f((1, 3, 2)), dense)
+    for jac in (True, False):
+        polar_rows(x3, r, f((1 if jac else 0, 2, 3)), x1, x1, jac)
+        angular_rows(x3, r, f((1, 2, 2)), x1, np.ones(1, bool), jac)
     dt = time.perf_counter() - t
     log.debug("BA kernels ready in %.2f s", dt)
     return dt

@@ -418,3 +418,81 @@ def parallax_jacobians(Jx, Xc, R, C, obs_cam, obs_pt, Cm, d, sw, cw, dh_dw, dh_d
                     Ja[m, r, j] = ad * dh_de[p, j]
                     Jm[m, r, j] = sw[p] * A[j] - Ja[m, r, j]
     return Jp, Jo, Jm, Ja, Ad
+
+
+@_njit
+def _theta_row(x, y, z, jac, out, m, w):
+    """View angle of the projective ray ``sign(Z) (x, y, z)`` (angular_obs.theta_rows) and,
+    with jac, ``w * theta_D_Xc`` into out[m] (3,)."""
+    sg = -1.0 if z < 0 else 1.0
+    x, y, z = x * sg, y * sg, z * sg
+    rho2 = x * x + y * y
+    rho = np.sqrt(rho2)
+    theta = np.arctan2(rho, z)
+    if jac:
+        n2 = rho2 + z * z
+        f = z / (max(rho, 1e-300) * n2)
+        out[m, 0] = x * f * sg * w
+        out[m, 1] = y * f * sg * w
+        out[m, 2] = -rho / n2 * sg * w
+    return theta
+
+
+@_njit
+def polar_rows(Xc, res_uv, Juv, theta_obs, w_theta, jac):
+    """Polar residuals (M, 3): pixel rows ``res_uv`` (M, 2) and the weighted view-angle row
+    ``(theta - theta_obs) w_theta`` (polar.py), with jac their ``res_D_Xc`` (M, 3, 3) from the
+    pixel rows' Juv (M, 2, 3)."""
+    M = len(Xc)
+    res = np.empty((M, 3))
+    J = np.empty((M if jac else 0, 3, 3))
+    Jt = np.empty((M if jac else 0, 3))
+    for m in range(M):
+        res[m, 0], res[m, 1] = res_uv[m, 0], res_uv[m, 1]
+        th = _theta_row(Xc[m, 0], Xc[m, 1], Xc[m, 2], jac, Jt, m, w_theta[m])
+        res[m, 2] = (th - theta_obs[m]) * w_theta[m]
+        if jac:
+            for i in range(3):
+                J[m, 0, i] = Juv[m, 0, i]
+                J[m, 1, i] = Juv[m, 1, i]
+                J[m, 2, i] = Jt[m, i]
+    return res, J
+
+
+@_njit
+def angular_rows(Xc, obs_ang, whiten, w_theta, use, jac):
+    """Angular residuals (M, 2) and with jac ``res_D_Xc`` (M, 2, 3) (angular.py without the
+    axis chart): ``A^-1 (theta - theta_obs, wrap(phi - phi_obs))`` where ``use``, else
+    ``((theta - theta_obs) w_theta, 0)``; angles of the projective ray (angular_obs.py)."""
+    M = len(Xc)
+    res = np.empty((M, 2))
+    J = np.empty((M if jac else 0, 2, 3))
+    Jt = np.empty((M if jac else 0, 3))
+    for m in range(M):
+        x, y, z = Xc[m, 0], Xc[m, 1], Xc[m, 2]
+        th = _theta_row(x, y, z, jac, Jt, m, 1.0)
+        dt = th - obs_ang[m, 0]
+        if not use[m]:
+            res[m, 0] = dt * w_theta[m]
+            res[m, 1] = 0.0
+            if jac:
+                for i in range(3):
+                    J[m, 0, i] = Jt[m, i] * w_theta[m]
+                    J[m, 1, i] = 0.0
+            continue
+        sg = -1.0 if z < 0 else 1.0
+        xs, ys = x * sg, y * sg
+        phi = np.arctan2(ys, xs)
+        a = phi - obs_ang[m, 1]
+        df = np.pi - np.mod(np.pi - a, 2.0 * np.pi)
+        W = whiten[m]
+        res[m, 0] = W[0, 0] * dt + W[0, 1] * df
+        res[m, 1] = W[1, 0] * dt + W[1, 1] * df
+        if jac:
+            rho2 = max(xs * xs + ys * ys, 1e-300)
+            f0, f1 = -ys / rho2 * sg, xs / rho2 * sg  # phi_D_Xc (third component 0)
+            for r in range(2):
+                J[m, r, 0] = W[r, 0] * Jt[m, 0] + W[r, 1] * f0
+                J[m, r, 1] = W[r, 0] * Jt[m, 1] + W[r, 1] * f1
+                J[m, r, 2] = W[r, 0] * Jt[m, 2] + W[r, 1] * 0.0
+    return res, J

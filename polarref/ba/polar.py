@@ -33,6 +33,16 @@ class Polar(Parallax):
         self.w_theta = 1.0 / s_theta
 
     def residual_rows(self, Xc, jac):
+        if self.fast:  # the view-angle row and the stacking compiled (kernels.py)
+            from polarref.ba import kernels
+            if not jac:
+                res_uv, Juv = self.proj(Xc, jac=False) - self.p.obs_uv, np.zeros((0, 2, 3))
+            else:
+                uv, Juv = self.proj(Xc)
+                res_uv = uv - self.p.obs_uv
+            res, J = kernels.polar_rows(np.ascontiguousarray(Xc), res_uv, Juv, self.theta_obs,
+                                        self.w_theta, jac)
+            return res, (J if jac else None)
         res = np.empty((len(Xc), 3))
         theta, Jt = theta_rows(Xc, jac)
         res[:, 2] = (theta - self.theta_obs) * self.w_theta
