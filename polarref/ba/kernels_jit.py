@@ -13,7 +13,7 @@ def _njit(fn):
 
 
 @_njit
-def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, Xm, Xa, Xma, ent, obs_bounds):
+def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, Xm, Xa, Xma, vc, obs_bounds):
     """Point elimination into the dense reduced system, per point p with entries a <= b:
     ``S[6 ca:, 6 cb:] -= Z_a Z_b^T`` (6x6) and ``b[ca] += Z_a q_p``, ``Z = W L^-T``.
 
@@ -25,18 +25,15 @@ def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, Xm, Xa, Xma,
     With ``cross`` (three-slot forms, see schur.py ``fused``) the camera blocks that couple two
     different cameras of one observation, precomputed by :func:`build_anchored` (observer x
     main centre Xm and observer x associate centre Xa (M, 6, 3), main x associate centre
-    Xma (P, 3, 3); ent (3, M) the slots' entries, obs_bounds (P + 1,) each point's
-    observations), are summed per point into a local buffer and added with the point's Schur
-    products, one write per block of S.
+    Xma (P, 3, 3); vc (3, M) the slots' variable cameras, obs_bounds (P + 1,) each point's
+    observations), are added to the upper triangle of S with the point's Schur products.
     """
     nmax = 0
     for g in range(len(bounds) - 1):
         nmax = max(nmax, bounds[g + 1] - bounds[g])
     Z = np.empty((nmax, 6, 3))
-    L = np.zeros((nmax, nmax, 6, 6) if cross else (1, 1, 6, 6))
     for g in range(len(bounds) - 1):
         e0, e1 = bounds[g], bounds[g + 1]
-        n = e1 - e0
         p = entry_pt[e0]
         for a in range(e0, e1):
             za = Z[a - e0]
@@ -48,47 +45,42 @@ def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, Xm, Xa, Xma,
                         s += W[a, i, l] * Li[p, j, l]
                     za[i, j] = s
                 b[ca, i] += za[i, 0] * q[p, 0] + za[i, 1] * q[p, 1] + za[i, 2] * q[p, 2]
-        if cross:
-            L[:n, :n] = 0.0
-            t1 = t2 = -1
-            for m in range(obs_bounds[p], obs_bounds[p + 1]):
-                t0, t1, t2 = ent[0, m], ent[1, m], ent[2, m]
-                if t0 >= 0 and t1 >= 0 and t0 != t1:
-                    _local_add(Xm, m, 0, 6, t0 - e0, t1 - e0, L)
-                if t0 >= 0 and t2 >= 0 and t0 != t2:
-                    _local_add(Xa, m, 0, 6, t0 - e0, t2 - e0, L)
-            if t1 >= 0 and t2 >= 0 and t1 != t2:
-                _local_add(Xma, p, 3, 3, t1 - e0, t2 - e0, L)
         for a in range(e0, e1):
             za = Z[a - e0]
             ra = 6 * entry_cam[a]
             for bb in range(a, e1):
                 zb = Z[bb - e0]
                 rb = 6 * entry_cam[bb]
-                if cross and bb > a:
-                    blk = L[a - e0, bb - e0]
-                    for i in range(6):
-                        z0, z1, z2 = za[i, 0], za[i, 1], za[i, 2]
-                        for j in range(6):
-                            S[ra + i, rb + j] += blk[i, j] - (
-                                z0 * zb[j, 0] + z1 * zb[j, 1] + z2 * zb[j, 2])
-                else:
-                    for i in range(6):
-                        z0, z1, z2 = za[i, 0], za[i, 1], za[i, 2]
-                        for j in range(6):
-                            S[ra + i, rb + j] -= z0 * zb[j, 0] + z1 * zb[j, 1] + z2 * zb[j, 2]
+                for i in range(6):
+                    z0, z1, z2 = za[i, 0], za[i, 1], za[i, 2]
+                    for j in range(6):
+                        S[ra + i, rb + j] -= z0 * zb[j, 0] + z1 * zb[j, 1] + z2 * zb[j, 2]
+        if cross:
+            c1 = c2 = -1
+            for m in range(obs_bounds[p], obs_bounds[p + 1]):
+                c0, c1, c2 = vc[0, m], vc[1, m], vc[2, m]
+                if c0 >= 0 and c1 >= 0 and c0 != c1:
+                    _add_cross(S, Xm, m, 0, 6, c0, c1)
+                if c0 >= 0 and c2 >= 0 and c0 != c2:
+                    _add_cross(S, Xa, m, 0, 6, c0, c2)
+            if c1 >= 0 and c2 >= 0 and c1 != c2:
+                _add_cross(S, Xma, p, 3, 3, c1, c2)
 
 
 @_njit
-def _local_add(X, m, oa, na, la, lb, L):
-    """Block ``X[m]`` (na, 3: rows oa:oa+na of entry la, columns 3:6 of entry lb) into the
-    point's local block buffer, upper triangle (la < lb; else transposed)."""
-    for i in range(na):
-        for j in range(3):
-            if la < lb:
-                L[la, lb, oa + i, 3 + j] += X[m, i, j]
-            else:
-                L[lb, la, 3 + j, oa + i] += X[m, i, j]
+def _add_cross(S, X, m, oa, na, ca, cb):
+    """Block ``X[m]`` (rows oa:oa+na of camera ca, columns 3:6 of camera cb) into the upper
+    triangle of S (ca < cb; else transposed)."""
+    if ca < cb:
+        r0, c0 = 6 * ca + oa, 6 * cb + 3
+        for i in range(na):
+            for j in range(3):
+                S[r0 + i, c0 + j] += X[m, i, j]
+    else:
+        r0, c0 = 6 * cb + 3, 6 * ca + oa
+        for i in range(na):
+            for j in range(3):
+                S[r0 + j, c0 + i] += X[m, i, j]
 
 
 @_njit

@@ -393,7 +393,7 @@ class SchurStructure:
             if E:
                 X = self.cross_blocks if self.fused else _NO_CROSS
                 kernels.schur_dense(_c(W), Li, q, self.entry_bounds, self.entry_pt,
-                                    self.entry_cam, S, b, self.fused, *X, self.slot_entry,
+                                    self.entry_cam, S, b, self.fused, *X, self.slot_vc,
                                     self.obs_bounds)
             if self.fused:
                 mask_v = getattr(self, "mask_v", None)  # from apply_mask: the held gauge columns
