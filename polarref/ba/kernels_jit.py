@@ -13,15 +13,20 @@ def _njit(fn):
 
 
 @_njit
-def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b):
+def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, Xm, Xa, Xma, vc, obs_bounds):
     """Point elimination into the dense reduced system, per point p with entries a <= b:
     ``S[6 ca:, 6 cb:] -= Z_a Z_b^T`` (6x6) and ``b[ca] += Z_a q_p``, ``Z = W L^-T``.
 
     W (E, 6, 3); Li (P, 3, 3) = L^-1 of the damped point blocks; q (P, 3) = L^-1 g_p; bounds
     (G + 1,) entry ranges of the G points with entries (entries sorted by point, then camera,
     so ca < cb for a < b: the upper triangle of the C-ordered S); S (6 Nv, 6 Nv) and
-    b (Nv, 6), updated in place. (Three-slot forms: S starts from the cross-camera blocks
-    that :func:`build_anchored` wrote.)
+    b (Nv, 6), updated in place.
+
+    With ``cross`` (three-slot forms, see schur.py ``fused``) the camera blocks that couple two
+    different cameras of one observation, precomputed by :func:`build_anchored` (observer x
+    main centre Xm and observer x associate centre Xa (M, 6, 3), main x associate centre
+    Xma (P, 3, 3); vc (3, M) the slots' variable cameras, obs_bounds (P + 1,) each point's
+    observations), are added to the upper triangle of S with the point's Schur products.
     """
     nmax = 0
     for g in range(len(bounds) - 1):
@@ -50,27 +55,32 @@ def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b):
                     z0, z1, z2 = za[i, 0], za[i, 1], za[i, 2]
                     for j in range(6):
                         S[ra + i, rb + j] -= z0 * zb[j, 0] + z1 * zb[j, 1] + z2 * zb[j, 2]
+        if cross:
+            c1 = c2 = -1
+            for m in range(obs_bounds[p], obs_bounds[p + 1]):
+                c0, c1, c2 = vc[0, m], vc[1, m], vc[2, m]
+                if c0 >= 0 and c1 >= 0 and c0 != c1:
+                    _add_cross(S, Xm, m, 0, 6, c0, c1)
+                if c0 >= 0 and c2 >= 0 and c0 != c2:
+                    _add_cross(S, Xa, m, 0, 6, c0, c2)
+            if c1 >= 0 and c2 >= 0 and c1 != c2:
+                _add_cross(S, Xma, p, 3, 3, c1, c2)
 
 
 @_njit
-def _add_cross(S, X, oa, na, ca, cb, U):
-    """Block X (na, 3: rows oa:oa+na of camera ca, columns 3:6 of camera cb) into the upper
-    triangle of S (ca < cb; else transposed); ca == cb: both triangles of U[ca]."""
-    if ca == cb:
-        for i in range(na):
-            for j in range(3):
-                U[ca, oa + i, 3 + j] += X[i, j]
-                U[ca, 3 + j, oa + i] += X[i, j]
-    elif ca < cb:
+def _add_cross(S, X, m, oa, na, ca, cb):
+    """Block ``X[m]`` (rows oa:oa+na of camera ca, columns 3:6 of camera cb) into the upper
+    triangle of S (ca < cb; else transposed)."""
+    if ca < cb:
         r0, c0 = 6 * ca + oa, 6 * cb + 3
         for i in range(na):
             for j in range(3):
-                S[r0 + i, c0 + j] += X[i, j]
+                S[r0 + i, c0 + j] += X[m, i, j]
     else:
         r0, c0 = 6 * cb + 3, 6 * ca + oa
         for i in range(na):
             for j in range(3):
-                S[r0 + j, c0 + i] += X[i, j]
+                S[r0 + j, c0 + i] += X[m, i, j]
 
 
 @_njit
@@ -116,24 +126,22 @@ def slot_w_g(J, c0, Jp, res, w_idx, g_idx, W, g):
 
 
 @_njit
-def build_anchored(J0, Ad, h, Jp, res, vc, ent, obs_bounds, W, g, U, Sx):
+def build_anchored(J0, Ad, h, Jp, res, vc, ent, obs_bounds, W, g, U, Xm, Xa, Xma):
     """W, g and the diagonal camera blocks of U for parallax landmarks with the anchors'
     Jacobians factored (anchor_terms.py: ``J_a = (A d) h^T``, ``J_m = -J_obs[:, 3:6] - J_a``),
     and the blocks coupling two different cameras of one observation for :func:`schur_dense`.
 
     J0 (M, k, 6) observer Jacobians; Ad (M, k); h (P, 3) = dh/de; Jp (M, k, 3); res (M, k);
     vc, ent (3, M) variable camera / entry of the (observer, main, associate) slots, -1 =
-    fixed; obs_bounds (P + 1,). U (Nv, 6, 6) indexed by variable camera. The blocks coupling
-    two different cameras (observer x main / associate centre, main x associate centre) go
-    into the upper triangle of Sx (6 Nv, 6 Nv), where the Schur pass starts from (a block
-    whose two cameras coincide goes into U). As anchor_terms.py, the anchor
+    fixed; obs_bounds (P + 1,). U (Nv, 6, 6) indexed by variable camera. Out: Xm, Xa
+    (M, 6, 3) observer x main / associate centre, Xma (P, 3, 3) main x associate centre
+    (blocks whose two cameras coincide go into U instead). As anchor_terms.py, the anchor
     blocks are sums over the point's observations of the observer's own products (its centre
     columns) and of the k-vector ``A d``: no (M, k, 3) anchor Jacobian is formed.
     """
     k = J0.shape[1]
     G = np.empty((6, 6))
     t = np.empty(6)
-    Xm, Xa, Xma = np.empty((6, 3)), np.empty((6, 3)), np.empty((3, 3))
     Q, Sw = np.empty((3, 3)), np.empty((3, 3))
     T3, Sg, sp = np.empty(3), np.empty(3), np.empty(3)
     for p in range(len(obs_bounds) - 1):
@@ -192,12 +200,14 @@ def build_anchored(J0, Ad, h, Jp, res, vc, ent, obs_bounds, W, g, U, Sx):
                     U[c0, i, j] += G[i, j]
                 for j in range(3):  # J0^T J_a = t h^T; J0^T J_m = -(J0^T J0)[:, 3:6] - t h^T
                     xa = t[i] * h[p, j]
-                    Xa[i, j] = xa
-                    Xm[i, j] = -G[i, 3 + j] - xa
-            if vm >= 0:
-                _add_cross(Sx, Xm, 0, 6, c0, vm, U)
-            if va >= 0:
-                _add_cross(Sx, Xa, 0, 6, c0, va, U)
+                    Xa[m, i, j] = xa
+                    Xm[m, i, j] = -G[i, 3 + j] - xa
+            for X, ca in ((Xm, vm), (Xa, va)):
+                if ca == c0:
+                    for i in range(6):
+                        for j in range(3):
+                            U[c0, i, 3 + j] += X[m, i, j]
+                            U[c0, 3 + j, i] += X[m, i, j]
         # anchors: g, W, U centre blocks from the point's sums (anchor_terms.py)
         for i in range(3):
             ga = h[p, i] * sr
@@ -213,13 +223,15 @@ def build_anchored(J0, Ad, h, Jp, res, vc, ent, obs_bounds, W, g, U, Sx):
                     W[ent[1, m0], 3 + i, j] += -Sw[i, j] - wa
                 uaa = saa * h[p, i] * h[p, j]
                 th, ht = T3[i] * h[p, j], h[p, i] * T3[j]
-                Xma[i, j] = -th - uaa
+                Xma[p, i, j] = -th - uaa
                 if va >= 0:
                     U[va, 3 + i, 3 + j] += uaa
                 if vm >= 0:
                     U[vm, 3 + i, 3 + j] += Q[i, j] + th + ht + uaa
-        if vm >= 0 and va >= 0:  # main x associate centre (distinct cameras for valid anchors)
-            _add_cross(Sx, Xma, 3, 3, vm, va, U)
+        if vm >= 0 and vm == va:  # never for valid anchors (distinct centres); kept exact
+            for i in range(3):
+                for j in range(3):
+                    U[vm, 3 + i, 3 + j] += Xma[p, i, j] + Xma[p, j, i]
 
 
 @_njit

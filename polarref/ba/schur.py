@@ -42,6 +42,7 @@ def _group_starts(sorted_keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return starts, sorted_keys[starts]
 
 
+_NO_CROSS = (np.zeros((0, 6, 3)), np.zeros((0, 6, 3)), np.zeros((0, 3, 3)))  # schur_dense
 
 
 def _c(a: np.ndarray) -> np.ndarray:
@@ -157,8 +158,7 @@ class SchurStructure:
         # Schur kernel (both cameras are entries of the observation's point, so the kernel
         # touches that block of S anyway); U keeps only the diagonal camera blocks. The build
         # then takes the anchors' Jacobians factored ([J_obs, AnchorJacobian], anchor_terms.py)
-        # and writes those blocks into a dense matrix once per build (kernels.build_anchored),
-        # from which each LM step's S starts.
+        # and computes those blocks once per build (kernels.build_anchored), not per LM step.
         self.fused = (fast and self.slot_cols == [(0, 6), (3, 6), (3, 6)] and not self.sparse_S
                       and not self.use_gemm)
         if fast:
@@ -324,10 +324,10 @@ class SchurStructure:
             if len(Jc) != 2:
                 raise ValueError("fused three-slot build needs [J_obs, AnchorJacobian]")
             anc = Jc[1]
-            Sx = np.zeros((6 * self.Nv, 6 * self.Nv))  # the Schur pass starts from it
+            cross = (np.empty((self.M, 6, 3)), np.empty((self.M, 6, 3)), np.empty((self.P, 3, 3)))
             kernels.build_anchored(_c(Jc[0]), _c(anc.Ad), _c(anc.h), Jp, r, self.slot_vc,
-                                   self.slot_entry, self.obs_bounds, W, g_c, U, Sx)
-            self.cross_S = Sx
+                                   self.slot_entry, self.obs_bounds, W, g_c, U, *cross)
+            self.cross_blocks = cross
             return g_c, W, U
         Jc = [_c(J) for J in Jc]
         for s, J in enumerate(Jc):
@@ -387,13 +387,14 @@ class SchurStructure:
         b = -g_c.copy()
         if self.fast and not self.sparse_S and not self.use_gemm:
             from polarref.ba import kernels
-            # fused: the cross-camera blocks (off the block diagonal) from the build
-            S = self.cross_S.copy() if self.fused else np.zeros((6 * Nv, 6 * Nv))
-            S4 = S.reshape(Nv, 6, Nv, 6)
-            S4[self.u_ca, :, self.u_cb, :] = U_blocks
+            S = np.zeros((Nv, 6, Nv, 6))
+            S[self.u_ca, :, self.u_cb, :] = U_blocks
+            S = S.reshape(6 * Nv, 6 * Nv)
             if E:
+                X = self.cross_blocks if self.fused else _NO_CROSS
                 kernels.schur_dense(_c(W), Li, q, self.entry_bounds, self.entry_pt,
-                                    self.entry_cam, S, b)
+                                    self.entry_cam, S, b, self.fused, *X, self.slot_vc,
+                                    self.obs_bounds)
             if self.fused:
                 mask_v = getattr(self, "mask_v", None)  # from apply_mask: the held gauge columns
                 if mask_v is not None:
