@@ -251,13 +251,17 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
                 # at a bound with the descent direction pointing out of the box: held
                 active = (((pts <= bounds[0]) & (g_p > 0)) | ((pts >= bounds[1]) & (g_p < 0)))
                 if active.any():
-                    Jp_w = Jp_w * (~active)[problem.obs_pt][:, None, :]
+                    # a held component's Jacobian column is zero: its row/column of V and its
+                    # column of W vanish (masked, exactly; no second pass over observations)
+                    keep = (~active).astype(np.float64)
+                    V = V * keep[:, :, None] * keep[:, None, :]
                     g_p = np.where(active, 0.0, g_p)
-                    V = st.point_terms(Jp_w, r_w)[0]
                 else:
                     active = None
             # gauge-fixed columns and fixed cameras are masked on the assembled blocks
             g_c, W, U = builder.build(Jc_w, Jp_w, r_w)
+            if active is not None:
+                W = W * keep[st.entry_pt][:, None, :]
             g_c, W, U = st.apply_mask(mask_v, g_c, W, U)
             diag_u = np.zeros((st.Nv, 6))
             diag_u[st.u_ca[st.u_ca == st.u_cb]] = np.diagonal(
