@@ -29,7 +29,7 @@ class Polar(Parallax):
         if bad.any():
             raise PolarrefError(f"polar BA: {int(bad.sum())} observations outside the camera "
                                 "model's angular range")
-        self.theta_obs = ang[:, 0]
+        self.theta_obs = np.ascontiguousarray(ang[:, 0])  # (the kernels' compiled layout)
         self.w_theta = 1.0 / s_theta
 
     def residual_rows(self, Xc, jac):
@@ -40,7 +40,8 @@ class Polar(Parallax):
             else:
                 uv, Juv = self.proj(Xc)
                 res_uv = uv - self.p.obs_uv
-            res, J = kernels.polar_rows(np.ascontiguousarray(Xc), res_uv, Juv, self.theta_obs,
+            res, J = kernels.polar_rows(np.ascontiguousarray(Xc), np.ascontiguousarray(res_uv),
+                                        np.ascontiguousarray(Juv), self.theta_obs,
                                         self.w_theta, jac)
             return res, (J if jac else None)
         res = np.empty((len(Xc), 3))
