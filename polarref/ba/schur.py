@@ -210,7 +210,7 @@ class SchurStructure:
         transpose (a < b), as (M,) index arrays (-1 = a fixed camera). Fused: the diagonal
         camera blocks only (the rest goes into S, see __init__)."""
         S, nv = self.S, max(self.Nv, 1)
-        if self.fused:  # kernels.build_three_slots: U block index = variable camera
+        if self.fused:  # kernels.build_anchored: U block index = variable camera
             self.u_ca = self.u_cb = np.arange(self.Nv)
             self.B = self.Nv
             return
