@@ -10,6 +10,19 @@ iterations, and the table shows the minimum over the repeats (the least disturbe
 shared machine). Stages: evaluate = residuals + Jacobians (+ cost) at each trial point;
 normal = robust weighting, V, g, W, U; schur = point elimination into the reduced camera
 system; solve = its Cholesky; update = back-substitution and retraction. Markdown to stdout.
+
+``cpu ms / accepted`` is CPU time (``time.process_time``, less disturbed by other processes
+than wall time on a loaded machine) of the whole solve minus that of the same solve with
+``max_iterations=0`` (setup, first evaluation, write-back), divided by the accepted
+iterations: the bench's ``s_per_accepted_iteration`` in CPU time. Its ratio to Euclidean
+(same path, same run) is the issue's per-iteration target; minimum over the repeats.
+
+``--stages``: instead, the kernel path's per-iteration pieces timed one by one at the initial
+estimate (``time.thread_time``, 1 BLAS thread, minimum over 3 x 5 calls, forms interleaved):
+evaluate (residuals + Jacobians), V (point blocks), build (W, g, U), schur (reduced system),
+back (back-substitution); the Cholesky and the LM bookkeeping are left out (the same for
+every form). Less noisy than whole solves on a loaded machine; works against a checkout
+without the factored kernel build too (``PYTHONPATH=<checkout>``).
 """
 
 from __future__ import annotations
@@ -17,6 +30,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import time
 
 from polarref.ba import kernels
 from polarref.ba.bench import _resolve
@@ -33,34 +47,112 @@ def main(argv=None) -> int:
     ap.add_argument("problems", nargs="+")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--forms", default=",".join(PARAMS))
+    ap.add_argument("--paths", default="numpy,numba", help="kernel paths to run")
+    ap.add_argument("--stages", action="store_true", help="time the kernel stages one by one")
     args = ap.parse_args(argv)
+    if args.stages:
+        return stages(args)
     print(f"kernels warm-up {kernels.warm_up():.2f} s; load {os.getloadavg()[0]:.1f}\n")
     print("| problem | form | path | iters | setup ms | " + " | ".join(STAGES)
-          + " | total ms / iter | numba speed-up | x Euclidean (same path) |")
-    print("|---|---|---|---|---|" + "---|" * len(STAGES) + "---|---|---|")
+          + " | total ms / iter | numba speed-up | x Euclidean (same path) | cpu ms / accepted"
+          " | cpu x Euclidean |")
+    print("|---|---|---|---|---|" + "---|" * len(STAGES) + "---|---|---|---|---|")
     for spec in args.problems:
         base, _ = load_problem(_resolve(spec))
         prepare(base)
         best: dict = {}
         for _ in range(args.repeat):
             for form in args.forms.split(","):
-                for path in ("numpy", "numba"):
+                for path in args.paths.split(","):
+                    c0 = time.process_time()
+                    solve(base.copy(), BAOptions(param=form, kernels=path, max_iterations=0),
+                          prepared=True)
+                    c1 = time.process_time()
                     s = solve(base.copy(), BAOptions(param=form, kernels=path), prepared=True)
+                    cpu = time.process_time() - c1 - (c1 - c0)
                     n = max(s.iterations, 1)
                     row = {k: s.time_in[k] / n for k in STAGES}
                     row["total"] = (s.wall_s - s.setup_s) / n
                     row["setup"], row["iters"] = s.setup_s, s.iterations
+                    row["cpu"] = cpu / max(s.accepted_iterations, 1)
                     old = best.get((form, path))
                     best[(form, path)] = row if old is None else {
                         k: min(v, old[k]) for k, v in row.items()}
         for form in args.forms.split(","):
-            for path in ("numpy", "numba"):
+            for path in args.paths.split(","):
                 r = best[(form, path)]
-                up = best[(form, "numpy")]["total"] / r["total"]
-                rel = r["total"] / best[("euclidean", path)]["total"] if ("euclidean", path) in best else float("nan")
+                up = (best[(form, "numpy")]["total"] / r["total"]
+                      if (form, "numpy") in best else float("nan"))
+                eu = best.get(("euclidean", path))
+                rel = r["total"] / eu["total"] if eu else float("nan")
+                rel_cpu = r["cpu"] / eu["cpu"] if eu else float("nan")
                 print(f"| {spec} | {form} | {path} | {r['iters']} | {1e3 * r['setup']:.0f} | "
                       + " | ".join(f"{1e3 * r[k]:.1f}" for k in STAGES)
-                      + f" | {1e3 * r['total']:.1f} | {up:.2f}x | {rel:.2f}x |")
+                      + f" | {1e3 * r['total']:.1f} | {up:.2f}x | {rel:.2f}x"
+                      + f" | {1e3 * r['cpu']:.1f} | {rel_cpu:.2f}x |")
+        sys.stdout.flush()
+    return 0
+
+
+def stages(args) -> int:
+    import numpy as np
+    from threadpoolctl import threadpool_limits
+
+    from polarref.ba import kernels_jit
+    from polarref.ba.schur import SchurStructure
+    from polarref.ba.solver import make_param
+
+    kernels.warm_up()
+    factored_ok = hasattr(kernels_jit, "build_anchored")  # a checkout before it: dense anchors
+
+    def best(fn, n=5):
+        b = np.inf
+        for _ in range(n):
+            t = time.thread_time()
+            fn()
+            b = min(b, time.thread_time() - t)
+        return 1e3 * b
+
+    keys = ("evaluate", "V", "build", "schur", "back")
+    print(f"load {os.getloadavg()[0]:.1f}\n\n| problem | form | " + " | ".join(keys)
+          + " | sum ms | x Euclidean |\n|---|---|" + "---|" * (len(keys) + 2))
+    for spec in args.problems:
+        p, _ = load_problem(_resolve(spec))
+        prepare(p)
+        calls = {}
+        for form in args.forms.split(","):
+            prm = make_param(p, BAOptions(param=form, kernels="numba"))
+            st = SchurStructure(prm.slot_cams, prm.slot_cols, p.obs_pt, p.cam_mask.any(1),
+                                p.num_points, fast=True)
+            fac = st.fused and factored_ok
+            pts = prm.init_points()
+            r, Jp, Jc = prm.evaluate(p.R, p.C, pts, True, factored=fac)
+            mask_v = p.cam_mask[st.var_cams].astype(float)
+            V, g_p = st.point_terms(Jp, r)
+            g_c, W, U = st.apply_mask(mask_v, *st.build(Jc, Jp, r))
+            Vd = V + 1e-3 * np.eye(3)
+            diag_c = np.ones((st.Nv, 6))
+            _, _, Li = st.reduced_system(U, W, Vd, g_c, g_p, diag_c)
+            dc = np.zeros((st.Nv, 6))
+            calls[form] = {
+                "evaluate": lambda prm=prm, pts=pts, fac=fac: prm.evaluate(p.R, p.C, pts, True,
+                                                                           factored=fac),
+                "V": lambda st=st, Jp=Jp, r=r: st.point_terms(Jp, r),
+                "build": lambda st=st, Jc=Jc, Jp=Jp, r=r, m=mask_v: st.apply_mask(
+                    m, *st.build(Jc, Jp, r)),
+                "schur": lambda st=st, a=(U, W, Vd, g_c, g_p, diag_c): st.reduced_system(*a),
+                "back": lambda st=st, a=(W, Li, g_p, dc): st.back_substitute(*a)}
+        t = {f: dict.fromkeys(keys, np.inf) for f in calls}
+        with threadpool_limits(limits=1, user_api="blas"):
+            for _ in range(3):
+                for f, c in calls.items():
+                    for k in keys:
+                        t[f][k] = min(t[f][k], best(c[k]))
+        for f, row in t.items():
+            tot = sum(row.values())
+            eu = sum(t["euclidean"].values()) if "euclidean" in t else float("nan")
+            print(f"| {spec} | {f} | " + " | ".join(f"{row[k]:.2f}" for k in keys)
+                  + f" | {tot:.2f} | {tot / eu:.2f}x |")
         sys.stdout.flush()
     return 0
 

@@ -112,7 +112,7 @@ def test_schur_step_equals_dense_normal_equations(param, mode, monkeypatch):
     prm = make_param(p, BAOptions(param=param))
     mu = 1e-3
     ref, _ = _dense_step(p, prm, mu)
-    fast = mode.startswith("kernels")  # compiled kernels (ba/kernels.py), dense anchors
+    fast = mode.startswith("kernels")  # compiled kernels (ba/kernels.py)
     if fast:
         pytest.importorskip("numba")
     if mode != "syrk":  # make the camera-pair GEMM / entry-pair kernel path the cheaper one
@@ -123,7 +123,8 @@ def test_schur_step_equals_dense_normal_equations(param, mode, monkeypatch):
     st = SchurStructure(prm.slot_cams, prm.slot_cols, p.obs_pt, p.cam_mask.any(1),
                         p.num_points, dense_max_cameras=1 if sparse else 700, fast=fast)
     assert st.use_gemm == (mode == "syrk") and st.sparse_S == sparse
-    r, Jp, Jc = prm.evaluate(p.R, p.C, prm.init_points(), True, factored=not fast)
+    # factored anchors: numpy path and the kernels' fused build; dense: kernels-sparse
+    r, Jp, Jc = prm.evaluate(p.R, p.C, prm.init_points(), True, factored=not fast or st.fused)
     builder = st if param == "euclidean" or fast else AnchorTerms(st, p.obs_pt, *prm.anchor_cams)
     mask_v = p.cam_mask[st.var_cams].astype(float)
     g_c, W, U = st.apply_mask(mask_v, *builder.build(Jc, Jp, r))

@@ -3,7 +3,8 @@
 * Whole solves: every parameterization, with and without a robust loss and with fixed points,
   ends at the same cost (1e-9 relative) and the same poses/points with ``kernels="numba"`` as
   with ``kernels="numpy"``, on dense and on sparse visibility (different Schur paths).
-* Every form: the kernels' residuals and dense slot Jacobians equal the numpy ones (1e-12).
+* Every form: the kernels' residuals and slot Jacobians, dense and factored (anchors), equal
+  the numpy ones (1e-12).
 * The Schur step of the kernel path equals the full damped normal equations assembled densely
   (the independent implementation in test_ba_convergence.py).
 """
@@ -52,6 +53,8 @@ def test_kernel_solve_equals_numpy_solve(problems, param, case):
         runs[k] = (s, q)
     (a, qa), (b, qb) = runs["numpy"], runs["numba"]
     assert "numpy" in a.linear_solver and "numba" in b.linear_solver
+    # sparse visibility: the entry-pair Schur kernel (three-slot forms: the fused, factored build)
+    assert ("entry-pair kernel" in b.linear_solver) == (case != "dense")
     assert a.iterations == b.iterations and a.iterations >= 2
     assert b.final_cost < 0.5 * b.initial_cost  # it did solve something
     assert abs(a.final_cost - b.final_cost) <= 1e-9 * a.final_cost
@@ -73,6 +76,11 @@ def test_kernel_jacobians_equal_numpy(problems, param):
     np.testing.assert_allclose(r1, r0, rtol=0, atol=1e-12 * np.abs(r0).max())
     for J1, J0 in zip([Jp1, *Jc1], [Jp0, *Jc0], strict=True):
         np.testing.assert_allclose(J1, J0, rtol=0, atol=1e-12 * np.abs(J0).max())
+    if param != "euclidean":  # the factored anchors (the solver's form on the fused path)
+        _, Jp1, (Jo1, anc1) = fast.evaluate(p.R, p.C, pts, True, factored=True)
+        _, _, (Jo0, anc0) = ref.evaluate(p.R, p.C, pts, True, factored=True)
+        for J1, J0 in ((Jp1, Jp0), (Jo1, Jo0), (anc1.Ad, anc0.Ad), (anc1.h, anc0.h)):
+            np.testing.assert_allclose(J1, J0, rtol=0, atol=1e-12 * np.abs(J0).max())
     np.testing.assert_allclose(fast.pixel_residuals(p.R, p.C, pts),
                                ref.pixel_residuals(p.R, p.C, pts), rtol=0, atol=1e-9)
 

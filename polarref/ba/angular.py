@@ -65,6 +65,8 @@ class Angular(Parallax):
         self.use_chart = not theta_only and len(self.chart_idx) > 0
 
     def residual_rows(self, Xc, jac):
+        if self.fast:
+            return self._residual_rows_kernels(Xc, jac)
         theta, Jt = theta_rows(Xc, jac)
         phi, Jf = phi_rows(Xc, jac)
         dt = theta - self.obs_ang[:, 0]
@@ -87,3 +89,17 @@ class Angular(Parallax):
         if self.use_chart:
             J[ci] = np.matmul(self.chart_whiten, Je)
         return res, J
+
+    def _residual_rows_kernels(self, Xc, jac):
+        """:meth:`residual_rows` with the (theta, phi) rows compiled (kernels.py); the few
+        axis-chart rows stay numpy."""
+        from polarref.ba import kernels
+        res, J = kernels.angular_rows(np.ascontiguousarray(Xc), self.obs_ang, self.whiten,
+                                      self.w_theta, self.use_phi, jac)
+        if self.use_chart:
+            ci = self.chart_idx
+            e, Je = axis_chart_rows(Xc[ci], jac)
+            res[ci] = np.matmul(self.chart_whiten, (e - self.chart_obs)[:, :, None])[:, :, 0]
+            if jac:
+                J[ci] = np.matmul(self.chart_whiten, Je)
+        return res, (J if jac else None)

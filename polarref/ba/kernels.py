@@ -71,32 +71,37 @@ def warm_up() -> float:
     """Compile (or load from the disk cache) every kernel on tiny inputs; seconds taken."""
     if not available():
         return 0.0
-    from polarref.ba.kernels_jit import (back_substitute_rhs, build_three_slots,
+    from polarref.ba.kernels_jit import (angular_rows, back_substitute_rhs, build_anchored,
                                          euclidean_jacobians, euclidean_rays, parallax_jacobians,
-                                         parallax_points, parallax_rays, point_sums, schur_dense,
-                                         slot_gram, slot_w_g)
+                                         parallax_points, parallax_rays, point_sums, polar_rows,
+                                         schur_dense, slot_gram, slot_w_g)
     t = time.perf_counter()
     f, i = np.zeros, np.zeros
     one = np.zeros(1, np.int64)
     J6, Jp, r = f((1, 2, 6)), f((1, 2, 3)), f((1, 2))
     U, W, g = f((1, 6, 6)), f((1, 6, 3)), f((1, 6))
     z3 = np.zeros((3, 1), np.int64)
+    x3 = f((1, 3))
     for cross in (False, True):
         schur_dense(W, f((1, 3, 3)), f((1, 3)), np.array([0, 1], np.int64), one, one, f((6, 6)),
-                    g, cross, J6, Jp, Jp, z3, np.array([0, 1], np.int64))
+                    g, cross, W, W, f((1, 3, 3)), z3, np.array([0, 1], np.int64))
     slot_gram(J6, 0, J6, 0, one, -np.ones(1, np.int64), U)
     slot_gram(J6, 0, Jp, 3, one, one, U)
     slot_w_g(J6, 0, Jp, r, one, one, W, g)
     slot_w_g(Jp, 3, Jp, r, one, one, W, g)
     point_sums(Jp, r, one, f((1, 3, 3)), f((1, 3)))
     back_substitute_rhs(W, g, one, one, i((1, 3)))
-    build_three_slots(J6, Jp, Jp, Jp, r, np.zeros((3, 1), np.int64), np.zeros((3, 1), np.int64),
-                      W, g, U)
-    R, x3, x1 = np.eye(3)[None].copy(), f((1, 3)), f(1)
+    build_anchored(J6, r, x3, Jp, r, z3, z3, np.array([0, 1], np.int64), W, g, U,
+                   f((1, 6, 3)), f((1, 6, 3)), f((1, 3, 3)))
+    R, x1 = np.eye(3)[None].copy(), f(1)
     euclidean_jacobians(Jp, euclidean_rays(R, x3, x3, one, one), R, one)
     parallax_points(R, x3, x3, one, one, True)
     parallax_rays(R, x3, one, one, x3, x1, x3)
-    parallax_jacobians(Jp, x3, R, x3, one, one, x3, x3, x1, x1, x1, x3, f((1, 3, 2)))
+    for dense in (True, False):
+        parallax_jacobians(Jp, x3, R, x3, one, one, x3, x3, x1, x1, x1, x3, f((1, 3, 2)), dense)
+    for jac in (True, False):
+        polar_rows(x3, r, f((1 if jac else 0, 2, 3)), x1, x1, jac)
+        angular_rows(x3, r, f((1, 2, 2)), x1, np.ones(1, bool), jac)
     dt = time.perf_counter() - t
     log.debug("BA kernels ready in %.2f s", dt)
     return dt

@@ -13,7 +13,7 @@ def _njit(fn):
 
 
 @_njit
-def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, J0, J1, J2, ent, obs_bounds):
+def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, Xm, Xa, Xma, vc, obs_bounds):
     """Point elimination into the dense reduced system, per point p with entries a <= b:
     ``S[6 ca:, 6 cb:] -= Z_a Z_b^T`` (6x6) and ``b[ca] += Z_a q_p``, ``Z = W L^-T``.
 
@@ -22,21 +22,18 @@ def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, J0, J1, J2, 
     so ca < cb for a < b: the upper triangle of the C-ordered S); S (6 Nv, 6 Nv) and
     b (Nv, 6), updated in place.
 
-    With ``cross`` (three-slot forms, see schur.py ``fused``) the camera blocks of U that couple
-    two different cameras of one observation (observer x main / associate anchor, main x
-    associate; J0 (M, k, 6), J1 and J2 (M, k, 3) at columns 3:6, ent (3, M) their entries,
-    obs_bounds (P + 1,) each point's observations) are summed per point into a local buffer
-    and added with the point's Schur products, one write per block of S.
+    With ``cross`` (three-slot forms, see schur.py ``fused``) the camera blocks that couple two
+    different cameras of one observation, precomputed by :func:`build_anchored` (observer x
+    main centre Xm and observer x associate centre Xa (M, 6, 3), main x associate centre
+    Xma (P, 3, 3); vc (3, M) the slots' variable cameras, obs_bounds (P + 1,) each point's
+    observations), are added to the upper triangle of S with the point's Schur products.
     """
     nmax = 0
     for g in range(len(bounds) - 1):
         nmax = max(nmax, bounds[g + 1] - bounds[g])
     Z = np.empty((nmax, 6, 3))
-    L = np.zeros((nmax, nmax, 6, 6) if cross else (1, 1, 6, 6))
-    k = J0.shape[1]
     for g in range(len(bounds) - 1):
         e0, e1 = bounds[g], bounds[g + 1]
-        n = e1 - e0
         p = entry_pt[e0]
         for a in range(e0, e1):
             za = Z[a - e0]
@@ -48,50 +45,42 @@ def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, J0, J1, J2, 
                         s += W[a, i, l] * Li[p, j, l]
                     za[i, j] = s
                 b[ca, i] += za[i, 0] * q[p, 0] + za[i, 1] * q[p, 1] + za[i, 2] * q[p, 2]
-        if cross:
-            L[:n, :n] = 0.0
-            for m in range(obs_bounds[p], obs_bounds[p + 1]):
-                t0, t1, t2 = ent[0, m], ent[1, m], ent[2, m]
-                if t0 >= 0 and t1 >= 0 and t0 != t1:
-                    _local_cross(J0, 0, J1, m, t0 - e0, t1 - e0, L, k)
-                if t0 >= 0 and t2 >= 0 and t0 != t2:
-                    _local_cross(J0, 0, J2, m, t0 - e0, t2 - e0, L, k)
-                if t1 >= 0 and t2 >= 0 and t1 != t2:
-                    _local_cross(J1, 3, J2, m, t1 - e0, t2 - e0, L, k)
         for a in range(e0, e1):
             za = Z[a - e0]
             ra = 6 * entry_cam[a]
             for bb in range(a, e1):
                 zb = Z[bb - e0]
                 rb = 6 * entry_cam[bb]
-                if cross and bb > a:
-                    blk = L[a - e0, bb - e0]
-                    for i in range(6):
-                        z0, z1, z2 = za[i, 0], za[i, 1], za[i, 2]
-                        for j in range(6):
-                            S[ra + i, rb + j] += blk[i, j] - (
-                                z0 * zb[j, 0] + z1 * zb[j, 1] + z2 * zb[j, 2])
-                else:
-                    for i in range(6):
-                        z0, z1, z2 = za[i, 0], za[i, 1], za[i, 2]
-                        for j in range(6):
-                            S[ra + i, rb + j] -= z0 * zb[j, 0] + z1 * zb[j, 1] + z2 * zb[j, 2]
+                for i in range(6):
+                    z0, z1, z2 = za[i, 0], za[i, 1], za[i, 2]
+                    for j in range(6):
+                        S[ra + i, rb + j] -= z0 * zb[j, 0] + z1 * zb[j, 1] + z2 * zb[j, 2]
+        if cross:
+            c1 = c2 = -1
+            for m in range(obs_bounds[p], obs_bounds[p + 1]):
+                c0, c1, c2 = vc[0, m], vc[1, m], vc[2, m]
+                if c0 >= 0 and c1 >= 0 and c0 != c1:
+                    _add_cross(S, Xm, m, 0, 6, c0, c1)
+                if c0 >= 0 and c2 >= 0 and c0 != c2:
+                    _add_cross(S, Xa, m, 0, 6, c0, c2)
+            if c1 >= 0 and c2 >= 0 and c1 != c2:
+                _add_cross(S, Xma, p, 3, 3, c1, c2)
 
 
 @_njit
-def _local_cross(Ja, oa, Jb, m, la, lb, L, k):
-    """``Ja[m]^T Jb[m]`` (columns oa: of entry la, 3:6 of entry lb) into the point's local
-    block buffer, upper triangle (la < lb; else transposed)."""
-    na = Ja.shape[2]
-    for i in range(na):
-        for j in range(3):
-            s = 0.0
-            for r in range(k):
-                s += Ja[m, r, i] * Jb[m, r, j]
-            if la < lb:
-                L[la, lb, oa + i, 3 + j] += s
-            else:
-                L[lb, la, 3 + j, oa + i] += s
+def _add_cross(S, X, m, oa, na, ca, cb):
+    """Block ``X[m]`` (rows oa:oa+na of camera ca, columns 3:6 of camera cb) into the upper
+    triangle of S (ca < cb; else transposed)."""
+    if ca < cb:
+        r0, c0 = 6 * ca + oa, 6 * cb + 3
+        for i in range(na):
+            for j in range(3):
+                S[r0 + i, c0 + j] += X[m, i, j]
+    else:
+        r0, c0 = 6 * cb + 3, 6 * ca + oa
+        for i in range(na):
+            for j in range(3):
+                S[r0 + j, c0 + i] += X[m, i, j]
 
 
 @_njit
@@ -137,55 +126,112 @@ def slot_w_g(J, c0, Jp, res, w_idx, g_idx, W, g):
 
 
 @_njit
-def _wg(J, off, m, c, e, Jp, res, W, g):
-    k, n = J.shape[1], J.shape[2]
-    for p in range(n):
-        s = 0.0
-        for r in range(k):
-            s += J[m, r, p] * res[m, r]
-        g[c, off + p] += s
-        for q in range(3):
-            s = 0.0
+def build_anchored(J0, Ad, h, Jp, res, vc, ent, obs_bounds, W, g, U, Xm, Xa, Xma):
+    """W, g and the diagonal camera blocks of U for parallax landmarks with the anchors'
+    Jacobians factored (anchor_terms.py: ``J_a = (A d) h^T``, ``J_m = -J_obs[:, 3:6] - J_a``),
+    and the blocks coupling two different cameras of one observation for :func:`schur_dense`.
+
+    J0 (M, k, 6) observer Jacobians; Ad (M, k); h (P, 3) = dh/de; Jp (M, k, 3); res (M, k);
+    vc, ent (3, M) variable camera / entry of the (observer, main, associate) slots, -1 =
+    fixed; obs_bounds (P + 1,). U (Nv, 6, 6) indexed by variable camera. Out: Xm, Xa
+    (M, 6, 3) observer x main / associate centre, Xma (P, 3, 3) main x associate centre
+    (blocks whose two cameras coincide go into U instead). As anchor_terms.py, the anchor
+    blocks are sums over the point's observations of the observer's own products (its centre
+    columns) and of the k-vector ``A d``: no (M, k, 3) anchor Jacobian is formed.
+    """
+    k = J0.shape[1]
+    G = np.empty((6, 6))
+    t = np.empty(6)
+    Q, Sw = np.empty((3, 3)), np.empty((3, 3))
+    T3, Sg, sp = np.empty(3), np.empty(3), np.empty(3)
+    for p in range(len(obs_bounds) - 1):
+        m0, m1 = obs_bounds[p], obs_bounds[p + 1]
+        if m1 == m0:
+            continue
+        vm, va = vc[1, m0], vc[2, m0]
+        Q[:] = 0.0
+        Sw[:] = 0.0
+        T3[:] = 0.0
+        Sg[:] = 0.0
+        sp[:] = 0.0
+        sr = saa = 0.0
+        for m in range(m0, m1):
+            c0, e0 = vc[0, m], ent[0, m]
+            for i in range(6):
+                for j in range(i, 6):
+                    s = 0.0
+                    for r in range(k):
+                        s += J0[m, r, i] * J0[m, r, j]
+                    G[i, j] = s
+                    G[j, i] = s
+                s = 0.0
+                for r in range(k):
+                    s += J0[m, r, i] * Ad[m, r]
+                t[i] = s
+            for i in range(6):  # g and W: observer slot; their centre rows feed the anchors
+                s = 0.0
+                for r in range(k):
+                    s += J0[m, r, i] * res[m, r]
+                if c0 >= 0:
+                    g[c0, i] += s
+                if i >= 3:
+                    Sg[i - 3] += s
+                for j in range(3):
+                    s = 0.0
+                    for r in range(k):
+                        s += J0[m, r, i] * Jp[m, r, j]
+                    if c0 >= 0 and e0 >= 0:
+                        W[e0, i, j] += s
+                    if i >= 3:
+                        Sw[i - 3, j] += s
             for r in range(k):
-                s += J[m, r, p] * Jp[m, r, q]
-            W[e, off + p, q] += s
-
-
-@_njit
-def _ugram(Ja, oa, Jb, ob, m, c, U, both):
-    k, na, nb = Ja.shape[1], Ja.shape[2], Jb.shape[2]
-    for i in range(na):
-        for j in range(nb):
-            s = 0.0
-            for r in range(k):
-                s += Ja[m, r, i] * Jb[m, r, j]
-            U[c, oa + i, ob + j] += s
-            if both:
-                U[c, ob + j, oa + i] += s
-
-
-@_njit
-def build_three_slots(J0, J1, J2, Jp, res, vc, ent, W, g, U):
-    """One pass of :func:`slot_w_g` and the same-camera :func:`slot_gram` blocks for the
-    three-slot layout (observer (M, k, 6), anchor centres (M, k, 3) at columns 3:6); U holds
-    the diagonal camera blocks only, indexed by variable camera (see schur.py ``fused``)."""
-    for m in range(J0.shape[0]):
-        c0, c1, c2 = vc[0, m], vc[1, m], vc[2, m]
-        if c0 >= 0:
-            _wg(J0, 0, m, c0, ent[0, m], Jp, res, W, g)
-            _ugram(J0, 0, J0, 0, m, c0, U, False)
-            if c1 == c0:
-                _ugram(J0, 0, J1, 3, m, c0, U, True)
-            if c2 == c0:
-                _ugram(J0, 0, J2, 3, m, c0, U, True)
-        if c1 >= 0:
-            _wg(J1, 3, m, c1, ent[1, m], Jp, res, W, g)
-            _ugram(J1, 3, J1, 3, m, c1, U, False)
-            if c2 == c1:
-                _ugram(J1, 3, J2, 3, m, c1, U, True)
-        if c2 >= 0:
-            _wg(J2, 3, m, c2, ent[2, m], Jp, res, W, g)
-            _ugram(J2, 3, J2, 3, m, c2, U, False)
+                sr += Ad[m, r] * res[m, r]
+                saa += Ad[m, r] * Ad[m, r]
+                for j in range(3):
+                    sp[j] += Ad[m, r] * Jp[m, r, j]
+            for i in range(3):
+                T3[i] += t[3 + i]
+                for j in range(3):
+                    Q[i, j] += G[3 + i, 3 + j]
+            if c0 < 0:
+                continue
+            for i in range(6):
+                for j in range(6):
+                    U[c0, i, j] += G[i, j]
+                for j in range(3):  # J0^T J_a = t h^T; J0^T J_m = -(J0^T J0)[:, 3:6] - t h^T
+                    xa = t[i] * h[p, j]
+                    Xa[m, i, j] = xa
+                    Xm[m, i, j] = -G[i, 3 + j] - xa
+            for X, ca in ((Xm, vm), (Xa, va)):
+                if ca == c0:
+                    for i in range(6):
+                        for j in range(3):
+                            U[c0, i, 3 + j] += X[m, i, j]
+                            U[c0, 3 + j, i] += X[m, i, j]
+        # anchors: g, W, U centre blocks from the point's sums (anchor_terms.py)
+        for i in range(3):
+            ga = h[p, i] * sr
+            if va >= 0:
+                g[va, 3 + i] += ga
+            if vm >= 0:
+                g[vm, 3 + i] += -Sg[i] - ga
+            for j in range(3):
+                wa = h[p, i] * sp[j]
+                if va >= 0:
+                    W[ent[2, m0], 3 + i, j] += wa
+                if vm >= 0:
+                    W[ent[1, m0], 3 + i, j] += -Sw[i, j] - wa
+                uaa = saa * h[p, i] * h[p, j]
+                th, ht = T3[i] * h[p, j], h[p, i] * T3[j]
+                Xma[p, i, j] = -th - uaa
+                if va >= 0:
+                    U[va, 3 + i, 3 + j] += uaa
+                if vm >= 0:
+                    U[vm, 3 + i, 3 + j] += Q[i, j] + th + ht + uaa
+        if vm >= 0 and vm == va:  # never for valid anchors (distinct centres); kept exact
+            for i in range(3):
+                for j in range(3):
+                    U[vm, 3 + i, 3 + j] += Xma[p, i, j] + Xma[p, j, i]
 
 
 @_njit
@@ -322,17 +368,22 @@ def parallax_rays(R, C, obs_cam, obs_pt, Cm, sw, hd):
 
 
 @_njit
-def parallax_jacobians(Jx, Xc, R, C, obs_cam, obs_pt, Cm, d, sw, cw, dh_dw, dh_de, dv_dab):
+def parallax_jacobians(Jx, Xc, R, C, obs_cam, obs_pt, Cm, d, sw, cw, dh_dw, dh_de, dv_dab,
+                       dense=True):
     """Chain rule from ``res_D_Xc`` (M, k, 3) to the parameters of parallax landmarks:
     ``res_D_point`` (M, k, 3) and the dense slot Jacobians ``res_D_obs`` (M, k, 6),
     ``res_D_main_centre`` and ``res_D_assoc_centre`` (M, k, 3) (see parallax.py, anchor_terms.py:
     with ``A = Jx R_i``: point ``[A dv/d(alpha, beta), A dv/dw]``, observer ``[Xc x Jx, -sin(w) A]``,
-    associate ``(A d) dh/de^T``, main ``sin(w) A - associate``)."""
+    associate ``(A d) dh/de^T``, main ``sin(w) A - associate``). Also ``A d`` (M, k), the
+    anchors' factored form (anchor_terms.py); without ``dense`` the anchors' (M, k, 3)
+    Jacobians are not formed (returned with 0 rows)."""
     M, k, _ = Jx.shape
     Jp = np.empty((M, k, 3))
     Jo = np.empty((M, k, 6))
-    Jm = np.empty((M, k, 3))
-    Ja = np.empty((M, k, 3))
+    Md = M if dense else 0
+    Jm = np.empty((Md, k, 3))
+    Ja = np.empty((Md, k, 3))
+    Ad = np.empty((M, k))
     A = np.empty(3)
     dvw = np.empty(3)
     for m in range(M):
@@ -351,8 +402,89 @@ def parallax_jacobians(Jx, Xc, R, C, obs_cam, obs_pt, Cm, d, sw, cw, dh_dw, dh_d
             Jo[m, r, 1] = z * a0 - x * a2
             Jo[m, r, 2] = x * a1 - y * a0
             ad = A[0] * d[p, 0] + A[1] * d[p, 1] + A[2] * d[p, 2]
+            Ad[m, r] = ad
             for j in range(3):
                 Jo[m, r, 3 + j] = -sw[p] * A[j]
-                Ja[m, r, j] = ad * dh_de[p, j]
-                Jm[m, r, j] = sw[p] * A[j] - Ja[m, r, j]
-    return Jp, Jo, Jm, Ja
+            if dense:
+                for j in range(3):
+                    Ja[m, r, j] = ad * dh_de[p, j]
+                    Jm[m, r, j] = sw[p] * A[j] - Ja[m, r, j]
+    return Jp, Jo, Jm, Ja, Ad
+
+
+@_njit
+def _theta_row(x, y, z, jac, out, m, w):
+    """View angle of the projective ray ``sign(Z) (x, y, z)`` (angular_obs.theta_rows) and,
+    with jac, ``w * theta_D_Xc`` into out[m] (3,)."""
+    sg = -1.0 if z < 0 else 1.0
+    x, y, z = x * sg, y * sg, z * sg
+    rho2 = x * x + y * y
+    rho = np.sqrt(rho2)
+    theta = np.arctan2(rho, z)
+    if jac:
+        n2 = rho2 + z * z
+        f = z / (max(rho, 1e-300) * n2)
+        out[m, 0] = x * f * sg * w
+        out[m, 1] = y * f * sg * w
+        out[m, 2] = -rho / n2 * sg * w
+    return theta
+
+
+@_njit
+def polar_rows(Xc, res_uv, Juv, theta_obs, w_theta, jac):
+    """Polar residuals (M, 3): pixel rows ``res_uv`` (M, 2) and the weighted view-angle row
+    ``(theta - theta_obs) w_theta`` (polar.py), with jac their ``res_D_Xc`` (M, 3, 3) from the
+    pixel rows' Juv (M, 2, 3)."""
+    M = len(Xc)
+    res = np.empty((M, 3))
+    J = np.empty((M if jac else 0, 3, 3))
+    Jt = np.empty((M if jac else 0, 3))
+    for m in range(M):
+        res[m, 0], res[m, 1] = res_uv[m, 0], res_uv[m, 1]
+        th = _theta_row(Xc[m, 0], Xc[m, 1], Xc[m, 2], jac, Jt, m, w_theta[m])
+        res[m, 2] = (th - theta_obs[m]) * w_theta[m]
+        if jac:
+            for i in range(3):
+                J[m, 0, i] = Juv[m, 0, i]
+                J[m, 1, i] = Juv[m, 1, i]
+                J[m, 2, i] = Jt[m, i]
+    return res, J
+
+
+@_njit
+def angular_rows(Xc, obs_ang, whiten, w_theta, use, jac):
+    """Angular residuals (M, 2) and with jac ``res_D_Xc`` (M, 2, 3) (angular.py without the
+    axis chart): ``A^-1 (theta - theta_obs, wrap(phi - phi_obs))`` where ``use``, else
+    ``((theta - theta_obs) w_theta, 0)``; angles of the projective ray (angular_obs.py)."""
+    M = len(Xc)
+    res = np.empty((M, 2))
+    J = np.empty((M if jac else 0, 2, 3))
+    Jt = np.empty((M if jac else 0, 3))
+    for m in range(M):
+        x, y, z = Xc[m, 0], Xc[m, 1], Xc[m, 2]
+        th = _theta_row(x, y, z, jac, Jt, m, 1.0)
+        dt = th - obs_ang[m, 0]
+        if not use[m]:
+            res[m, 0] = dt * w_theta[m]
+            res[m, 1] = 0.0
+            if jac:
+                for i in range(3):
+                    J[m, 0, i] = Jt[m, i] * w_theta[m]
+                    J[m, 1, i] = 0.0
+            continue
+        sg = -1.0 if z < 0 else 1.0
+        xs, ys = x * sg, y * sg
+        phi = np.arctan2(ys, xs)
+        a = phi - obs_ang[m, 1]
+        df = np.pi - np.mod(np.pi - a, 2.0 * np.pi)
+        W = whiten[m]
+        res[m, 0] = W[0, 0] * dt + W[0, 1] * df
+        res[m, 1] = W[1, 0] * dt + W[1, 1] * df
+        if jac:
+            rho2 = max(xs * xs + ys * ys, 1e-300)
+            f0, f1 = -ys / rho2 * sg, xs / rho2 * sg  # phi_D_Xc (third component 0)
+            for r in range(2):
+                J[m, r, 0] = W[r, 0] * Jt[m, 0] + W[r, 1] * f0
+                J[m, r, 1] = W[r, 0] * Jt[m, 1] + W[r, 1] * f1
+                J[m, r, 2] = W[r, 0] * Jt[m, 2] + W[r, 1] * 0.0
+    return res, J

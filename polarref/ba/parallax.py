@@ -179,8 +179,8 @@ class Parallax:
         Jacobians ``[res_D_obs (M, k, 6), res_D_main_centre (M, k, 3), res_D_assoc_centre
         (M, k, 3)]`` (see ``slot_cams``/``slot_cols``), or with ``factored`` ``[res_D_obs,
         AnchorJacobian]`` (the solver's form, see anchor_terms.py)."""
-        if jac and self.fast and not factored:
-            return self._evaluate_kernels(R, C, pts)
+        if jac and self.fast:
+            return self._evaluate_kernels(R, C, pts, factored)
         Xc, parts = self.rays(R, C, pts, jac)
         res, Jx = self.residual_rows(Xc, jac)
         if not jac:
@@ -204,17 +204,19 @@ class Parallax:
             return res, Jp, [J_obs, anchors]
         return res, Jp, [J_obs, *anchors.dense(J_obs, op)]
 
-    def _evaluate_kernels(self, R, C, pts):
-        """:meth:`evaluate` with dense slot Jacobians through the compiled kernels."""
+    def _evaluate_kernels(self, R, C, pts, factored: bool):
+        """:meth:`evaluate` through the compiled kernels."""
         from polarref.ba import kernels
         p = self.p
         Cm, d, sw, cw, hd, dh_dw, dh_de, dv_dab = kernels.parallax_points(
             self.frame, pts, C, self.main, self.assoc, True)
         Xc = kernels.parallax_rays(R, C, p.obs_cam, p.obs_pt, Cm, sw, hd)
         res, Jx = self.residual_rows(Xc, True)
-        Jp, J_obs, J_m, J_a = kernels.parallax_jacobians(
+        Jp, J_obs, J_m, J_a, Ad = kernels.parallax_jacobians(
             np.ascontiguousarray(Jx), Xc, R, C, p.obs_cam, p.obs_pt, Cm, d, sw, cw,
-            dh_dw, dh_de, dv_dab)
+            dh_dw, dh_de, dv_dab, not factored)
+        if factored:
+            return res, Jp, [J_obs, AnchorJacobian(Ad, dh_de)]
         return res, Jp, [J_obs, J_m, J_a]
 
     def num_behind_camera(self, R, C, pts) -> int:

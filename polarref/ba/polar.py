@@ -29,10 +29,21 @@ class Polar(Parallax):
         if bad.any():
             raise PolarrefError(f"polar BA: {int(bad.sum())} observations outside the camera "
                                 "model's angular range")
-        self.theta_obs = ang[:, 0]
+        self.theta_obs = np.ascontiguousarray(ang[:, 0])  # (the kernels' compiled layout)
         self.w_theta = 1.0 / s_theta
 
     def residual_rows(self, Xc, jac):
+        if self.fast:  # the view-angle row and the stacking compiled (kernels.py)
+            from polarref.ba import kernels
+            if not jac:
+                res_uv, Juv = self.proj(Xc, jac=False) - self.p.obs_uv, np.zeros((0, 2, 3))
+            else:
+                uv, Juv = self.proj(Xc)
+                res_uv = uv - self.p.obs_uv
+            res, J = kernels.polar_rows(np.ascontiguousarray(Xc), np.ascontiguousarray(res_uv),
+                                        np.ascontiguousarray(Juv), self.theta_obs,
+                                        self.w_theta, jac)
+            return res, (J if jac else None)
         res = np.empty((len(Xc), 3))
         theta, Jt = theta_rows(Xc, jac)
         res[:, 2] = (theta - self.theta_obs) * self.w_theta

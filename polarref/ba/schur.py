@@ -42,7 +42,7 @@ def _group_starts(sorted_keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return starts, sorted_keys[starts]
 
 
-_EMPTY_J6, _EMPTY_J3 = np.zeros((0, 2, 6)), np.zeros((0, 2, 3))  # schur_dense without cross terms
+_NO_CROSS = (np.zeros((0, 6, 3)), np.zeros((0, 6, 3)), np.zeros((0, 3, 3)))  # schur_dense
 
 
 def _c(a: np.ndarray) -> np.ndarray:
@@ -156,7 +156,9 @@ class SchurStructure:
         # Kernel path, dense S by entry pairs, three slots (parallax forms): the camera blocks
         # that couple two different cameras of one observation go straight into S inside the
         # Schur kernel (both cameras are entries of the observation's point, so the kernel
-        # touches that block of S anyway); U keeps only the diagonal camera blocks.
+        # touches that block of S anyway); U keeps only the diagonal camera blocks. The build
+        # then takes the anchors' Jacobians factored ([J_obs, AnchorJacobian], anchor_terms.py)
+        # and computes those blocks once per build (kernels.build_anchored), not per LM step.
         self.fused = (fast and self.slot_cols == [(0, 6), (3, 6), (3, 6)] and not self.sparse_S
                       and not self.use_gemm)
         if fast:
@@ -208,7 +210,7 @@ class SchurStructure:
         transpose (a < b), as (M,) index arrays (-1 = a fixed camera). Fused: the diagonal
         camera blocks only (the rest goes into S, see __init__)."""
         S, nv = self.S, max(self.Nv, 1)
-        if self.fused:  # kernels.build_three_slots: U block index = variable camera
+        if self.fused:  # kernels.build_anchored: U block index = variable camera
             self.u_ca = self.u_cb = np.arange(self.Nv)
             self.B = self.Nv
             return
@@ -317,12 +319,17 @@ class SchurStructure:
     def _build_fast(self, Jc: list[np.ndarray], Jp: np.ndarray, r: np.ndarray):
         from polarref.ba import kernels
         g_c, W, U = np.zeros((self.Nv, 6)), np.zeros((self.E, 6, 3)), np.zeros((self.B, 6, 6))
-        Jc = [_c(J) for J in Jc]
         Jp, r = _c(Jp), _c(r)
         if self.fused:  # one pass; the cross-camera blocks are added to S in reduced_system
-            kernels.build_three_slots(*Jc, Jp, r, self.slot_vc, self.slot_entry, W, g_c, U)
-            self.cross_jacobians = Jc
+            if len(Jc) != 2:
+                raise ValueError("fused three-slot build needs [J_obs, AnchorJacobian]")
+            anc = Jc[1]
+            cross = (np.empty((self.M, 6, 3)), np.empty((self.M, 6, 3)), np.empty((self.P, 3, 3)))
+            kernels.build_anchored(_c(Jc[0]), _c(anc.Ad), _c(anc.h), Jp, r, self.slot_vc,
+                                   self.slot_entry, self.obs_bounds, W, g_c, U, *cross)
+            self.cross_blocks = cross
             return g_c, W, U
+        Jc = [_c(J) for J in Jc]
         for s, J in enumerate(Jc):
             kernels.slot_w_g(J, self.slot_cols[s][0], Jp, r, self.slot_entry[s],
                              self.slot_vc[s], W, g_c)
@@ -384,9 +391,9 @@ class SchurStructure:
             S[self.u_ca, :, self.u_cb, :] = U_blocks
             S = S.reshape(6 * Nv, 6 * Nv)
             if E:
-                J = self.cross_jacobians if self.fused else (_EMPTY_J6, _EMPTY_J3, _EMPTY_J3)
+                X = self.cross_blocks if self.fused else _NO_CROSS
                 kernels.schur_dense(_c(W), Li, q, self.entry_bounds, self.entry_pt,
-                                    self.entry_cam, S, b, self.fused, *J, self.slot_entry,
+                                    self.entry_cam, S, b, self.fused, *X, self.slot_vc,
                                     self.obs_bounds)
             if self.fused:
                 mask_v = getattr(self, "mask_v", None)  # from apply_mask: the held gauge columns

@@ -182,8 +182,10 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
                         problem.num_points, options.dense_max_cameras,
                         fast=use_kernels(options.kernels))
     builder = st
-    # the kernels take the anchors' Jacobians dense; numpy keeps them factored (anchor_terms.py)
-    if isinstance(param, AnchoredJacobians) and param.anchor_cams is not None and not st.fast:
+    # anchors' Jacobians factored (anchor_terms.py): numpy path, and the kernels' fused
+    # three-slot build; the kernels' generic slot path (sparse S) takes them dense
+    anchored = isinstance(param, AnchoredJacobians) and param.anchor_cams is not None
+    if anchored and not st.fast:
         from polarref.ba.anchor_terms import AnchorTerms
         builder = AnchorTerms(st, problem.obs_pt, *param.anchor_cams)
     mask_v = problem.cam_mask[st.var_cams].astype(np.float64)  # (Nv, 6)
@@ -197,7 +199,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     loss, scale = options.loss, options.loss_scale
 
     tic = time.perf_counter()
-    factored = builder is not st
+    factored = anchored and (not st.fast or st.fused)
     r, Jp, Jc = param.evaluate(R, C, pts, jac=True, factored=factored)
     times["evaluate"] += time.perf_counter() - tic
     if not np.isfinite(r).all():
@@ -249,13 +251,17 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
                 # at a bound with the descent direction pointing out of the box: held
                 active = (((pts <= bounds[0]) & (g_p > 0)) | ((pts >= bounds[1]) & (g_p < 0)))
                 if active.any():
-                    Jp_w = Jp_w * (~active)[problem.obs_pt][:, None, :]
+                    # a held component's Jacobian column is zero: its row/column of V and its
+                    # column of W vanish (masked, exactly; no second pass over observations)
+                    keep = (~active).astype(np.float64)
+                    V = V * keep[:, :, None] * keep[:, None, :]
                     g_p = np.where(active, 0.0, g_p)
-                    V = st.point_terms(Jp_w, r_w)[0]
                 else:
                     active = None
             # gauge-fixed columns and fixed cameras are masked on the assembled blocks
             g_c, W, U = builder.build(Jc_w, Jp_w, r_w)
+            if active is not None:
+                W = W * keep[st.entry_pt][:, None, :]
             g_c, W, U = st.apply_mask(mask_v, g_c, W, U)
             diag_u = np.zeros((st.Nv, 6))
             diag_u[st.u_ca[st.u_ca == st.u_cb]] = np.diagonal(
