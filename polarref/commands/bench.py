@@ -5,17 +5,17 @@ from __future__ import annotations
 from pathlib import Path
 
 from polarref.atomic import check_writable_parent
-from polarref.commands._types import nonneg_int, positive_int
+from polarref.commands._types import int_range, nonneg_int, positive_int
 from polarref.errors import PolarrefError
 
 NAME = "bench"
-HELP = "benchmarks (currently: ba, bundle adjustment vs pycolmap and scipy)"
+HELP = "benchmarks: ba (bundle adjustment vs pycolmap and scipy), sfm (our SfM vs pycolmap vs views)"
 
 
 def add_arguments(parser) -> None:
     from polarref.ba.losses import LOSSES
 
-    parser.add_argument("what", choices=("ba",), help="which benchmark")
+    parser.add_argument("what", choices=("ba", "sfm"), help="which benchmark")
     parser.add_argument("--problem", action="append", default=None,
                         help="problem path or synth-20/60/200, synth-60-sparse/synth-200-sparse (repeatable; "
                         "default: the full set)")
@@ -28,11 +28,24 @@ def add_arguments(parser) -> None:
                         help="timed runs per solver (interleaved); every run is stored, medians and ranges shown")
     parser.add_argument("--merge", action="store_true",
                         help="add/replace these problems in an existing OUT/bench.json")
-    parser.add_argument("--out", required=True, help="output folder (bench.json, bench.md)")
+    sfm = parser.add_argument_group("sfm (our SfM vs pycolmap incremental, same images and pairs)")
+    sfm.add_argument("--scene", choices=("comet", "uav"), default="comet")
+    sfm.add_argument("--views", type=int_range(4, 5000), nargs="+", default=[28, 84, 168, 336],
+                     help="view counts (one rendered scene each)")
+    sfm.add_argument("--preset", choices=("small", "default", "large"), default="default",
+                     help="render preset (image size); the view count overrides its views")
+    sfm.add_argument("--methods", nargs="+", choices=("ours", "pycolmap"), default=["ours", "pycolmap"])
+    sfm.add_argument("--overlap", type=positive_int, default=10, help="sequential pairing overlap")
+    sfm.add_argument("--seed", type=nonneg_int, default=0)
+    sfm.add_argument("--cell-timeout", type=positive_int, default=None, help="seconds per (method, views) cell")
+    parser.add_argument("--out", required=True, help="output folder (bench.json, bench.md; sfm: also bench.png, "
+                        "cells/, bench.log)")
     parser.add_argument("--overwrite", action="store_true")
 
 
 def run(args) -> int:
+    if args.what == "sfm":
+        return _run_sfm(args)
     from polarref.ba import BAOptions
     from polarref.ba.bench import FULL, QUICK, run_bench
 
@@ -49,3 +62,18 @@ def run(args) -> int:
                         args.scipy_max_obs, repeat=args.repeat, merge=args.merge)
     print((out / "bench.md").read_text())
     return 0 if results else 1
+
+
+def _run_sfm(args) -> int:
+    """Finished cells in OUT/cells are reused (resume); --overwrite reruns every cell."""
+    from polarref.bench_sfm import BenchSfMSettings, run_bench
+
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise PolarrefError(f"{out} is not a folder (choose another output folder)")
+    check_writable_parent(out / "bench.json")
+    settings = BenchSfMSettings(scene=args.scene, preset=args.preset, seed=args.seed, overlap=args.overlap)
+    bench = run_bench(sorted(set(args.views)), out, settings, tuple(args.methods), overwrite=args.overwrite,
+                      cell_timeout_s=args.cell_timeout)
+    print((out / "bench.md").read_text())
+    return 0 if bench["cells"] and not bench["failed"] else 1

@@ -1,4 +1,4 @@
-"""Bundle adjustment of a :class:`MapState` through the shared :class:`Reconstruction` type.
+"""Bundle adjustment of a :class:`MapState`: polarref's adjusters straight from its arrays.
 
 ``ba="colmap"`` runs pycolmap's Ceres adjuster (the reference); every other name runs
 ``polarref.ba.adjust`` with that parameterization. Intrinsics are held constant unless
@@ -110,30 +110,90 @@ def _colmap_adjust(rec: Reconstruction, variable: list[int], fixed: list[int], m
                                                  "num_unsuccessful_steps") if hasattr(cs, key)})
 
 
+def problem_from_state(state, variable: list[int], fixed: list[int], track_ids=None):
+    """A :class:`polarref.ba.BAProblem` straight from the map arrays (no Reconstruction).
+
+    Holds the points ``track_ids`` (default: every point) and their active observations in the
+    ``variable`` and ``fixed`` images; images are ordered by index and points by track, as
+    :func:`polarref.ba.problem_from_reconstruction` orders them, so both give the same solve.
+    Returns None when no observation is left.
+    """
+    from polarref.ba import BAProblem
+    from polarref.model.observations import Observations
+
+    tr = state.tracks
+    imgs = np.unique(np.asarray(list(variable) + list(fixed), np.int64))
+    in_img = np.zeros(len(state.keypoints), bool)
+    in_img[imgs] = True
+    obs = state.obs_of_tracks(track_ids)
+    obs = obs[state.active[obs] & in_img[tr.image[obs]] & state.has_point[tr.track[obs]]]
+    if not len(obs):
+        return None
+    pts, obs_pt = np.unique(tr.track[obs], return_inverse=True)
+    imgs, obs_cam = np.unique(tr.image[obs], return_inverse=True)
+    var = np.zeros(len(state.keypoints), bool)
+    var[list(variable)] = True
+    var[list(fixed)] = False
+    cam_of = state.camera_of_image[imgs]
+    p = BAProblem(cameras=[state.cameras[c] for c in cam_of], R=state.R[imgs].copy(),
+                  C=state.centers()[imgs] if len(imgs) else np.zeros((0, 3)), X=state.X[pts].copy(),
+                  obs=Observations.from_arrays(obs_cam.astype(np.int64), obs_pt.astype(np.int64),
+                                               state.uv[obs].copy()),
+                  cam_fixed=~var[imgs], image_ids=imgs + 1,
+                  point_ids=pts + 1)
+    p.camera_group = np.unique(cam_of, return_inverse=True)[1].astype(np.int64)
+    return p
+
+
+def _write_back_state(state, problem) -> None:
+    """Copy the adjusted variable poses, the points and refined intrinsics into ``state``."""
+    from polarref.sfm import rays as R_
+
+    imgs = np.asarray(problem.image_ids, np.int64) - 1
+    moved = problem.cam_mask.any(1)
+    t = problem.cam_from_world_t()
+    state.R[imgs[moved]] = problem.R[moved]
+    state.t[imgs[moved]] = t[moved]
+    state.X[np.asarray(problem.point_ids, np.int64) - 1] = problem.X
+    for k, i in enumerate(imgs):
+        c = int(state.camera_of_image[i])
+        if state.cameras[c] != problem.cameras[k]:
+            state.cameras[c] = problem.cameras[k]
+            obs = np.flatnonzero(state.camera_of_image[state.tracks.image] == c)
+            state.ray[obs] = R_.bearings(problem.cameras[k], state.uv[obs])
+
+
 def adjust(state, variable: list[int], fixed: list[int], ba: str, max_iterations: int,
-           loss: str = "trivial", track_ids=None, refine: tuple = ()) -> BARun:
+           loss: str = "trivial", track_ids=None, refine: tuple = (),
+           function_tolerance: float = 1e-6) -> BARun:
     """Adjust poses of ``variable`` images and the points (``track_ids`` or all) in place, and
     the intrinsics groups ``refine`` of the cameras involved.
 
+    polarref's adjusters get their problem straight from the map arrays (only the window's
+    observations are gathered); pycolmap's goes through a Reconstruction.
     Returns the typed record of the run (the adjuster's summary with its iteration trace).
     """
     from polarref.sfm.report import BARun
 
     if ba not in BA_NAMES:
         raise PolarrefError(f"unknown bundle adjuster {ba!r}; choose one of {', '.join(BA_NAMES)}")
-    rec = to_reconstruction(state, sorted(set(variable) | set(fixed)), track_ids)
-    if not rec.points3D:
-        return BARun(ba, skipped="no points")
     if ba == "colmap":
+        rec = to_reconstruction(state, sorted(set(variable) | set(fixed)), track_ids)
+        if not rec.points3D:
+            return BARun(ba, skipped="no points")
         info = BARun(ba, colmap=_colmap_adjust(rec, list(variable), list(fixed), max_iterations, loss,
                                                tuple(refine)))
-    else:
-        from polarref.ba import BAOptions, adjust as ba_adjust
+        _read_back(state, rec, list(variable))
+        return info
+    from polarref.ba import BAOptions, prepare, solve
 
-        opts = BAOptions(param=ba, loss=loss, max_iterations=max_iterations, refine=tuple(refine))
-        summary = ba_adjust(rec, opts, variable_image_ids=[i + 1 for i in variable],
-                            fixed_image_ids=[i + 1 for i in fixed])
-        summary.points_state = None  # internal landmark parameters: not part of the record
-        info = BARun(ba, summary=summary)
-    _read_back(state, rec, list(variable))
-    return info
+    problem = problem_from_state(state, variable, fixed, track_ids)
+    if problem is None:
+        return BARun(ba, skipped="no points")
+    opts = BAOptions(param=ba, loss=loss, max_iterations=max_iterations, refine=tuple(refine),
+                     function_tolerance=function_tolerance)
+    prepare(problem)
+    summary = solve(problem, opts, prepared=True)
+    _write_back_state(state, problem)
+    summary.points_state = None  # internal landmark parameters: not part of the record
+    return BARun(ba, summary=summary)

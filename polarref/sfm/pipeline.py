@@ -416,7 +416,13 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         t0 = time.perf_counter()
         state = MapState([f.name for f in feats], list(cameras), cam_idx, [f.keypoints for f in feats],
                          tracks, config.triangulation)
-        mlog = run_mapper(state, matches.geometries, config.mapper, [f.descriptors for f in feats])
+        descriptors = [f.descriptors for f in feats] if config.mapper.guided.enabled else None
+        if descriptors is None:
+            # only guided matching reads them after matching: released before the mapper's BA
+            # peak (168 comet views: ~180 of 850 MiB peak; issue 14's 2 GB target at 631 views)
+            for f in feats:
+                f.descriptors = None
+        mlog = run_mapper(state, matches.geometries, config.mapper, descriptors)
         timings["mapping"] = time.perf_counter() - t0
         timings["ba"] = float(sum(b.wall_s for b in mlog.ba))
         report.initial_pair = [feats[i].name for i in mlog.initial_pair]

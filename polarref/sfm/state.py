@@ -1,7 +1,10 @@
 """The incremental map as flat arrays: poses, one 3D point slot per track, active observations.
 
 Every operation (triangulate, extend, filter) is vectorized over observations. A track owns at
-most one 3D point; an observation is *active* when it belongs to that point.
+most one 3D point; an observation is *active* when it belongs to that point. Operations on a
+subset of tracks (one image's, a local BA window's) reach their observations through a
+track -> observations index instead of masking every observation of the map, so a registration
+step costs what its window holds, not what the map holds.
 """
 
 from __future__ import annotations
@@ -57,6 +60,7 @@ class MapState:
             self.uv[sel] = keypoints[i][tracks.keypoint[sel]]
             self.ray[sel] = R_.bearings(cameras[self.camera_of_image[i]], self.uv[sel])
             self.obs_of_kp[i][tracks.keypoint[sel]] = sel
+        self._by_track: tuple[np.ndarray, np.ndarray] | None = None  # see obs_of_tracks
 
     # ---- poses --------------------------------------------------------------------------
     def set_pose(self, image: int, cam_from_world: Rigid3) -> None:
@@ -76,6 +80,20 @@ class MapState:
         m = np.zeros(self.tracks.num_tracks, bool)
         m[np.asarray(track_ids, dtype=np.int64)] = True
         return m
+
+    def obs_of_tracks(self, track_ids: np.ndarray | None) -> np.ndarray:
+        """Ascending indices of every observation (active or not) of ``track_ids`` (None: all)."""
+        tr = self.tracks
+        if track_ids is None:
+            return np.arange(len(tr.track))
+        if self._by_track is None or len(self._by_track[0]) != len(tr.track):
+            order = np.argsort(tr.track, kind="stable")
+            self._by_track = (order, np.searchsorted(tr.track[order], np.arange(tr.num_tracks + 1)))
+        order, start = self._by_track
+        t = np.unique(np.asarray(track_ids, dtype=np.int64))
+        lo, n = start[t], start[t + 1] - start[t]
+        idx = np.repeat(lo - (np.cumsum(n) - n), n) + np.arange(int(n.sum()))
+        return np.sort(order[idx])
 
     # ---- errors ------------------------------------------------------------------------
     def errors(self, obs: np.ndarray, X: np.ndarray | None = None) -> np.ndarray:
@@ -136,7 +154,8 @@ class MapState:
         track_ids = track_ids[~self.has_point[track_ids]]
         if not len(track_ids):
             return 0
-        obs = np.flatnonzero(self.track_mask(track_ids)[tr.track] & self.registered[tr.image])
+        obs = self.obs_of_tracks(track_ids)
+        obs = obs[self.registered[tr.image[obs]]]
         remap = np.full(tr.num_tracks, -1, np.int64)
         cnt = np.bincount(tr.track[obs], minlength=tr.num_tracks)
         good_t = np.flatnonzero(cnt >= 2)
@@ -180,8 +199,8 @@ class MapState:
     def extend(self, track_ids: np.ndarray | None = None) -> int:
         """Add registered, inactive observations of existing points that reproject within the threshold."""
         tr = self.tracks
-        sel_t = self.has_point & self.track_mask(track_ids)
-        obs = np.flatnonzero(sel_t[tr.track] & self.registered[tr.image] & ~self.active)
+        obs = self.obs_of_tracks(track_ids)
+        obs = obs[self.has_point[tr.track[obs]] & self.registered[tr.image[obs]] & ~self.active[obs]]
         if not len(obs):
             return 0
         err = self.errors(obs)
@@ -196,15 +215,17 @@ class MapState:
         """
         tr = self.tracks
         sel_t = self.track_mask(track_ids)
-        obs = np.flatnonzero(self.active & sel_t[tr.track])
+        mine = self.obs_of_tracks(track_ids)
+        obs = mine[self.active[mine]]
         err = self.errors(obs)
         self.active[obs[~(err <= self.tri.max_error_px)]] = False
         pts = np.flatnonzero(self.has_point & sel_t)
-        n_obs = np.bincount(tr.track[self.active], minlength=tr.num_tracks)
+        mine = mine[self.active[mine]]
+        n_obs = np.bincount(tr.track[mine], minlength=tr.num_tracks)
         drop = pts[n_obs[pts] < 2]
         keep_pts = pts[n_obs[pts] >= 2]
         if len(keep_pts):
-            o = np.flatnonzero(self.active & self.track_mask(keep_pts)[tr.track])
+            o = mine[self.track_mask(keep_pts)[tr.track[mine]]]
             remap = np.full(tr.num_tracks, -1, np.int64)
             remap[keep_pts] = np.arange(len(keep_pts))
             ang = triangulation_angles_deg(self.X[keep_pts], self.centers()[tr.image[o]],
@@ -246,7 +267,7 @@ class MapState:
 
     def remove_points(self, track_ids: np.ndarray) -> None:
         m = self.track_mask(track_ids)
-        self.active[m[self.tracks.track]] = False
+        self.active[self.obs_of_tracks(track_ids)] = False
         self.has_point[m] = False
         self.X[m] = np.nan
 
@@ -267,5 +288,7 @@ class MapState:
     def covisibility(self, image: int) -> np.ndarray:
         """(N,) number of points image ``image`` shares (actively) with each image."""
         tr = self.tracks
-        mine = self.track_mask(tr.track[self.active & (tr.image == image)])
-        return np.bincount(tr.image[self.active & mine[tr.track]], minlength=len(self.keypoints))
+        o = self.obs_of_kp[image]
+        o = o[o >= 0]
+        o = self.obs_of_tracks(tr.track[o[self.active[o]]])
+        return np.bincount(tr.image[o[self.active[o]]], minlength=len(self.keypoints))

@@ -148,17 +148,16 @@ def triangulation_angles_deg(X: np.ndarray, C: np.ndarray, group: np.ndarray, nu
     group = np.asarray(group, dtype=np.int64)
     r = X[group] - C
     r = r / np.linalg.norm(r, axis=1, keepdims=True)
-    order = np.argsort(group, kind="stable")
+    count = np.bincount(group, minlength=num_groups)
+    # rays ordered by (track length, group): the groups of one length form an (n, L, 3) block,
+    # so a few long tracks do not pad every short one to their length (cost sum n_L L^2)
+    order = np.lexsort((group, count[group]))
     g, r = group[order], r[order]
-    start = np.searchsorted(g, np.arange(num_groups))
-    count = np.bincount(g, minlength=num_groups)
-    slot = np.arange(len(g)) - start[g]
-    L = int(count.max()) if len(count) else 0
-    pad = np.zeros((num_groups, max(L, 1), 3))
-    pad[g, slot] = r
-    cosmin = np.einsum("gik,gjk->gij", pad, pad)
-    mask = np.zeros((num_groups, max(L, 1)), bool)
-    mask[g, slot] = True
-    valid = mask[:, :, None] & mask[:, None, :]
-    cosmin = np.where(valid, cosmin, 1.0).min(axis=(1, 2))
+    cosmin = np.ones(num_groups)
+    pos = 0
+    for L in np.unique(count[g]):
+        n = int((count == L).sum())
+        blk = r[pos:pos + n * L].reshape(n, L, 3)
+        cosmin[g[pos:pos + n * L:L]] = np.einsum("gik,gjk->gij", blk, blk).reshape(n, -1).min(axis=1)
+        pos += n * L
     return np.degrees(np.arccos(np.clip(cosmin, -1.0, 1.0)))

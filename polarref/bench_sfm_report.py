@@ -1,0 +1,199 @@
+"""bench.json, bench.md and bench.png of ``polarref bench sfm`` from its cells.
+
+Growth exponents are least-squares slopes of log(time) against log(views) (``t ~ a n^k``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from polarref.atomic import atomic_open, atomic_write
+
+TARGET_VIEWS = 168            # issue 14: ours <= 1.0x pycolmap's total time on the 168-view comet
+TARGET_TIME_RATIO = 1.0
+TARGET_TIE_RATIO = 1.5        # ... keeping >= 1.5x pycolmap's tie points
+MEMORY_VIEWS, MEMORY_LIMIT_MB = 631, 2048.0   # ours <= 2 GB at 631 views
+EXPONENT_RANGE, EXPONENT_LIMIT = (84, 336), 1.3  # issue 13: total-time exponent 84..336 <= 1.3
+
+
+def growth_exponent(views, values, lo: float | None = None, hi: float | None = None) -> float | None:
+    """Slope k of the least-squares line log(value) = log(a) + k log(views), over views in [lo, hi].
+
+    None with fewer than two distinct view counts (or non-positive values) in the range.
+    """
+    v = np.asarray(views, np.float64)
+    y = np.asarray(values, np.float64)
+    keep = np.isfinite(y) & (y > 0) & (v > 0)
+    if lo is not None:
+        keep &= v >= lo
+    if hi is not None:
+        keep &= v <= hi
+    if len(np.unique(v[keep])) < 2:
+        return None
+    return float(np.polyfit(np.log(v[keep]), np.log(y[keep]), 1)[0])
+
+
+def _power_fit(views, values) -> tuple[float, float] | None:
+    v, y = np.asarray(views, float), np.asarray(values, float)
+    if len(np.unique(v)) < 2:
+        return None
+    k, loga = np.polyfit(np.log(v), np.log(y), 1)
+    return float(k), float(loga)
+
+
+def _series(cells: list[dict], method: str, key) -> tuple[list[int], list[float]]:
+    rows = sorted((c["views"], key(c)) for c in cells if c["method"] == method and c.get("status") == "ok")
+    rows = [(n, y) for n, y in rows if y is not None]
+    return [n for n, _ in rows], [float(y) for _, y in rows]
+
+
+def summarize(cells: list[dict]) -> dict:
+    """Exponents per method and stage, and the done-when checks that the cells allow."""
+    from polarref.bench_sfm import STAGES
+
+    growth, mem = {}, {}
+    for method, stages in STAGES.items():
+        g = {}
+        for s in (*stages, "total"):
+            key = (lambda c: c["total_s"]) if s == "total" else (lambda c, s=s: c["stages_s"].get(s))
+            n, y = _series(cells, method, key)
+            g[s] = growth_exponent(n, y)
+        n, y = _series(cells, method, lambda c: c["total_s"])
+        g[f"total_{EXPONENT_RANGE[0]}_{EXPONENT_RANGE[1]}"] = growth_exponent(n, y, *EXPONENT_RANGE)
+        growth[method] = g
+        n, y = _series(cells, method, lambda c: c["peak_memory_mb"]["ru_maxrss_mb"])
+        # the two largest view counts: small runs sit on the fixed floor (imports, numba)
+        fit = _power_fit(n[-2:], y[-2:])
+        measured = dict(zip(n, y)).get(MEMORY_VIEWS)
+        mem[method] = {"measured_mb": measured, "exponent": None if fit is None else fit[0],
+                       "extrapolated_mb": None if fit is None or measured is not None
+                       else math.exp(fit[1]) * MEMORY_VIEWS ** fit[0]}
+    by = {(c["method"], c["views"]): c for c in cells if c.get("status") == "ok"}
+    checks = {}
+    o, p = by.get(("ours", TARGET_VIEWS)), by.get(("pycolmap", TARGET_VIEWS))
+    if o and p:
+        checks["time_ratio_168"] = o["total_s"] / p["total_s"]
+        checks["time_ratio_168_ok"] = checks["time_ratio_168"] <= TARGET_TIME_RATIO
+        if o.get("cpu_s") and p.get("cpu_s"):  # whole-process CPU seconds, steadier when loaded
+            checks["cpu_ratio_168"] = o["cpu_s"] / p["cpu_s"]
+        checks["tie_ratio_168"] = o["tie_points"] / max(p["tie_points"], 1)
+        checks["tie_ratio_168_ok"] = checks["tie_ratio_168"] >= TARGET_TIE_RATIO
+        ro, rp = o["rotation_error_deg_mean"], p["rotation_error_deg_mean"]
+        checks["rotation_error_168_ok"] = None if ro is None or rp is None else ro <= rp
+        checks["same_pairs_168"] = o["pairs_sha256"] == p["pairs_sha256"]
+    k = growth["ours"][f"total_{EXPONENT_RANGE[0]}_{EXPONENT_RANGE[1]}"]
+    checks["ours_total_exponent_ok"] = None if k is None else k <= EXPONENT_LIMIT
+    mb = mem["ours"]["measured_mb"] or mem["ours"]["extrapolated_mb"]
+    checks["ours_memory_631_mb"] = mb
+    checks["ours_memory_631_source"] = ("measured" if mem["ours"]["measured_mb"] else
+                                        "extrapolated (power fit of the two largest measured cells)" if mb else "not tested")
+    checks["ours_memory_631_ok"] = None if mb is None else mb <= MEMORY_LIMIT_MB
+    return {"growth_exponents": growth, "peak_memory": mem, "checks": checks}
+
+
+def _fmt(x, spec=".1f") -> str:
+    return "n/a" if x is None else format(x, spec)
+
+
+def markdown(bench: dict) -> str:
+    from polarref.bench_sfm import STAGES
+
+    env = bench["environment"]
+    lines = ["# `polarref bench sfm`", "",
+             f"Scene {bench['settings']['scene']} ({bench['settings']['preset']} preset), pairs: "
+             f"{bench['settings']['pairing']} overlap {bench['settings']['overlap']} (pycolmap imports our "
+             f"pair list), {bench['settings']['threads']} thread per method, each cell in its own process. "
+             f"Commit {env['git_commit'][:10]}{' (dirty)' if env['git_dirty'] else ''}, "
+             f"{env['cpu_count']} CPUs ({env['cpu_model']}).", "",
+             "| method | views | registered | tie points | rot. err (deg) | total (s) | stages (s) | CPU (s) | peak MiB |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for c in sorted(bench["cells"], key=lambda c: (c["views"], c["method"])):
+        st = ", ".join(f"{s} {c['stages_s'].get(s, 0):.1f}" for s in (*STAGES[c["method"]], "ba")
+                       if s in c["stages_s"])
+        lines.append(f"| {c['method']} | {c['views']} | {c['registered_images']} | {c['tie_points']} | "
+                     f"{_fmt(c['rotation_error_deg_mean'], '.3f')} | {c['total_s']:.1f} | {st} | "
+                     f"{_fmt(c.get('cpu_s'))} | "
+                     f"{c['peak_memory_mb']['ru_maxrss_mb']:.0f} |")
+    for f in bench.get("failed", []):
+        lines.append(f"| {f['method']} | {f['views']} | failed: {f['error']} | | | | | | |")
+    lines += ["", "Growth exponent k (time ~ views^k, least squares over the cells):", "",
+              "| method | " + " | ".join(["stage", "k"]) + " |", "|---|---|---|"]
+    for method, g in bench["growth_exponents"].items():
+        for s, k in g.items():
+            lines.append(f"| {method} | {s} | {_fmt(k, '.2f')} |")
+    c = bench["checks"]
+    lines += ["", "Checks (issues 13 and 14):", ""]
+    if "time_ratio_168" in c:
+        lines += [f"- {TARGET_VIEWS} views: ours/pycolmap total time {c['time_ratio_168']:.2f}x "
+                  f"(target <= {TARGET_TIME_RATIO}: {'met' if c['time_ratio_168_ok'] else 'NOT met'}); "
+                  f"tie points {c['tie_ratio_168']:.2f}x (target >= {TARGET_TIE_RATIO}: "
+                  f"{'met' if c['tie_ratio_168_ok'] else 'NOT met'}); rotation error ours <= pycolmap: "
+                  f"{c['rotation_error_168_ok']}; same pairs: {c['same_pairs_168']}; CPU-time ratio "
+                  f"{_fmt(c.get('cpu_ratio_168'), '.2f')}"]
+    else:
+        lines.append(f"- {TARGET_VIEWS} views: not tested")
+    k = bench["growth_exponents"]["ours"][f"total_{EXPONENT_RANGE[0]}_{EXPONENT_RANGE[1]}"]
+    lines.append(f"- ours total-time exponent {EXPONENT_RANGE[0]}-{EXPONENT_RANGE[1]} views: {_fmt(k, '.2f')} "
+                 f"(target <= {EXPONENT_LIMIT}: {c['ours_total_exponent_ok']})")
+    lines.append(f"- ours peak memory at {MEMORY_VIEWS} views: {_fmt(c['ours_memory_631_mb'], '.0f')} MiB, "
+                 f"{c['ours_memory_631_source']} (target <= {MEMORY_LIMIT_MB:.0f}: {c['ours_memory_631_ok']})")
+    lines += ["", "Settings of each method are stored beside its times in `bench.json` (`method_settings`)."]
+    return "\n".join(lines) + "\n"
+
+
+def plot(bench: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from polarref.bench_sfm import STAGES
+
+    fig, (ax, am) = plt.subplots(1, 2, figsize=(11, 4.2))
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    names = list(dict.fromkeys([s for st in STAGES.values() for s in st] + ["total"]))
+    color_of = {s: colors[k % len(colors)] for k, s in enumerate(names)}  # one colour per stage name
+    views = sorted({c["views"] for c in bench["cells"]})
+    for m, (method, stages) in enumerate(STAGES.items()):
+        style = "-" if method == "ours" else "--"
+        for s in (*stages, "total"):
+            key = (lambda c: c["total_s"]) if s == "total" else (lambda c, s=s: c["stages_s"].get(s))
+            n, y = _series(bench["cells"], method, key)
+            if n:
+                exp = bench["growth_exponents"][method].get(s)
+                ax.loglog(n, y, style, marker="o", color=color_of[s], lw=2.5 if s == "total" else 1.2,
+                          label=f"{method} {s} (k={_fmt(exp, '.2f')})")
+        n, y = _series(bench["cells"], method, lambda c: c["peak_memory_mb"]["ru_maxrss_mb"])
+        if n:
+            am.loglog(n, y, style, marker="o", color=colors[m], label=method)
+    for a in (ax, am):
+        a.set_xticks(views, [str(v) for v in views])
+        a.minorticks_off()
+    ax.set(xlabel="views", ylabel="time (s)", title="time per stage vs views (ours solid, pycolmap dashed)")
+    ax.legend(fontsize=6, ncol=2)
+    am.axhline(MEMORY_LIMIT_MB, color="grey", lw=0.8, ls=":")
+    am.set(xlabel="views", ylabel="peak memory (MiB)", title="peak memory per method process")
+    am.legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_open(path) as fh:
+        fig.savefig(fh, format="png", dpi=110)
+    plt.close(fig)
+
+
+def write_outputs(out: Path, cells: list[dict], failed: list[dict], settings) -> dict:
+    from polarref.bench_sfm import _json_default
+    from polarref.provenance import collect
+
+    bench = {"settings": dataclasses.asdict(settings), "environment": collect(seeds={"seed": settings.seed}),
+             "cells": sorted(cells, key=lambda c: (c["views"], c["method"])), "failed": failed,
+             **summarize(cells)}
+    atomic_write(out / "bench.json", json.dumps(bench, indent=1, default=_json_default))
+    atomic_write(out / "bench.md", markdown(bench))
+    if cells:
+        plot(bench, out / "bench.png")
+    return bench
