@@ -45,7 +45,7 @@ class TwinRun:
 def default_pairing(twin: str, meta: dict) -> PairingConfig:
     """Spatial + sequential pairs; an orbiter looks at the body centre, a UAV at the ground."""
     if twin == "rosetta" or meta.get("config", {}).get("scene") == "comet":
-        return PairingConfig(method="spatial+sequential", k=12, overlap=5, look="object",
+        return PairingConfig(method="spatial+sequential", k=10, overlap=5, look="object",
                              object_center=tuple(float(v) for v in meta["scale"]["center"]))
     return PairingConfig(method="spatial+sequential", k=12, overlap=3, look="ground", ground_z=0.0)
 
