@@ -121,3 +121,12 @@ def test_no_priors_by_default():
     from synth.config import preset
 
     assert draw_priors(preset("comet", "small"), _line_poses(3), np.zeros(3)) is None
+
+
+def test_cli_refuses_a_twin_of_the_other_scene_kind(tmp_path, capsys):
+    from polarref.cli import main
+
+    assert main(["render", "uav", "--preset", "rosetta", "--out", str(tmp_path / "x")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "rosetta" in err[0] and "uav" in err[0]
+    assert not (tmp_path / "x").exists()
