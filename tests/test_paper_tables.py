@@ -76,7 +76,8 @@ def test_twin_comparison_runs_every_method_and_resumes(tmp_path):
 
     cfg = dataclasses.replace(twin("mappilot", width=320, height=240, spp=4), views=20)
     render_scene(cfg.scene, tmp_path / "scene", cfg)
-    run = TwinRun("mappilot", str(tmp_path / "out"), scene_dir=str(tmp_path / "scene"), method_timeout_s=900)
+    run = TwinRun("mappilot", str(tmp_path / "out"), scene_dir=str(tmp_path / "scene"), method_timeout_s=900,
+                  tables_dir=str(tmp_path / "tables"))
     table = run_twin(run)
     for name in PT.METHODS:
         m = table.methods[name]
@@ -87,3 +88,5 @@ def test_twin_comparison_runs_every_method_and_resumes(tmp_path):
     again = run_twin(run)
     assert {p.name: p.stat().st_mtime for p in (tmp_path / "out" / "stages").glob("*.json")} == stamps
     assert again.methods[PT.OURS].tie_points == table.methods[PT.OURS].tie_points
+    readme = (tmp_path / "tables" / "README.md").read_text().split("## Table 3")[1]
+    assert f"| #Tie point | 670,355 | 671,331 | {table.methods[PT.BASELINE].tie_points:,} |" in readme

@@ -46,6 +46,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="whole-run time limit in seconds, rendering included (default by preset: "
                              "default 290, others none; 0 = none); later methods get shorter limits")
     parser.add_argument("--no-claims", action="store_true", help="skip the claim experiments")
+    parser.add_argument("--tables", type=Path, default=None, metavar="DIR",
+                        help="twins only: also write DIR/<twin>/paper-table.md/.json and DIR/README.md "
+                             "(e.g. reports/paper-tables; the run folder keeps models and caches)")
     parser.add_argument("--dense", action="store_true",
                         help="also run polarref dense from the GT, ours-euclidean and ours-polar poses "
                              "(after the budgeted run; adds a dense section and figure to the report)")
@@ -73,7 +76,8 @@ def _run_twin(args: argparse.Namespace) -> int:
     logging.getLogger("polarref").setLevel(min(logging.getLogger("polarref").getEffectiveLevel(), logging.INFO))
     try:
         table = run_twin(TwinRun(args.scene, str(out), seed=args.seed, methods=wanted,
-                                 method_timeout_s=args.method_timeout or DEFAULT_TIMEOUT_S))
+                                 method_timeout_s=args.method_timeout or DEFAULT_TIMEOUT_S,
+                                 tables_dir=str(args.tables or "")))
     finally:
         logging.getLogger("polarref").removeHandler(handler)
         handler.close()

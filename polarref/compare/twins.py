@@ -40,6 +40,7 @@ class TwinRun:
     methods: tuple[str, ...] = PT.METHODS
     method_timeout_s: float = DEFAULT_TIMEOUT_S
     scene_dir: str = ""  # a rendered scene folder instead of the twin's cached render (tests)
+    tables_dir: str = ""  # also write <tables_dir>/<twin>/paper-table.* and <tables_dir>/README.md
 
 
 def default_pairing(twin: str, meta: dict) -> PairingConfig:
@@ -247,4 +248,7 @@ def run_twin(run: TwinRun) -> PT.TwinTable:
                   "pycolmap_max_num_features": PYCOLMAP_FEATURES, "environment": env}
     table = PT.TwinTable(run.twin, len(scene.image_names), n_pairs, methods, provenance)
     PT.write_table(out, table)
+    if run.tables_dir:  # the small committed copy (the run folder holds models, databases, caches)
+        PT.write_table(Path(run.tables_dir) / run.twin, table)
+        PT.write_readme(run.tables_dir)
     return table
