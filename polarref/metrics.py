@@ -91,29 +91,9 @@ class ReconstructionMetrics:
 
 # ---- reprojection ----------------------------------------------------------------------------
 def observation_errors(rec) -> tuple[np.ndarray, np.ndarray]:
-    """(errors (A,), point index (A,)) of every observation, vectorized per image.
-
-    Point index refers to ``sorted(rec.points3D)``. Points behind a camera get error inf.
-    """
-    pids = np.array(sorted(rec.points3D), dtype=np.int64)
-    if not len(pids):
-        return np.zeros(0), np.zeros(0, np.int64)
-    xyz = np.array([rec.points3D[p].xyz for p in pids])
-    tracks = [rec.points3D[p].track for p in pids]
-    lens = np.array([len(t) for t in tracks])
-    rows = np.concatenate(tracks, 0)
-    pidx = np.repeat(np.arange(len(pids)), lens)
-    errs = np.full(len(rows), np.inf)
-    for image_id in np.unique(rows[:, 0]):
-        sel = rows[:, 0] == image_id
-        im = rec.images[int(image_id)]
-        cam = rec.cameras[im.camera_id]
-        Xc = im.cam_from_world.apply(xyz[pidx[sel]])
-        uv = np.asarray(cam.project(Xc), dtype=np.float64)
-        e = np.linalg.norm(uv - im.keypoints[rows[sel, 1]], axis=1)
-        e[~(Xc[:, 2] > 0) | ~np.isfinite(e)] = np.inf
-        errs[sel] = e
-    return errs, pidx
+    """(errors (A,), point index (A,)) of every observation: :meth:`Reconstruction.observation_errors`
+    (point index into ``sorted(rec.points3D)``; behind a camera or not finite: ``inf``)."""
+    return rec.observation_errors()
 
 
 def mean_error_per_point(errs: np.ndarray, pidx: np.ndarray, num_points: int) -> np.ndarray:

@@ -80,11 +80,17 @@ class Scene:
         return np.load(self.views[i].depth_path)
 
     def polarref_camera(self):
-        """The camera as ``polarref.camera.Camera`` (when that module exists)."""
-        from polarref.camera import Camera  # noqa: PLC0415 - optional, owned by another stage
+        """The camera as ``polarref.camera.Camera``."""
+        return polarref_camera(self.camera)
 
-        return Camera(model=self.camera.model, width=self.camera.width, height=self.camera.height,
-                      params=np.asarray(self.camera.params))
+
+def polarref_camera(camera: PinholeCamera):
+    """``polarref.camera.Camera`` of a scene camera: the only type a Reconstruction holds, so
+    the conversion happens here, where synth hands cameras to polarref."""
+    from polarref.camera import Camera
+
+    return Camera(model=camera.model, width=camera.width, height=camera.height,
+                  params=np.asarray(camera.params))
 
 
 def atomic_write_bytes(path: Path, data: bytes) -> None:
@@ -96,7 +102,7 @@ def write_gt(root: Path, camera: PinholeCamera, names: list[str], poses: list[Ri
     """COLMAP text model of the exact cameras in ``root/gt`` (empty points3D.txt)."""
     from polarref.reconstruction import Image, Reconstruction
 
-    rec = Reconstruction(cameras={camera.camera_id: camera})
+    rec = Reconstruction(cameras={camera.camera_id: polarref_camera(camera)})
     for i, (name, pose) in enumerate(zip(names, poses), start=1):
         rec.images[i] = Image(image_id=i, name=name, camera_id=camera.camera_id, cam_from_world=pose)
     rec.write_text(root / "gt")

@@ -11,6 +11,7 @@ from polarref.ba.adapter import problem_from_reconstruction
 from polarref.ba.synthetic import synthetic_reconstruction
 from polarref.cli import main
 from polarref.errors import PolarrefError
+from polarref.model import Observations
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +25,7 @@ def _problem(scene):
 
 def test_empty_problem_is_a_clear_error():
     p = BAProblem(cameras=[], R=np.zeros((0, 3, 3)), C=np.zeros((0, 3)), X=np.zeros((0, 3)),
-                  obs_cam=np.zeros(0, int), obs_pt=np.zeros(0, int), obs_uv=np.zeros((0, 2)))
+                  obs=Observations.empty())
     with pytest.raises(PolarrefError, match="empty"):
         solve(p, BAOptions())
 

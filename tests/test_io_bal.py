@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from polarref.io import FormatError
+from polarref.model import Observations
 from polarref.io.bal import (BALProblem, bal_cost, bal_residuals, bal_to_reconstruction,
                              read_bal, write_bal)
 
@@ -27,13 +28,13 @@ def test_mapping_to_colmap_conventions_reproduces_bal_residuals(shared_data, nam
     err = np.empty_like(res)
     for image_id, img in rec.images.items():
         camera = rec.cameras[img.camera_id]
-        sel = problem.obs_camera == image_id - 1
+        sel = problem.obs.image == image_id - 1
         X = np.array([rec.points3D[int(pid)].xyz for pid in img.point3D_ids]).reshape(-1, 3)
         err[sel] = np.linalg.norm(camera.project(img.cam_from_world.apply(X)) - img.keypoints, axis=1)
     # observations behind their camera (BAL frame P_z >= 0) are NaN through a COLMAP camera
     from polarref.geometry import so3_exp
-    P_z = (np.einsum("kij,kj->ki", so3_exp(problem.rotvec)[problem.obs_camera],
-                     problem.points[problem.obs_point]) + problem.t[problem.obs_camera])[:, 2]
+    P_z = (np.einsum("kij,kj->ki", so3_exp(problem.rotvec)[problem.obs.image],
+                     problem.points[problem.obs.point]) + problem.t[problem.obs.image])[:, 2]
     np.testing.assert_array_equal(np.isnan(err), P_z >= 0)
     ok = ~np.isnan(err)
     np.testing.assert_allclose(err[ok], res[ok], rtol=1e-9, atol=1e-9)
@@ -52,8 +53,8 @@ def test_residual_formula_by_hand():
     # one camera at the origin, looking down BAL's -z; a point 2 units in front
     problem = BALProblem(rotvec=np.zeros((1, 3)), t=np.zeros((1, 3)),
                          intrinsics=np.array([[100.0, 0.1, 0.01]]),
-                         points=np.array([[0.4, -0.2, -2.0]]), obs_camera=np.array([0]),
-                         obs_point=np.array([0]), obs_xy=np.array([[20.0, -10.0]]))
+                         points=np.array([[0.4, -0.2, -2.0]]),
+                         obs=Observations.from_arrays([0], [0], [[20.0, -10.0]]))
     p = np.array([0.2, -0.1])  # -P[:2] / P[2]
     n2 = p @ p
     expected = 100 * (1 + 0.1 * n2 + 0.01 * n2**2) * p - [20.0, -10.0]

@@ -42,7 +42,7 @@ def _raw_xml(path):
 
 def test_xml_conversion_and_initial_error(sample_xml):
     p = read_blocks_exchange(sample_xml)
-    assert (p.num_images, p.num_points, len(p.obs_uv)) == (8, 30, 105)
+    assert (p.num_images, p.num_points, len(p.obs.uv)) == (8, 30, 105)
     e = p.reprojection_errors()
     # measured: mean 0.482 px, RMS 0.567 px, max 2.05 px (undistorted, stored tie points)
     assert 0.4 < e.mean() < 0.55 and 0.5 < np.sqrt(np.mean(e**2)) < 0.65 and e.max() < 2.5
@@ -99,9 +99,10 @@ def test_four_file_round_trip(sample_xml, tmp_path):
     assert sorted(f.name for f in tmp_path.iterdir()) == ["Cam-8-.txt", "Feature.txt",
                                                           "XYZ.txt", "cal.txt"]
     q = read_pvlba(tmp_path)
-    for field in ("K", "euler", "centers", "group", "points", "obs_point", "obs_image",
-                  "obs_uv", "track_start"):
+    for field in ("K", "euler", "centers", "group", "points", "track_start"):
         np.testing.assert_array_equal(getattr(q, field), getattr(p, field))
+    for field in ("image", "point", "uv"):
+        np.testing.assert_array_equal(getattr(q.obs, field), getattr(p.obs, field))
     np.testing.assert_allclose(q.reprojection_errors(), p.reprojection_errors(), rtol=1e-12)
 
 
@@ -113,8 +114,8 @@ def test_incomplete_pose_photo_is_skipped(sample_xml, tmp_path):
     broken.write_text(text[:first] + text[end:], encoding="utf-8")
     p = read_blocks_exchange(broken)
     dropped = text.count("<PhotoId>100001</PhotoId>")  # the first photo lost its rotation
-    assert dropped > 0 and p.num_images == 7 and len(p.obs_uv) == 105 - dropped
-    assert p.obs_image.max() <= 6 and 0.3 < p.reprojection_errors().mean() < 0.6
+    assert dropped > 0 and p.num_images == 7 and len(p.obs.uv) == 105 - dropped
+    assert p.obs.image.max() <= 6 and 0.3 < p.reprojection_errors().mean() < 0.6
 
 
 def _files(tmp_path, cal="100 0 50\n0 100 40\n0 0 1\n", cam="0 0 0 0 0 -5 1\n",

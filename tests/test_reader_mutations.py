@@ -131,4 +131,4 @@ def test_bal_with_byte_order_mark_reads_like_without(tmp_path):
     bom.write_bytes(b"\xef\xbb\xbf" + BAL.encode())
     a, b = read_bal(plain), read_bal(bom)
     np.testing.assert_array_equal(a.points, b.points)
-    np.testing.assert_array_equal(a.obs_xy, b.obs_xy)
+    np.testing.assert_array_equal(a.obs.uv, b.obs.uv)

@@ -6,15 +6,15 @@ import numpy as np
 
 from polarref.ba.options import BAOptions, BASummary
 from polarref.ba.problem import BAProblem, prepare
-from polarref.ba.projection import camera_groups
 from polarref.ba.solver import solve
 from polarref.errors import PolarrefError
 from polarref.geometry import Rigid3
+from polarref.model import build_reconstruction
 
 
 def problem_from_reconstruction(rec, *, variable_image_ids=None, fixed_image_ids=None,
                                 variable_point_ids=None) -> BAProblem:
-    """Build a BAProblem from a ``polarref.reconstruction.Reconstruction``.
+    """Build a BAProblem from a :class:`polarref.model.Reconstruction`.
 
     Point set: ``variable_point_ids`` if given; else the points seen by the variable images
     when ``variable_image_ids`` is given; else all points. Every image observing a chosen point
@@ -46,29 +46,17 @@ def problem_from_reconstruction(rec, *, variable_image_ids=None, fixed_image_ids
         pids = sorted(rec.points3D)
     if not pids:
         raise PolarrefError("bundle adjustment: no 3D points to adjust")
-    tracks = [np.asarray(rec.points3D[p].track, np.int64).reshape(-1, 2) for p in pids]
-    lens = np.array([len(t) for t in tracks])
-    track = np.concatenate(tracks) if tracks else np.zeros((0, 2), np.int64)
-    obs_pt = np.repeat(np.arange(len(pids)), lens)
-    image_ids = np.array(sorted(set(track[:, 0].tolist()) & set(rec.images)), np.int64)
+    obs, image_ids, _ = rec.flat_observations(pids)
     if len(image_ids) == 0:
         raise PolarrefError("bundle adjustment: the chosen points have no observations")
-    index = {int(i): k for k, i in enumerate(image_ids)}
-    obs_cam = np.array([index.get(int(i), -1) for i in track[:, 0]], np.int64)
-    known = obs_cam >= 0
-    uv = np.full((len(track), 2), np.nan)
-    for i, sel in camera_groups(image_ids, obs_cam):  # one vectorized gather per image
-        kp = rec.images[int(i)].keypoints
-        idx = track[sel, 1]
-        ok = (idx >= 0) & (idx < len(kp))
-        uv[sel[ok]] = kp[idx[ok]]
+    known = obs.image >= 0
     imgs = [rec.images[int(i)] for i in image_ids]
     R = np.array([im.cam_from_world.R for im in imgs])
     C = np.array([im.cam_from_world.center for im in imgs])
     X = np.array([rec.points3D[p].xyz for p in pids], np.float64)
     cam_fixed = np.array([int(i) not in variable for i in image_ids])
     problem = BAProblem(cameras=[rec.cameras[im.camera_id] for im in imgs], R=R, C=C, X=X,
-                        obs_cam=obs_cam, obs_pt=obs_pt, obs_uv=uv,
+                        obs=obs,
                         cam_fixed=cam_fixed, image_ids=image_ids,
                         point_ids=np.array(pids, np.int64))
     problem.exclusions["observations_unknown_image"] = int((~known).sum())
@@ -96,33 +84,20 @@ def problem_to_reconstruction(problem: BAProblem, shared_cameras: bool = False):
     """A Reconstruction holding the problem's cameras, poses, points and observations.
 
     Camera id = image id = index + 1; with ``shared_cameras`` one camera per intrinsics group
-    instead (camera id = group + 1, ``problem.camera_group`` or equal intrinsics).
+    instead (camera id = group + 1, ``problem.camera_group`` or equal intrinsics; the last
+    camera of a group stands for it).
     """
-    from polarref.reconstruction import Image, Point3D, Reconstruction
-
-    cam_id = np.arange(problem.num_cameras) + 1
+    N = problem.num_cameras
+    groups = np.arange(N)
     if shared_cameras:
         from polarref.ba.intrinsics import default_groups
         groups = (default_groups(problem.cameras) if problem.camera_group is None
                   else np.asarray(problem.camera_group))
-        cam_id = groups + 1
-
-    rec = Reconstruction()
-    order = np.argsort(problem.obs_cam, kind="stable")
-    starts = np.searchsorted(problem.obs_cam[order], np.arange(problem.num_cameras + 1))
-    p2d = np.empty(problem.num_observations, np.int64)
+    cameras = {int(g): problem.cameras[i] for i, g in enumerate(groups)}
     t = problem.cam_from_world_t()
-    for i in range(problem.num_cameras):
-        obs = order[starts[i]:starts[i + 1]]
-        p2d[obs] = np.arange(len(obs))
-        rec.cameras[int(cam_id[i])] = problem.cameras[i]
-        rec.images[i + 1] = Image(i + 1, f"img_{i:05d}", int(cam_id[i]), Rigid3(problem.R[i], t[i]),
-                                  problem.obs_uv[obs].copy(), problem.obs_pt[obs] + 1)
-    tracks = np.stack([problem.obs_cam + 1, p2d], axis=1)
-    starts = np.searchsorted(problem.obs_pt, np.arange(problem.num_points + 1))
-    for j in range(problem.num_points):
-        rec.points3D[j + 1] = Point3D(problem.X[j].copy(), tracks[starts[j]:starts[j + 1]])
-    return rec
+    return build_reconstruction([cameras[g] for g in range(len(cameras))], groups,
+                                [Rigid3(problem.R[i], t[i]) for i in range(N)],
+                                [f"img_{i:05d}" for i in range(N)], problem.obs, problem.X)
 
 
 def adjust(rec, options: BAOptions = BAOptions(), *, variable_image_ids=None,
@@ -130,7 +105,7 @@ def adjust(rec, options: BAOptions = BAOptions(), *, variable_image_ids=None,
     """Bundle-adjust a Reconstruction in place (poses, points; intrinsics if ``options.refine``).
 
     Args:
-        rec: ``polarref.reconstruction.Reconstruction``.
+        rec: :class:`polarref.model.Reconstruction`.
         options: solver options; ``options.param`` picks the parameterization (parallax forms
             convert XYZ -> parallax landmarks, solve, and convert back).
         variable_image_ids: images whose poses are refined (default: all).

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from polarref.ba.angular_obs import axis_chart_rows
+from polarref.ba.parameterization import BoundedPoints, Staged
 from polarref.ba.problem import BAProblem
 from polarref.ba.projection import Projector, radial_params
 from polarref.camera import Camera, ray_from_angular
@@ -206,9 +207,10 @@ class SelfCalibrating:
         self.slot_cams = np.vstack([inner.slot_cams, blocks.slot_cams(real.obs_cam, self.N)])
         self.slot_cols = tuple(inner.slot_cols) + ((3, 6),) * blocks.num_slots
         self.anchor_cams = None  # anchors go through the generic slot path (dense Jacobians)
-        if hasattr(inner, "point_bounds"):
+        # the inner form's optional capabilities (parameterization.py) pass through
+        if isinstance(inner, BoundedPoints):
             self.point_bounds = inner.point_bounds
-        if hasattr(inner, "set_stage"):
+        if isinstance(inner, Staged):
             self.set_stage = inner.set_stage
         og = blocks.groups[real.obs_cam]
         self.obs_of_group = [np.flatnonzero(og == g) for g in range(len(blocks.cams0))]
@@ -332,7 +334,7 @@ def augmented_problem(problem: BAProblem, blocks: IntrinsicsBlocks) -> BAProblem
     n = blocks.num_pseudo
     aug = BAProblem(problem.cameras, np.concatenate([problem.R, np.tile(np.eye(3), (n, 1, 1))]),
                     np.concatenate([problem.C, blocks.initial_values()]), problem.X,
-                    problem.obs_cam, problem.obs_pt, problem.obs_uv,
+                    problem.obs,
                     np.r_[problem.cam_fixed, ~blocks.masks().any(1)], problem.pt_fixed,
                     problem.image_ids, problem.point_ids,
                     np.concatenate([problem.cam_mask, blocks.masks()]),

@@ -52,8 +52,7 @@ def _load(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]:
         cam = pb.camera()
         N = pb.num_cameras
         return BAProblem(cameras=[cam] * N, R=pb.R.copy(), C=pb.centers.copy(), X=X,
-                         obs_cam=pb.obs_camera.copy(), obs_pt=pb.obs_point.copy(),
-                         obs_uv=pb.obs_uv.copy()), None
+                         obs=pb.obs.copy()), None
     if (path.is_dir() and (path / "cal.txt").exists()) or path.suffix.lower() == ".xml":
         from polarref.io.pvlba import read_blocks_exchange, read_pvlba
         pvl = read_pvlba(path) if path.is_dir() else read_blocks_exchange(path)

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 from polarref.ba.losses import LOSSES
 
-PARAMS = ("euclidean", "parallax", "polar", "angular")
+from polarref.ba.parameterization import PARAMS  # the one registry of form names (re-exported)
 SOLVERS = ("lm", "gn")  # Levenberg-Marquardt | Gauss-Newton (every step taken, no damping)
 DAMPINGS = ("ceres", "nielsen")
 # LM strategy per form where BAOptions leaves it None, measured (reports/bench-ba/

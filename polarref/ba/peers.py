@@ -18,6 +18,7 @@ from polarref.ba.options import BAOptions
 from polarref.ba.problem import BAProblem
 from polarref.ba.solver import behind_camera_xyz, pixel_cost
 from polarref.geometry import so3_exp
+from polarref.model.colmap import CeresSettings
 
 
 @dataclass
@@ -34,23 +35,6 @@ class PeerResult:
     accepted_iterations: int = -1
     rejected_iterations: int = -1
     settings: dict = field(default_factory=dict)   # what the solver actually used (threads, linear solver)
-
-
-@dataclass(frozen=True)
-class CeresSettings:
-    """Stopping rules and threads of one pycolmap (Ceres) configuration."""
-
-    name: str = "colmap-defaults"
-    function_tolerance: float = 0.0      # COLMAP's defaults (pycolmap 4.2.1 BundleAdjustmentOptions)
-    gradient_tolerance: float = 1e-4
-    parameter_tolerance: float = 0.0
-    max_num_iterations: int = 100
-    num_threads: int = -1                # -1: all cores
-    # Ceres runs single-threaded below this many residuals whatever num_threads says (COLMAP: 50,000)
-    min_residuals_for_multithreading: int = 50_000
-
-    def with_iterations(self, n: int) -> "CeresSettings":
-        return dataclasses.replace(self, max_num_iterations=int(n))
 
 
 def ceres_settings(options: BAOptions, which: str, threads: int) -> CeresSettings:
@@ -80,31 +64,15 @@ def run_pycolmap(problem: BAProblem, options: BAOptions, ceres: CeresSettings = 
     import pycolmap
 
     from polarref.ba.adapter import problem_to_reconstruction
+    from polarref.model.colmap import (bundle_adjustment_config, bundle_adjustment_options,
+                                       rigid_from_pycolmap)
 
     # image id = camera index + 1, point id = point index + 1 (kept by to_pycolmap)
     rec = problem_to_reconstruction(problem, shared_cameras=bool(options.refine)).to_pycolmap()
-    opts = pycolmap.BundleAdjustmentOptions()
     # the same intrinsics groups as ours (options.refine, issue 19); none by default
-    opts.refine_focal_length = "focal" in options.refine
-    opts.refine_principal_point = "pp" in options.refine
-    opts.refine_extra_params = "dist" in options.refine
-    opts.refine_sensor_from_rig = False
-    opts.print_summary = False
-    opts.ceres.loss_function_type = {"trivial": pycolmap.LossFunctionType.TRIVIAL,
-                                     "huber": pycolmap.LossFunctionType.HUBER,
-                                     "cauchy": pycolmap.LossFunctionType.CAUCHY}[options.loss]
-    opts.ceres.loss_function_scale = options.loss_scale
+    opts = bundle_adjustment_options(ceres, options.loss, options.loss_scale, tuple(options.refine))
     so = opts.ceres.solver_options
-    so.max_num_iterations = ceres.max_num_iterations
-    so.function_tolerance = ceres.function_tolerance
-    so.gradient_tolerance = ceres.gradient_tolerance
-    so.parameter_tolerance = ceres.parameter_tolerance
-    so.num_threads = ceres.num_threads
-    opts.ceres.min_num_residuals_for_cpu_multi_threading = ceres.min_residuals_for_multithreading
-    config = pycolmap.BundleAdjustmentConfig()
-    for image_id in rec.images:
-        config.add_image(image_id)
-    config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    config = bundle_adjustment_config(rec, list(rec.images))
     e = Euclidean(problem)
     c0, _ = _cost_of(e, problem.R, problem.C, problem.X, options)
     t = time.perf_counter()
@@ -116,9 +84,8 @@ def run_pycolmap(problem: BAProblem, options: BAOptions, ceres: CeresSettings = 
     R = np.empty((N, 3, 3))
     C = np.empty((N, 3))
     for i in range(N):
-        pose = rec.images[i + 1].cam_from_world()
-        R[i] = pose.rotation.matrix()
-        C[i] = -R[i].T @ np.asarray(pose.translation)
+        pose = rigid_from_pycolmap(rec.images[i + 1].cam_from_world())
+        R[i], C[i] = pose.R, pose.center
     X = np.array([rec.points3D[j + 1].xyz for j in range(problem.num_points)])
     if options.refine:  # final cost with the refined intrinsics
         from polarref.camera import Camera

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from polarref.errors import PolarrefError
+from polarref.model.observations import Observations
 
 log = logging.getLogger(__name__)
 
@@ -28,9 +29,9 @@ class BAProblem:
         R: (N, 3, 3) cam_from_world rotations.
         C: (N, 3) camera centres (world).
         X: (P, 3) points (world).
-        obs_cam: (M,) camera index of each observation.
-        obs_pt: (M,) point index of each observation.
-        obs_uv: (M, 2) observed pixels (COLMAP convention).
+        obs: the M observations (:class:`polarref.model.Observations`): ``obs.image`` is the
+            problem-camera index, ``obs.point`` the point index, ``obs.uv`` the pixel (COLMAP
+            convention). ``obs_cam`` / ``obs_pt`` / ``obs_uv`` read (and replace) its arrays.
         cam_fixed: (N,) True for cameras held fixed.
         pt_fixed: (P,) True for points held fixed.
         image_ids / point_ids: ids to map results back (default 0..N-1 / 0..P-1).
@@ -40,9 +41,7 @@ class BAProblem:
     R: np.ndarray
     C: np.ndarray
     X: np.ndarray
-    obs_cam: np.ndarray
-    obs_pt: np.ndarray
-    obs_uv: np.ndarray
+    obs: Observations
     cam_fixed: np.ndarray | None = None
     pt_fixed: np.ndarray | None = None
     image_ids: np.ndarray | None = None
@@ -54,6 +53,31 @@ class BAProblem:
     # (N,) intrinsics group per camera for self-calibration (None: equal cameras share one)
     camera_group: np.ndarray | None = None
 
+    # The solver's kernels index these arrays directly: names kept for them.
+    @property
+    def obs_cam(self) -> np.ndarray:
+        return self.obs.image
+
+    @obs_cam.setter
+    def obs_cam(self, value) -> None:
+        self.obs = Observations(np.asarray(value), self.obs.point, self.obs.uv)
+
+    @property
+    def obs_pt(self) -> np.ndarray:
+        return self.obs.point
+
+    @obs_pt.setter
+    def obs_pt(self, value) -> None:
+        self.obs = Observations(self.obs.image, np.asarray(value), self.obs.uv)
+
+    @property
+    def obs_uv(self) -> np.ndarray:
+        return self.obs.uv
+
+    @obs_uv.setter
+    def obs_uv(self, value) -> None:
+        self.obs = Observations(self.obs.image, self.obs.point, np.asarray(value))
+
     @property
     def num_cameras(self) -> int:
         return len(self.R)
@@ -64,11 +88,11 @@ class BAProblem:
 
     @property
     def num_observations(self) -> int:
-        return len(self.obs_cam)
+        return len(self.obs)
 
     def copy(self) -> "BAProblem":
         return BAProblem(list(self.cameras), self.R.copy(), self.C.copy(), self.X.copy(),
-                         self.obs_cam.copy(), self.obs_pt.copy(), self.obs_uv.copy(),
+                         self.obs.copy(),
                          None if self.cam_fixed is None else self.cam_fixed.copy(),
                          None if self.pt_fixed is None else self.pt_fixed.copy(),
                          None if self.image_ids is None else self.image_ids.copy(),
@@ -91,9 +115,9 @@ def prepare(problem: BAProblem, min_track: int = 2) -> BAProblem:
     """
     p = problem
     N, P = len(p.R), len(p.X)
-    if N == 0 or P == 0 or len(p.obs_cam) == 0:
+    if N == 0 or P == 0 or len(p.obs) == 0:
         raise PolarrefError(f"empty bundle-adjustment problem: {N} cameras, {P} points, "
-                            f"{len(p.obs_cam)} observations")
+                            f"{len(p.obs)} observations")
     if not (np.isfinite(p.R).all() and np.isfinite(p.C).all()):
         raise PolarrefError("bundle adjustment: non-finite camera pose in the input")
     if not np.isfinite(p.X).all():
@@ -104,8 +128,8 @@ def prepare(problem: BAProblem, min_track: int = 2) -> BAProblem:
     p.pt_fixed = np.zeros(P, bool) if p.pt_fixed is None else np.asarray(p.pt_fixed, bool).copy()
     p.image_ids = np.arange(N) if p.image_ids is None else np.asarray(p.image_ids)
     p.point_ids = np.arange(P) if p.point_ids is None else np.asarray(p.point_ids)
-    cam, pt, uv = (np.asarray(p.obs_cam, np.int64), np.asarray(p.obs_pt, np.int64),
-                   np.asarray(p.obs_uv, np.float64).reshape(-1, 2))
+    o = Observations.from_arrays(p.obs.image, p.obs.point, p.obs.uv)  # shapes; values are counted below
+    cam, pt, uv = o.image, o.point, o.uv
     ex = dict(p.exclusions)
     good = np.isfinite(uv).all(1)
     ex["observations_nonfinite"] = ex.get("observations_nonfinite", 0) + int((~good).sum())
@@ -130,7 +154,7 @@ def prepare(problem: BAProblem, min_track: int = 2) -> BAProblem:
     remap[pts_used] = np.arange(len(pts_used))
     pt = remap[pt]
     order = np.lexsort((cam, pt))
-    p.obs_cam, p.obs_pt, p.obs_uv = cam[order], pt[order], uv[order]
+    p.obs = Observations(cam[order], pt[order], uv[order])
     p.X = np.asarray(p.X, np.float64)[pts_used].copy()
     p.pt_fixed = p.pt_fixed[pts_used]
     p.point_ids = p.point_ids[pts_used]

@@ -45,6 +45,8 @@ import numpy as np
 from polarref.ba.losses import rho as loss_rho
 from polarref.ba.options import (DEFAULT_DAMPING, DEFAULT_LM_GAUGE, BAOptions, BASummary,
                                  IterationRecord)
+from polarref.ba.parameterization import (AnchoredJacobians, BoundedPoints, Parameterization,
+                                          Staged, make_param)
 from polarref.ba.problem import BAProblem, nonzero_counts, prepare
 from polarref.ba.schur import SchurStructure, gram
 from polarref.geometry import so3_exp
@@ -69,23 +71,6 @@ def initial_nielsen_mu(tau: float, diag_u: np.ndarray, mask_v: np.ndarray, V: np
     dv = np.diagonal(V, axis1=1, axis2=2)[~pt_fixed]
     top = max(float((diag_u * mask_v).max(initial=0.0)), float(dv.max(initial=0.0)))
     return tau * top if top > 0 else tau
-
-
-def make_param(problem: BAProblem, options: BAOptions):
-    """The parameterization object for ``options.param``."""
-    if options.param == "euclidean":
-        from polarref.ba.euclidean import Euclidean
-        return Euclidean(problem, options)
-    if options.param == "parallax":
-        from polarref.ba.parallax import Parallax
-        return Parallax(problem, options)
-    if options.param == "polar":
-        from polarref.ba.polar import Polar
-        return Polar(problem, options)
-    if options.param == "angular":
-        from polarref.ba.angular import Angular
-        return Angular(problem, options)
-    raise ValueError(f"unknown parameterization {options.param!r}")
 
 
 def _robust(r: np.ndarray, groups, loss: str, scale: float):
@@ -126,7 +111,7 @@ def _clipped_model(a_lin, q_damp, g_p, dp, delta, D_p, V, mu) -> float:
 
 
 def solve(problem: BAProblem, options: BAOptions, *, prepared: bool = False,
-          param=None) -> BASummary:
+          param: Parameterization | None = None) -> BASummary:
     """Run LM on ``problem`` (updated in place: R, C, X). See module docstring."""
     if options.refine:  # self-calibration: intrinsics blocks join the camera system
         from polarref.ba.intrinsics import solve_calibrating
@@ -159,7 +144,7 @@ def _solve(problem: BAProblem, options: BAOptions, prepared: bool, param) -> BAS
 
 
 def _stages(problem: BAProblem, options: BAOptions, param, t0: float) -> BASummary:
-    if options.staged and hasattr(param, "set_stage"):
+    if options.staged and isinstance(param, Staged):
         # Stage 1: theta only (half the iteration budget); stage 2: theta and phi jointly.
         param.set_stage(theta_only=True)
         first = _lm(problem, dataclasses.replace(options, max_iterations=max(
@@ -195,13 +180,13 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     st = SchurStructure(param.slot_cams, param.slot_cols, problem.obs_pt, cam_var,
                         problem.num_points, options.dense_max_cameras)
     builder = st
-    if getattr(param, "anchor_cams", None) is not None:
+    if isinstance(param, AnchoredJacobians) and param.anchor_cams is not None:
         from polarref.ba.anchor_terms import AnchorTerms
         builder = AnchorTerms(st, problem.obs_pt, *param.anchor_cams)
     mask_v = problem.cam_mask[st.var_cams].astype(np.float64)  # (Nv, 6)
     pt_free = (~problem.pt_fixed).astype(np.float64)[:, None]
     any_pt_fixed = bool(problem.pt_fixed.any())
-    bounds = param.point_bounds() if hasattr(param, "point_bounds") else None
+    bounds = param.point_bounds() if isinstance(param, BoundedPoints) else None
     clipped_steps = 0
     times["structure"] = time.perf_counter() - tic
     R, C = problem.R.copy(), problem.C.copy()

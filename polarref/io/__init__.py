@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from polarref.errors import PolarrefError
-from polarref.reconstruction import Image, Point3D, Reconstruction
+from polarref.model.observations import Observations
 
 
 # A coordinate beyond this is a corrupt file, not a survey: squares and products of such values
@@ -77,7 +77,8 @@ def read_tracks(path, num_views: int, view: str = "camera", distinct: bool = Fal
         view: what an index names, for error messages ("camera" or "image").
         distinct: reject a track that lists one view twice.
     Returns:
-        obs_point (K,) int64, obs_view (K,) int64, obs_uv (K, 2) float64, track_start (P+1,) int64.
+        (:class:`~polarref.model.Observations` (K) with image = the view index, track_start
+        (P+1,) int64).
     Raises:
         FormatError naming the file and line.
     """
@@ -103,45 +104,6 @@ def read_tracks(path, num_views: int, view: str = "camera", distinct: bool = Fal
         obs_view.extend(idx.astype(np.int64).tolist())
         obs_uv.append(trip[:, 1:])
         starts.append(starts[-1] + n)
-    return (np.array(obs_point, dtype=np.int64), np.array(obs_view, dtype=np.int64),
-            np.concatenate(obs_uv) if obs_uv else np.zeros((0, 2)), np.array(starts, dtype=np.int64))
-
-
-def build_reconstruction(cameras, camera_of_image, cam_from_world, names, obs_image, obs_point,
-                         obs_uv, points):
-    """A :class:`polarref.reconstruction.Reconstruction` from flat observation arrays.
-
-    Args:
-        cameras: list of :class:`polarref.camera.Camera`; camera id = list index + 1.
-        camera_of_image: (N,) 0-based index into ``cameras`` per image.
-        cam_from_world: list of N :class:`polarref.geometry.Rigid3`.
-        names: N image names.
-        obs_image, obs_point: (L,) 0-based image and point index per observation.
-        obs_uv: (L, 2) pixels (COLMAP convention).
-        points: (M, 3) world points.
-
-    Image ids are ``index + 1``, point ids ``index + 1``; each image's keypoints are its
-    observations in input order.
-    """
-    obs_image = np.asarray(obs_image, dtype=np.int64)
-    obs_point = np.asarray(obs_point, dtype=np.int64)
-    obs_uv = np.asarray(obs_uv, dtype=np.float64).reshape(-1, 2)
-    rec = Reconstruction()
-    for c, camera in enumerate(cameras):
-        rec.cameras[c + 1] = camera
-    order = np.argsort(obs_image, kind="stable")
-    starts = np.searchsorted(obs_image[order], np.arange(len(names) + 1))
-    kp_index = np.empty(len(obs_image), dtype=np.int64)
-    for i in range(len(names)):
-        obs = order[starts[i]:starts[i + 1]]
-        kp_index[obs] = np.arange(len(obs))
-        rec.images[i + 1] = Image(i + 1, names[i], int(camera_of_image[i]) + 1, cam_from_world[i],
-                                  obs_uv[obs],
-                                  obs_point[obs] + 1)
-    by_point = np.argsort(obs_point, kind="stable")
-    pstarts = np.searchsorted(obs_point[by_point], np.arange(len(points) + 1))
-    for j in range(len(points)):
-        obs = by_point[pstarts[j]:pstarts[j + 1]]
-        track = np.stack([obs_image[obs] + 1, kp_index[obs]], axis=1).astype(np.int64)
-        rec.points3D[j + 1] = Point3D(np.array(points[j], dtype=np.float64), track.reshape(-1, 2))
-    return rec
+    obs = Observations.from_arrays(np.array(obs_view, dtype=np.int64), np.array(obs_point, dtype=np.int64),
+                                   np.concatenate(obs_uv) if obs_uv else np.zeros((0, 2)))
+    return obs, np.array(starts, dtype=np.int64)

@@ -24,7 +24,8 @@ import numpy as np
 
 from polarref.camera import Camera
 from polarref.geometry import Rigid3, so3_exp
-from polarref.io import FormatError, build_reconstruction, parse_numbers, read_lines
+from polarref.io import FormatError, parse_numbers, read_lines
+from polarref.model import Observations, build_reconstruction
 
 _F = np.diag([1.0, -1.0, -1.0])  # BAL camera frame (y up, -z forward) -> COLMAP camera frame
 
@@ -38,18 +39,15 @@ class BALProblem:
         t: (N, 3) cam_from_world translations (BAL camera frame).
         intrinsics: (N, 3) f, k1, k2 per camera.
         points: (M, 3) world points.
-        obs_camera: (K,) int64 camera index per observation.
-        obs_point: (K,) int64 point index per observation.
-        obs_xy: (K, 2) raw BAL image coordinates (origin at the image centre, y up).
+        obs: observations; ``obs.image`` is the camera index and ``obs.uv`` holds the RAW BAL
+            image coordinates (origin at the image centre, y up), not COLMAP pixels.
     """
 
     rotvec: np.ndarray
     t: np.ndarray
     intrinsics: np.ndarray
     points: np.ndarray
-    obs_camera: np.ndarray
-    obs_point: np.ndarray
-    obs_xy: np.ndarray
+    obs: Observations
 
     @property
     def num_cameras(self) -> int:
@@ -61,7 +59,7 @@ class BALProblem:
 
     @property
     def num_observations(self) -> int:
-        return len(self.obs_xy)
+        return len(self.obs)
 
 
 def read_bal(path) -> BALProblem:
@@ -128,15 +126,15 @@ def read_bal(path) -> BALProblem:
     return BALProblem(rotvec=cams[:, :3].copy(), t=cams[:, 3:6].copy(),
                       intrinsics=cams[:, 6:9].copy(),
                       points=values[9 * n_cam:].reshape(n_pt, 3).copy(),
-                      obs_camera=obs_idx[:, 0].copy(), obs_point=obs_idx[:, 1].copy(),
-                      obs_xy=obs_xy)
+                      obs=Observations.from_arrays(obs_idx[:, 0].copy(), obs_idx[:, 1].copy(),
+                                                   obs_xy))
 
 
 def write_bal(problem: BALProblem, path) -> None:
     """Write a BAL text file (full float64 precision, one parameter per line)."""
     path = Path(path)
     out = [f"{problem.num_cameras} {problem.num_points} {problem.num_observations}"]
-    for c, p, (x, y) in zip(problem.obs_camera, problem.obs_point, problem.obs_xy):
+    for c, p, (x, y) in zip(problem.obs.image, problem.obs.point, problem.obs.uv):
         out.append(f"{int(c)} {int(p)}     {x:.17e} {y:.17e}")
     cams = np.hstack([problem.rotvec, problem.t, problem.intrinsics])
     out.extend(f"{v:.17e}" for v in np.concatenate([cams.ravel(), problem.points.ravel()]))
@@ -145,9 +143,9 @@ def write_bal(problem: BALProblem, path) -> None:
 
 def bal_project(problem: BALProblem) -> np.ndarray:
     """Predicted BAL image coordinates (K, 2) of every observation (BAL's own model)."""
-    R = so3_exp(problem.rotvec)[problem.obs_camera]
-    P = np.einsum("kij,kj->ki", R, problem.points[problem.obs_point]) + problem.t[problem.obs_camera]
-    f, k1, k2 = problem.intrinsics[problem.obs_camera].T
+    R = so3_exp(problem.rotvec)[problem.obs.image]
+    P = np.einsum("kij,kj->ki", R, problem.points[problem.obs.point]) + problem.t[problem.obs.image]
+    f, k1, k2 = problem.intrinsics[problem.obs.image].T
     with np.errstate(divide="ignore", invalid="ignore"):
         p = -P[:, :2] / P[:, 2:3]
     n2 = np.sum(p * p, axis=1)
@@ -157,7 +155,7 @@ def bal_project(problem: BALProblem) -> np.ndarray:
 
 def bal_residuals(problem: BALProblem) -> np.ndarray:
     """Residuals (K, 2) = predicted - observed, in BAL image units (pixels)."""
-    return bal_project(problem) - problem.obs_xy
+    return bal_project(problem) - problem.obs.uv
 
 
 def bal_cost(problem: BALProblem) -> float:
@@ -169,7 +167,7 @@ def bal_cost(problem: BALProblem) -> float:
 
 def bal_principal_point(problem: BALProblem) -> tuple[int, int, float, float]:
     """(width, height, cx, cy): an image box, centred on BAL's origin, holding every observation."""
-    half = np.ceil(np.max(np.abs(problem.obs_xy), axis=0)) + 1.0 if problem.num_observations \
+    half = np.ceil(np.max(np.abs(problem.obs.uv), axis=0)) + 1.0 if problem.num_observations \
         else np.ones(2)
     width, height = int(2 * half[0]), int(2 * half[1])
     return width, height, width / 2.0, height / 2.0
@@ -183,7 +181,7 @@ def bal_to_reconstruction(problem: BALProblem):
     ``(cx + x, cy - y)``. ``Reconstruction.reprojection_errors`` then equals the norms of
     :func:`bal_residuals` for every observation in front of its camera; a BAL observation
     behind its camera (P_z >= 0 in BAL's frame) or past the fold of the RADIAL polynomial
-    is NaN there (COLMAP's RADIAL model cannot represent it).
+    is ``inf`` there (COLMAP's RADIAL model cannot represent it).
     """
     width, height, cx, cy = bal_principal_point(problem)
     R = so3_exp(problem.rotvec)
@@ -194,7 +192,7 @@ def bal_to_reconstruction(problem: BALProblem):
             raise ValueError(f"BAL camera {i} has focal length {f} <= 0; cannot map it to RADIAL")
         cameras.append(Camera("RADIAL", width, height, [f, cx, cy, k1, k2]))
         poses.append(Rigid3(_F @ R[i], _F @ problem.t[i]))
-    uv = np.stack([cx + problem.obs_xy[:, 0], cy - problem.obs_xy[:, 1]], axis=1)
+    uv = np.stack([cx + problem.obs.uv[:, 0], cy - problem.obs.uv[:, 1]], axis=1)
     return build_reconstruction(cameras, np.arange(problem.num_cameras), poses,
                                 [f"bal_{i:05d}" for i in range(problem.num_cameras)],
-                                problem.obs_camera, problem.obs_point, uv, problem.points)
+                                Observations(problem.obs.image, problem.obs.point, uv), problem.points)

@@ -36,7 +36,8 @@ import numpy as np
 from polarref.camera import Camera
 from polarref.errors import PolarrefError
 from polarref.geometry import Rigid3, axis_rotation
-from polarref.io import FormatError, build_reconstruction, parse_numbers, read_lines, read_tracks
+from polarref.io import FormatError, parse_numbers, read_lines, read_tracks
+from polarref.model import Observations, build_reconstruction
 
 
 def cam_from_world_rotation(euler) -> np.ndarray:
@@ -65,9 +66,7 @@ class ParallaxBAProblem:
         euler: (N, 3) the stored angles (alpha, beta, gamma) [rad].
         centers: (N, 3) camera centres in world coordinates.
         R: (N, 3, 3) cam_from_world rotations (verified convention, module docstring).
-        obs_point: (L,) int64 point index of each observation (points in file order).
-        obs_camera: (L,) int64 camera index of each observation.
-        obs_uv: (L, 2) pixel coordinates as stored.
+        obs: observations (camera index, point index in file order, pixels as stored).
         track_start: (M + 1,) int64; observations of point j are ``track_start[j]:track_start[j+1]``
             and the first of them is the main anchor.
     """
@@ -76,9 +75,7 @@ class ParallaxBAProblem:
     euler: np.ndarray
     centers: np.ndarray
     R: np.ndarray
-    obs_point: np.ndarray
-    obs_camera: np.ndarray
-    obs_uv: np.ndarray
+    obs: Observations
     track_start: np.ndarray
     points: np.ndarray | None = None  # (M, 3) initial points from XYZ.txt, if the folder has one
 
@@ -98,7 +95,7 @@ class ParallaxBAProblem:
     @property
     def main_anchor(self) -> np.ndarray:
         """(M,) camera index of each point's main anchor (first observation)."""
-        return self.obs_camera[self.track_start[:-1]]
+        return self.obs.image[self.track_start[:-1]]
 
     def cam_from_world(self, i: int) -> Rigid3:
         return Rigid3(self.R[i], -self.R[i] @ self.centers[i])
@@ -111,9 +108,9 @@ class ParallaxBAProblem:
         """
         fx, fy, cx, cy = self.K[0, 0], self.K[1, 1], self.K[0, 2], self.K[1, 2]
         if width is None:
-            width = int(np.ceil(max(2 * cx, self.obs_uv[:, 0].max(initial=0.0))))
+            width = int(np.ceil(max(2 * cx, self.obs.uv[:, 0].max(initial=0.0))))
         if height is None:
-            height = int(np.ceil(max(2 * cy, self.obs_uv[:, 1].max(initial=0.0))))
+            height = int(np.ceil(max(2 * cy, self.obs.uv[:, 1].max(initial=0.0))))
         return Camera("PINHOLE", width, height, [fx, fy, cx, cy])
 
 
@@ -125,7 +122,7 @@ def parallaxba_to_reconstruction(problem: ParallaxBAProblem, points: np.ndarray 
     poses = [problem.cam_from_world(i) for i in range(problem.num_cameras)]
     return build_reconstruction([problem.camera()], np.zeros(problem.num_cameras, np.int64), poses,
                                 [f"cam_{i:03d}" for i in range(problem.num_cameras)],
-                                problem.obs_camera, problem.obs_point, problem.obs_uv, points)
+                                problem.obs, points)
 
 
 @dataclass(frozen=True)
@@ -218,7 +215,7 @@ def read_parallaxba(folder, cam_file: str | None = None, feature_file: str | Non
         raise FormatError(cpath, 1, "no cameras")
     cams = np.array(cams)
     fpath = folder / (feature_file or (found.feature.name if found else "Feature.pmba"))
-    obs_point, obs_cam, obs_uv, starts = read_tracks(fpath, len(cams), "camera", distinct=True)
+    obs, starts = read_tracks(fpath, len(cams), "camera", distinct=True)
     if len(starts) == 1:
         raise FormatError(fpath, 1, "no points")
     points = None
@@ -226,7 +223,7 @@ def read_parallaxba(folder, cam_file: str | None = None, feature_file: str | Non
         points = read_xyz(found.xyz, len(starts) - 1)
     return ParallaxBAProblem(K=K, euler=cams[:, :3].copy(), centers=cams[:, 3:].copy(),
                              R=cam_from_world_rotation(cams[:, :3]),
-                             obs_point=obs_point, obs_camera=obs_cam, obs_uv=obs_uv,
+                             obs=obs,
                              track_start=starts, points=points)
 
 
@@ -243,7 +240,7 @@ def write_parallaxba(problem: ParallaxBAProblem, folder) -> None:
     for j in range(problem.num_points):
         s = slice(problem.track_start[j], problem.track_start[j + 1])
         parts = [str(s.stop - s.start)]
-        for c, (u, v) in zip(problem.obs_camera[s], problem.obs_uv[s]):
+        for c, (u, v) in zip(problem.obs.image[s], problem.obs.uv[s]):
             parts += [str(int(c)), f"{u:.17g}", f"{v:.17g}"]
         lines.append(" ".join(parts))
     (folder / "Feature.pmba").write_text("\n".join(lines) + "\n")
@@ -259,12 +256,12 @@ def triangulate_dlt(problem: ParallaxBAProblem, R: np.ndarray | None = None) -> 
     DLT points are at the noise level. ``R`` overrides the cam_from_world rotations.
     """
     R = problem.R if R is None else R
-    xn = np.c_[problem.obs_uv, np.ones(len(problem.obs_uv))] @ np.linalg.inv(problem.K).T
-    P = np.concatenate([R, -(R @ problem.centers[:, :, None])], axis=2)[problem.obs_camera]
+    xn = np.c_[problem.obs.uv, np.ones(len(problem.obs.uv))] @ np.linalg.inv(problem.K).T
+    P = np.concatenate([R, -(R @ problem.centers[:, :, None])], axis=2)[problem.obs.image]
     r1 = xn[:, 0:1] * P[:, 2] - P[:, 0]
     r2 = xn[:, 1:2] * P[:, 2] - P[:, 1]
     A = np.zeros((problem.num_points, 4, 4))
-    np.add.at(A, problem.obs_point, r1[:, :, None] * r1[:, None, :] + r2[:, :, None] * r2[:, None, :])
+    np.add.at(A, problem.obs.point, r1[:, :, None] * r1[:, None, :] + r2[:, :, None] * r2[:, None, :])
     _, V = np.linalg.eigh(A)
     Xh = V[:, :, 0]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -273,11 +270,12 @@ def triangulate_dlt(problem: ParallaxBAProblem, R: np.ndarray | None = None) -> 
 
 def reprojection_errors(problem: ParallaxBAProblem, points: np.ndarray,
                         R: np.ndarray | None = None) -> np.ndarray:
-    """Pixel reprojection error (L,) of every observation for world points (M, 3)."""
+    """Pixel reprojection error (L,) of every observation for world points (M, 3); ``inf``
+    behind the camera (the rule of :meth:`polarref.model.Reconstruction.observation_errors`)."""
     R = problem.R if R is None else R
-    Xc = np.einsum("lij,lj->li", R[problem.obs_camera],
-                   points[problem.obs_point] - problem.centers[problem.obs_camera])
+    Xc = np.einsum("lij,lj->li", R[problem.obs.image],
+                   points[problem.obs.point] - problem.centers[problem.obs.image])
     uvh = Xc @ problem.K.T
     with np.errstate(divide="ignore", invalid="ignore"):
         uv = uvh[:, :2] / uvh[:, 2:3]
-    return np.where(Xc[:, 2] > 0, np.linalg.norm(uv - problem.obs_uv, axis=1), np.nan)
+    return np.where(Xc[:, 2] > 0, np.linalg.norm(uv - problem.obs.uv, axis=1), np.inf)

@@ -34,7 +34,8 @@ import numpy as np
 
 from polarref.camera import Camera
 from polarref.geometry import Rigid3
-from polarref.io import FormatError, build_reconstruction, parse_numbers, read_lines, read_tracks
+from polarref.io import FormatError, parse_numbers, read_lines, read_tracks
+from polarref.model import Observations, build_reconstruction
 
 
 def rotation_from_pvl_euler(euler) -> np.ndarray:
@@ -67,7 +68,7 @@ class PVLBAProblem:
         centers: (N, 3) camera centres (world).
         group: (N,) int64 camera group of each image (0-based; the file stores 1-based).
         points: (M, 3) object points.
-        obs_point, obs_image: (L,) int64; obs_uv: (L, 2) undistorted pixels.
+        obs: observations (image index, point index, undistorted pixels).
         track_start: (M + 1,) int64 offsets of each point's observations.
         image_names: (N,) names (from the XML source; empty strings when read from the 4 files).
     """
@@ -77,9 +78,7 @@ class PVLBAProblem:
     centers: np.ndarray
     group: np.ndarray
     points: np.ndarray
-    obs_point: np.ndarray
-    obs_image: np.ndarray
-    obs_uv: np.ndarray
+    obs: Observations
     track_start: np.ndarray
     image_names: tuple[str, ...] = ()
 
@@ -98,9 +97,9 @@ class PVLBAProblem:
 
     def project(self) -> np.ndarray:
         """Predicted pixels (L, 2) of every observation (NaN behind the camera)."""
-        R = self.R[self.obs_image]
-        Xc = np.einsum("lij,lj->li", R, self.points[self.obs_point] - self.centers[self.obs_image])
-        K = self.K[self.group[self.obs_image]]
+        R = self.R[self.obs.image]
+        Xc = np.einsum("lij,lj->li", R, self.points[self.obs.point] - self.centers[self.obs.image])
+        K = self.K[self.group[self.obs.image]]
         with np.errstate(divide="ignore", invalid="ignore"):
             x = Xc[:, :2] / Xc[:, 2:3]
         uv = np.stack([K[:, 0, 0] * x[:, 0] + K[:, 0, 1] * x[:, 1] + K[:, 0, 2],
@@ -109,7 +108,7 @@ class PVLBAProblem:
 
     def reprojection_errors(self) -> np.ndarray:
         """(L,) pixel distance between projection and observation."""
-        return np.linalg.norm(self.project() - self.obs_uv, axis=1)
+        return np.linalg.norm(self.project() - self.obs.uv, axis=1)
 
     def to_reconstruction(self, width: int | None = None, height: int | None = None):
         """As a :class:`polarref.reconstruction.Reconstruction`: one PINHOLE camera per group
@@ -125,8 +124,7 @@ class PVLBAProblem:
         R = self.R
         poses = [Rigid3(R[i], -R[i] @ self.centers[i]) for i in range(self.num_images)]
         names = [n or f"image_{i:05d}" for i, n in enumerate(self.image_names or ("",) * self.num_images)]
-        return build_reconstruction(cams, self.group, poses, names, self.obs_image, self.obs_point,
-                                    self.obs_uv, self.points)
+        return build_reconstruction(cams, self.group, poses, names, self.obs, self.points)
 
 
 # ---- the four files ------------------------------------------------------------------------
@@ -169,13 +167,13 @@ def read_pvlba(folder) -> PVLBAProblem:
     pts = [(i + 1, parse_numbers(xyzp, i + 1, s.split(), float, 3, "coordinates (X Y Z)"))
            for i, s in enumerate(read_lines(xyzp)) if s.strip()]
     featp = folder / "Feature.txt"
-    obs_point, obs_img, obs_uv, starts = read_tracks(featp, n_images, "image")
+    obs, starts = read_tracks(featp, n_images, "image")
     if len(starts) - 1 != len(pts):
         raise FormatError(featp, None, f"{len(starts) - 1} tracks but XYZ.txt has {len(pts)} points")
     return PVLBAProblem(K=K, euler=cams[:, :3].copy(), centers=cams[:, 3:6].copy(),
                         group=cams[:, 6].astype(np.int64) - 1,
                         points=np.array([p for _, p in pts]).reshape(-1, 3),
-                        obs_point=obs_point, obs_image=obs_img, obs_uv=obs_uv,
+                        obs=obs,
                         track_start=starts,
                         image_names=("",) * len(cams))
 
@@ -195,7 +193,7 @@ def write_pvlba(problem: PVLBAProblem, folder) -> None:
     for j in range(problem.num_points):
         s = slice(problem.track_start[j], problem.track_start[j + 1])
         parts = [str(s.stop - s.start)]
-        for i, (u, v) in zip(problem.obs_image[s], problem.obs_uv[s]):
+        for i, (u, v) in zip(problem.obs.image[s], problem.obs.uv[s]):
             parts += [str(int(i)), g(u), g(v)]
         lines.append(" ".join(parts) + "\n")
     (folder / "Feature.txt").write_text("".join(lines))
@@ -342,6 +340,6 @@ def read_blocks_exchange(path) -> PVLBAProblem:
         obs_uv[sel] = (np.c_[xy, np.ones(len(xy))] @ K.T)[:, :2]
     return PVLBAProblem(K=Ks, euler=np.array(euler), centers=np.array(centers), group=groups,
                         points=np.array(points).reshape(-1, 3),
-                        obs_point=np.array(obs_point, dtype=np.int64), obs_image=obs_img,
-                        obs_uv=obs_uv, track_start=np.array(starts, dtype=np.int64),
+                        obs=Observations.from_arrays(obs_img, np.array(obs_point, dtype=np.int64), obs_uv),
+                        track_start=np.array(starts, dtype=np.int64),
                         image_names=tuple(names))

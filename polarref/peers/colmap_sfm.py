@@ -14,8 +14,8 @@ Two pycolmap 4.2.1 traps make the intrinsics drift although they are known (both
 here, see ``shared/notes/pycolmap-4.2.1.md``):
 
 1. the mappers refine focal length and principal point by default (fx 840 / fy 1660 seen on a
-   PINHOLE prior): every refine flag is switched off, once, in :func:`incremental_options` and
-   :func:`global_options`;
+   PINHOLE prior): every refine flag is switched off, once, in
+   :func:`polarref.model.colmap.incremental_options` and :func:`~polarref.model.colmap.global_options`;
 2. a database camera without ``has_prior_focal_length`` gets its focal length re-estimated by
    the incremental mapper even with those flags off (small comet: 386.3 -> 310.5 px and 3.4 deg
    mean rotation error, vs 0.2 deg with the flag): :func:`import_features` sets it on every
@@ -33,6 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from polarref.errors import PolarrefError
+# the pipeline option builders live with every other pycolmap conversion
+from polarref.model.colmap import global_options, incremental_options, two_view_geometry
 
 MAPPERS = ("incremental", "global")
 
@@ -86,42 +88,6 @@ def _fresh_database(db_path: Path, overwrite: bool) -> Path:
         db_path.unlink()
     db_path.parent.mkdir(parents=True, exist_ok=True)
     return db_path
-
-
-# ---- options: the only place the fixed-intrinsics flags are set ----------------------------------
-def incremental_options(opts: ColmapSfMOptions):
-    """``pycolmap.IncrementalPipelineOptions`` with intrinsics held fixed everywhere."""
-    pycolmap = _pycolmap()
-    o = pycolmap.IncrementalPipelineOptions()
-    o.num_threads = opts.num_threads
-    o.random_seed = opts.seed
-    o.mapper.random_seed = opts.seed
-    o.multiple_models = opts.multiple_models
-    # Intrinsics known: held fixed in every BA and in absolute pose estimation; with
-    # opts.refine the BAs refine those groups (absolute pose still holds them, like polarref).
-    o.ba_refine_focal_length = "focal" in opts.refine
-    o.ba_refine_principal_point = "pp" in opts.refine
-    o.ba_refine_extra_params = "dist" in opts.refine
-    o.mapper.abs_pose_refine_focal_length = False
-    o.mapper.abs_pose_refine_extra_params = False
-    return o
-
-
-def global_options(opts: ColmapSfMOptions):
-    """``pycolmap.GlobalPipelineOptions`` with intrinsics held fixed, CPU only."""
-    pycolmap = _pycolmap()
-    o = pycolmap.GlobalPipelineOptions()
-    o.num_threads = opts.num_threads
-    o.random_seed = opts.seed
-    o.mapper.random_seed = opts.seed
-    ba = o.mapper.bundle_adjustment
-    ba.refine_focal_length = "focal" in opts.refine
-    ba.refine_principal_point = "pp" in opts.refine
-    ba.refine_extra_params = "dist" in opts.refine
-    # Default True; on this CPU build they only warn. Say what we mean.
-    ba.ceres.use_gpu = False
-    o.mapper.global_positioning.use_gpu = False
-    return o
 
 
 # ---- databases ---------------------------------------------------------------------------------
@@ -182,21 +148,6 @@ def extract_and_match_sift(image_dir: Path, camera, db_path: Path, opts: ColmapS
         pycolmap.match_image_pairs(str(db_path), matching_options=matching, pairing_options=pairing,
                                    device=pycolmap.Device.cpu)
     return {"features": t1 - t0, "matching": time.perf_counter() - t1}
-
-
-def _two_view_geometry(inliers: np.ndarray, cam2_from_cam1):
-    from polarref.geometry import skew
-
-    pycolmap = _pycolmap()
-    g = pycolmap.TwoViewGeometry()
-    g.config = pycolmap.TwoViewGeometryConfiguration.CALIBRATED
-    g.inlier_matches = inliers
-    if cam2_from_cam1 is not None:
-        # pycolmap's initial-pair choice and triangulation-angle checks read the relative pose.
-        R, t = np.asarray(cam2_from_cam1.R, float), np.asarray(cam2_from_cam1.t, float)
-        g.cam2_from_cam1 = pycolmap.Rigid3d(pycolmap.Rotation3d(R), t)
-        g.E = skew(t) @ R
-    return g
 
 
 def _match_array(m, i: int, j: int) -> tuple[int, int, np.ndarray]:
@@ -271,7 +222,7 @@ def import_features(db_path: Path, cameras, image_names: Sequence[str], keypoint
         for i, j, m in pairs:
             db.write_matches(ids[i], ids[j], m)
         for i, j, inl, pose in geoms:
-            db.write_two_view_geometry(ids[i], ids[j], _two_view_geometry(inl, pose))
+            db.write_two_view_geometry(ids[i], ids[j], two_view_geometry(inl, pose))
     finally:
         db.close()
     t1 = time.perf_counter()

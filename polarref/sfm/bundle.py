@@ -78,28 +78,13 @@ def _colmap_adjust(rec: Reconstruction, variable: list[int], fixed: list[int], m
                    loss: str, refine: tuple = ()) -> dict:
     import pycolmap
 
+    from polarref.model.colmap import CeresSettings, bundle_adjustment_config, bundle_adjustment_options
+
     prec = rec.to_pycolmap()
-    cfg = pycolmap.BundleAdjustmentConfig()
-    for i in variable + fixed:
-        cfg.add_image(i + 1)
-    for i in fixed:
-        cfg.set_constant_rig_from_world_pose(prec.images[i + 1].frame_id)
-    if not refine:
-        for cam_id in prec.cameras:
-            cfg.set_constant_cam_intrinsics(cam_id)
-    if len(fixed) < 2:
-        # Gauge (7 DoF: rotation, translation, scale): pin two camera poses, COLMAP style.
-        cfg.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
-    opts = pycolmap.BundleAdjustmentOptions()
-    opts.refine_focal_length = "focal" in refine
-    opts.refine_principal_point = "pp" in refine
-    opts.refine_extra_params = "dist" in refine
-    opts.ceres.solver_options.max_num_iterations = max_iterations
-    opts.ceres.solver_options.num_threads = 1
-    opts.print_summary = False
-    opts.ceres.solver_options.function_tolerance = 1e-6
-    if loss != "trivial":
-        opts.ceres.loss_function_type = getattr(pycolmap.LossFunctionType, loss.upper())
+    cfg = bundle_adjustment_config(prec, [i + 1 for i in variable + fixed], [i + 1 for i in fixed],
+                                   constant_intrinsics=not refine)
+    opts = bundle_adjustment_options(CeresSettings("sfm", function_tolerance=1e-6, max_num_iterations=max_iterations,
+                                                   num_threads=1), loss, 1.0, refine)
     t0 = time.perf_counter()
     ba = pycolmap.create_default_bundle_adjuster(opts, cfg, prec)
     summary = ba.solve()
