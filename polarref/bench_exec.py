@@ -24,6 +24,7 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
+from polarref.atomic import atomic_write
 from polarref import execution
 from polarref.data import REPO_ROOT
 
@@ -128,9 +129,7 @@ def main(argv: list[str] | None = None) -> int:
                        "note": "shared machine loaded by other jobs: compare modes within this file only"},
     }
     args.out.mkdir(parents=True, exist_ok=True)
-    tmp = target.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(report, indent=1) + "\n")
-    tmp.replace(target)
+    atomic_write(target, json.dumps(report, indent=1) + "\n")
     for r in results:
         print(f"{r['mode']:>6}: start {r['cluster_start_s']:.1f} s, render {r['render_s']:.1f} s "
               f"({r['render_s_per_view']:.3f} s/view), features {r['features_s']:.1f} s, "

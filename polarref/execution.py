@@ -60,9 +60,9 @@ def resolve(workers: int | None = None, scheduler: str | None = None,
     """The spec from the CLI options; ``$POLARREF_SCHEDULER`` applies when neither is given."""
     env = os.environ if environ is None else environ
     if workers and scheduler:
-        raise PolarrefError("--workers and --scheduler exclude each other")
+        raise PolarrefError("local workers and a scheduler address exclude each other")
     if workers is not None and workers < 1:
-        raise PolarrefError(f"--workers must be >= 1, got {workers}")
+        raise PolarrefError(f"the number of workers must be >= 1, got {workers}", option="workers")
     if workers:
         return ExecutionSpec("local", workers=int(workers))
     address = scheduler or env.get(ENV_SCHEDULER, "").strip() or None

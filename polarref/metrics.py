@@ -45,6 +45,15 @@ COLLINEAR_RATIO = 1e-3  # 2nd / 1st singular value of centred camera centres bel
 
 
 @dataclass
+class ImageGTErrors:
+    """Errors of one registered image after the alignment to ground truth."""
+
+    rotation_error_deg: float
+    center_error_rel: float             # centre error / scene_size
+    rotation_error_rotalign_deg: float  # after a rotation-only alignment (gauge-free in rotation)
+
+
+@dataclass
 class GTErrors:
     num_matched: int               # estimated images also present in GT (by name)
     alignment: str                 # "umeyama_centers" | "rotations_then_centers"
@@ -59,7 +68,7 @@ class GTErrors:
     center_error_rel_max: float
     rotation_error_rotalign_deg_mean: float
     rotation_error_rotalign_deg_max: float
-    per_image: dict                # name -> {"rotation_error_deg", "center_error_rel"}
+    per_image: dict[str, ImageGTErrors]   # image name -> its errors
 
 
 @dataclass
@@ -173,7 +182,7 @@ def gt_errors(rec, gt, alignment: tuple[Sim3, str, list[str], int] | None = None
     size = scene_size(gt)
     gt_by_name = {im.name: im for im in gt.images.values()}
     est_by_name = {im.name: im for im in rec.images.values()}
-    rot, cen, per = [], [], {}
+    rot, cen = [], []
     for n in names:
         aligned = sim.transform_pose(est_by_name[n].cam_from_world)
         g = gt_by_name[n].cam_from_world
@@ -181,14 +190,12 @@ def gt_errors(rec, gt, alignment: tuple[Sim3, str, list[str], int] | None = None
         c = float(np.linalg.norm(aligned.center - g.center) / size)
         rot.append(r)
         cen.append(c)
-        per[n] = {"rotation_error_deg": r, "center_error_rel": c}
     rot, cen = np.array(rot), np.array(cen)
     R_est = np.array([est_by_name[n].cam_from_world.R for n in names])
     R_gt = np.array([gt_by_name[n].cam_from_world.R for n in names])
     R_al = _chordal_mean(np.swapaxes(R_gt, 1, 2) @ R_est)
     rot2 = rotation_angle_deg(R_est @ R_al.T, R_gt)
-    for n, r2 in zip(names, rot2):
-        per[n]["rotation_error_rotalign_deg"] = float(r2)
+    per = {n: ImageGTErrors(float(r), float(c), float(r2)) for n, r, c, r2 in zip(names, rot, cen, rot2)}
     return GTErrors(len(names), method, n_out, float(sim.s), size,
                     float(rot.mean()), float(np.median(rot)), float(rot.max()),
                     float(cen.mean()), float(np.median(cen)), float(cen.max()),

@@ -8,11 +8,13 @@ finished run for want of a version string.
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import os
 import platform
 import subprocess
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 # Module names as imported; the keys in ``versions`` use the distribution's common name.
@@ -80,17 +82,30 @@ def blas_threads() -> int | None:
     return max(counts) if counts else None
 
 
-def collect(seeds: dict[str, int] | None = None, threads: dict[str, int] | None = None) -> dict:
-    """The environment record embedded as ``environment`` in every result file.
+@dataclass
+class Provenance:
+    """The environment record of a run (embedded as ``environment`` in result files)."""
+
+    git_commit: str                  # HEAD, 40 hex digits ("" outside a git checkout)
+    git_dirty: bool | None           # tracked files differ from HEAD (None: unknown)
+    cpu_count: int
+    cpu_model: str
+    machine: str                     # e.g. x86_64
+    platform: str
+    python: str
+    versions: dict[str, str]         # package -> version
+    threads: dict[str, int]          # stage or variable -> threads
+    seeds: dict[str, int]
+
+
+def collect_record(seeds: dict[str, int] | None = None, threads: dict[str, int] | None = None) -> Provenance:
+    """The environment record of this process.
 
     Args:
         seeds: the seeds of the run (name -> seed), recorded as given.
         threads: thread counts the caller set for its stages (name -> count), e.g.
             ``{"pycolmap": 1, "ba_blas": 1}``; the process's BLAS default and the thread
             environment variables are added.
-    Returns:
-        JSON-able dict: git_commit, git_dirty, cpu_count, cpu_model, machine, platform, python,
-        versions, threads, seeds.
     """
     commit, dirty = git_state()
     th = dict(threads or {})
@@ -100,7 +115,10 @@ def collect(seeds: dict[str, int] | None = None, threads: dict[str, int] | None 
     for var in THREAD_ENV:
         if os.environ.get(var, "").isdigit():
             th.setdefault(var, int(os.environ[var]))
-    return {"git_commit": commit, "git_dirty": dirty, "cpu_count": int(os.cpu_count() or 0),
-            "cpu_model": cpu_model(), "machine": platform.machine(), "platform": platform.platform(),
-            "python": sys.version.split()[0], "versions": package_versions(), "threads": th,
-            "seeds": dict(seeds or {})}
+    return Provenance(commit or "", dirty, int(os.cpu_count() or 0), cpu_model(), platform.machine(),
+                      platform.platform(), sys.version.split()[0], package_versions(), th, dict(seeds or {}))
+
+
+def collect(seeds: dict[str, int] | None = None, threads: dict[str, int] | None = None) -> dict:
+    """:func:`collect_record` in its JSON form (the ``environment`` object of a result file)."""
+    return dataclasses.asdict(collect_record(seeds, threads))

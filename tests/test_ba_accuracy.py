@@ -69,7 +69,7 @@ def test_staged_angular(scene):
     init, truth = scene
     rec = copy.deepcopy(init)
     s = adjust(rec, BAOptions(param="angular", staged=True, max_iterations=60))
-    assert s.termination.startswith("theta-only")
+    assert s.first_stage_termination is not None and s.termination_text.startswith("theta-only")
     assert 0.4 <= s.final_rms_px <= 0.6
     assert _rotation_errors_deg(rec, truth).max() < 0.05
 

@@ -15,6 +15,7 @@ import pytest
 
 from polarref.cli import main
 from polarref.compare import pipeline
+from polarref.compare.jobs import MethodJobResult, SharedStageResult
 from polarref.compare.runner import JobOutcome
 
 
@@ -70,17 +71,17 @@ def _toy_scene(tmp_path: Path):
 
 def test_failed_method_is_reported_and_others_still_report(tmp_path, monkeypatch, isolated_cache, capsys):
     scene, model, truth = _toy_scene(tmp_path)
-    calls = []
+    calls, reuses = [], []
 
-    def fake(job, kwargs, timeout_s, work_dir, tag):
-        calls.append(job.split(":")[1])
-        name = job.split(":")[1]
+    def fake(job, kwargs, timeout_s, work_dir, tag, reuse=False):
+        calls.append(job.__name__)
+        reuses.append(reuse)
+        name = job.__name__
         if name == "pycolmap_map":
             return JobOutcome("failed", "RuntimeError: pycolmap incremental mapping registered no images")
         if name == "ours_sfm":
-            return JobOutcome("ok", "", 1.0, {"model_dir": str(model),
-                                              "stage_runtime_s": {"mapping": 2.5, "bundle adjustment": 0.5}})
-        return JobOutcome("ok", "", 1.0, {"stage_runtime_s": {"features": 1.0}})
+            return JobOutcome("ok", "", 1.0, MethodJobResult(str(model), {"mapping": 2.5, "bundle adjustment": 0.5}))
+        return JobOutcome("ok", "", 1.0, SharedStageResult({"features": 1.0}, 3))
 
     monkeypatch.setattr(pipeline, "run_isolated", fake)
     out = tmp_path / "report"
@@ -98,6 +99,7 @@ def test_failed_method_is_reported_and_others_still_report(tmp_path, monkeypatch
     assert 0.0 <= eu["gt"]["rotation_error_deg_max"] < 1e-6          # the model IS the truth
     assert eu["runtime_s"] == pytest.approx(1.0 + 3.0)               # shared features + own stages
     assert calls.count("pycolmap_sift_db") == 1 and calls.count("ours_features") == 1
+    assert reuses and all(reuses)        # no --overwrite: finished jobs of an interrupted run are reused
     md = (out / "report.md").read_text()
     assert "registered no images" in md and "| failed |" in md
     assert (out / "user-notes.md").read_text() == "mine"             # updated, not wiped
@@ -109,7 +111,9 @@ def test_failed_method_is_reported_and_others_still_report(tmp_path, monkeypatch
     assert (out / "metrics.json").read_bytes() == before
     # ... and updated in place with it.
     (out / "figures" / "extra.png").write_bytes(b"x")
+    reuses.clear()
     assert main(args + ["--overwrite"]) == 0
+    assert reuses and not any(reuses)    # --overwrite recomputes every job
     assert (out / "user-notes.md").exists() and (out / "figures" / "extra.png").exists()
 
 
@@ -146,13 +150,13 @@ def test_run_budget_shortens_later_limits(tmp_path, monkeypatch, isolated_cache)
 
     clock = Clock()
 
-    def fake(job, kwargs, timeout_s, work_dir, tag):
-        name = job.split(":")[1]
+    def fake(job, kwargs, timeout_s, work_dir, tag, reuse=False):
+        name = job.__name__
         if name in ("ours_sfm", "pycolmap_map"):
             limits.append(timeout_s)
             clock.t += timeout_s
             return JobOutcome("timeout", f"timed out after {timeout_s:.0f} s (process killed)", timeout_s)
-        return JobOutcome("ok", "", 0.0, {"stage_runtime_s": {}})
+        return JobOutcome("ok", "", 0.0, SharedStageResult({}, 0))
 
     monkeypatch.setattr(pipeline, "run_isolated", fake)
     monkeypatch.setattr(pipeline, "time", clock)
@@ -204,9 +208,9 @@ def test_default_output_is_gitignored_polarref_out(tmp_path, monkeypatch, isolat
         pytest.skip(f"{REPO_ROOT} is not a git checkout")
     toy, model, _ = _toy_scene(tmp_path)
     scene = toy.rename(tmp_path / f"toy{uuid.uuid4().hex[:8]}")  # a name no user folder has
-    monkeypatch.setattr(pipeline, "run_isolated", lambda job, kw, t, w, tag: JobOutcome(
-        "ok", "", 1.0, {"model_dir": str(model), "stage_runtime_s": {"mapping": 1.0}}
-        if job.endswith("ours_sfm") else {"stage_runtime_s": {}}))
+    monkeypatch.setattr(pipeline, "run_isolated", lambda job, kw, t, w, tag, reuse=False: JobOutcome(
+        "ok", "", 1.0, MethodJobResult(str(model), {"mapping": 1.0})
+        if job.__name__ == "ours_sfm" else SharedStageResult({}, 0)))
     status = lambda: subprocess.run(["git", "status", "--porcelain", "--untracked-files=all"], cwd=REPO_ROOT,
                                     capture_output=True, text=True, check=True).stdout
     reports = sorted((p.relative_to(REPO_ROOT), p.stat().st_mtime_ns) for p in (REPO_ROOT / "reports").rglob("*"))

@@ -54,7 +54,7 @@ def test_known_rotation_perturbation_is_measured():
         R = so3_exp(axes[k - 1] * angles[k - 1]) @ im.cam_from_world.R
         est.images[k] = Image(k, im.name, 1, Rigid3(R, -R @ c))
     e = M.gt_errors(est, gt)
-    np.testing.assert_allclose([e.per_image[f"{i:03d}.png"]["rotation_error_deg"] for i in range(8)],
+    np.testing.assert_allclose([e.per_image[f"{i:03d}.png"].rotation_error_deg for i in range(8)],
                                np.rad2deg(angles), atol=1e-9)
     assert e.center_error_rel_max < 1e-9
 
@@ -80,8 +80,8 @@ def test_one_bad_camera_does_not_spoil_the_alignment():
     est.images[4] = Image(4, bad.name, 1, Rigid3(bad.cam_from_world.R, bad.cam_from_world.t + [30.0, 0, 0]))
     e = M.gt_errors(est, gt)
     assert e.num_alignment_outliers == 1
-    others = [v["center_error_rel"] for k, v in e.per_image.items() if k != bad.name]
-    assert max(others) < 1e-9 and e.per_image[bad.name]["center_error_rel"] > 1.0
+    others = [v.center_error_rel for k, v in e.per_image.items() if k != bad.name]
+    assert max(others) < 1e-9 and e.per_image[bad.name].center_error_rel > 1.0
 
 
 def test_reprojection_per_observation_and_per_point():

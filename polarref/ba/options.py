@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass, field
+from typing import Any
 
 from polarref.ba.losses import LOSSES
 
@@ -102,6 +104,22 @@ class IterationRecord:
     gain: float = float("nan")  # actual / predicted (model) cost decrease of this step
 
 
+class Termination(enum.StrEnum):
+    """Why a bundle adjustment stopped (Ceres' names where Ceres has the same rule).
+
+    A ``str`` subclass: it compares equal to, and serialises as, its value.
+    """
+
+    FUNCTION_TOLERANCE = "function_tolerance"
+    GRADIENT_TOLERANCE = "gradient_tolerance"
+    PARAMETER_TOLERANCE = "parameter_tolerance"
+    MAX_ITERATIONS = "max_iterations"
+    LINEAR_SOLVER_FAILURE = "linear_solver_failure"
+    NON_FINITE_COST = "non_finite_cost"
+    MAX_DAMPING = "max_damping"              # Nielsen damping grew past its limit
+    MIN_TRUST_RADIUS = "min_trust_radius"    # Ceres-style trust region shrank past its limit
+
+
 @dataclass
 class BASummary:
     """Result of one bundle adjustment (the problem is updated in place)."""
@@ -117,28 +135,40 @@ class BASummary:
     iterations: int  # LM iterations (accepted + rejected)
     accepted_iterations: int
     wall_s: float
-    termination: str  # function_tolerance | gradient_tolerance | parameter_tolerance | ...
+    termination: Termination  # a plain string is converted (ValueError for an unknown one)
     num_cameras: int
     num_points: int
     num_observations: int
     num_variable_cameras: int
     gauge: str  # which 7 DoF were fixed, in words
-    exclusions: dict = field(default_factory=dict)  # what was left out and how many
+    exclusions: dict[str, int] = field(default_factory=dict)  # what was left out and how many
     linear_solver: str = ""
     rejected_iterations: int = 0  # iterations - accepted_iterations
     solver: str = "lm"  # lm | gn
     damping: str = ""  # ceres | nielsen (LM), none (Gauss-Newton)
     trace: list[IterationRecord] = field(default_factory=list)
-    time_in: dict = field(default_factory=dict)  # seconds per solver phase (profiling)
+    time_in: dict[str, float] = field(default_factory=dict)  # seconds per solver phase (profiling)
     # seconds before the first LM iteration (validation, landmarks, index structures, first
     # evaluation); (wall_s - setup_s) / iterations is the steady per-iteration cost
     setup_s: float = 0.0
     # observations with depth <= 0 in their camera, initial/final, on the XYZ geometry (the
     # input and the written-back points), the same count for every parameterization
-    behind_camera: dict = field(default_factory=dict)
-    points_state: object = field(default=None, repr=False)  # (P, 3) internal landmark params
+    behind_camera: dict[str, int] = field(default_factory=dict)
+    points_state: Any = field(default=None, repr=False)  # (P, 3) ndarray, internal landmark params
     # parallax forms (omega kept in [0, pi - margin]): points ending at_lower (omega = 0, at
     # infinity along +d, written back FAR away) / at_upper, and accepted steps that were clipped
-    point_bounds: dict = field(default_factory=dict)
+    point_bounds: dict[str, int] = field(default_factory=dict)
     # self-calibration: one polarref.ba.intrinsics.IntrinsicsResult per camera group
-    intrinsics: list = field(default_factory=list)
+    intrinsics: list[Any] = field(default_factory=list)
+    # two-stage polar solve (theta-only, then joint): why the first stage stopped; None otherwise
+    first_stage_termination: Termination | None = None
+
+    def __post_init__(self) -> None:
+        self.termination = Termination(self.termination)
+
+    @property
+    def termination_text(self) -> str:
+        """The termination in words, both stages of a two-stage solve."""
+        if self.first_stage_termination is None:
+            return str(self.termination)
+        return f"theta-only: {self.first_stage_termination}; joint: {self.termination}"

@@ -161,7 +161,7 @@ def _stages(problem: BAProblem, options: BAOptions, param, t0: float) -> BASumma
         second.iterations += first.iterations
         second.accepted_iterations += first.accepted_iterations
         second.rejected_iterations += first.rejected_iterations
-        second.termination = f"theta-only: {first.termination}; joint: {second.termination}"
+        second.first_stage_termination = first.termination
         second.wall_s = time.perf_counter() - t0
         second.setup_s = first.setup_s
         second.behind_camera["initial"] = first.behind_camera["initial"]

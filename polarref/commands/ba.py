@@ -72,5 +72,5 @@ def run(args) -> int:
           f"RMS {summary.final_rms_px:.4f} px, {summary.iterations} iterations "
           f"({summary.accepted_iterations} accepted, {summary.rejected_iterations} rejected; "
           f"{summary.solver}, damping {summary.damping}), "
-          f"{summary.wall_s:.3f} s ({summary.termination})")
+          f"{summary.wall_s:.3f} s ({summary.termination_text})")
     return 0

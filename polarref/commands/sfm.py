@@ -85,17 +85,16 @@ def _config(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from polarref.reconstruction import Reconstruction
+    from polarref.scene_folder import discover
     from polarref.sfm import features as F
     from polarref.sfm.pipeline import parse_camera, run_sfm
 
     root: Path = args.dir
-    if not root.is_dir():
-        raise PolarrefError(f"scene folder not found: {root}")
-    image_dir = root / "images" if (root / "images").is_dir() else root
-    gt = Reconstruction.read(root / "gt") if (root / "gt").is_dir() else None
+    found = discover(root)
+    image_dir = found.image_dir
+    gt = found.read_ground_truth()
     mesh = None
-    if (root / "scene.json").is_file() and (root / "mesh.ply").is_file():
+    if found.rendered and found.mesh_path is not None:
         from synth.scene import load_scene
 
         mesh = load_scene(root).mesh()
@@ -109,23 +108,25 @@ def run(args: argparse.Namespace) -> int:
     cfg = _config(args)
     res = run_sfm(image_dir, args.out, cfg, camera=camera, gt=gt, mesh=mesh, overwrite=args.overwrite,
                   model_format=args.model_format)
-    m = res.metrics
-    if m.get("gt_skipped"):
-        raise PolarrefError(f"{root / 'gt'}: metrics vs ground truth skipped: {m['gt_skipped']}; the model "
+    r = res.report
+    m = r.metrics
+    if r.gt_skipped:
+        raise PolarrefError(f"{root / ('gt' if found.gt_kind == 'colmap' else 'gt_dense_cameras')}: metrics vs "
+                            f"ground truth skipped: {r.gt_skipped}; the model "
                             f"and metrics.json were written to {args.out}")
-    line = (f"registered {m['registered_images']}/{m['num_images']} images, {m['tie_points']} tie points, "
-            f"{m['reprojected_px']} observations, mean reprojection error {m['mean_reprojection_error_px']:.3f} px")
-    if m.get("gt"):
-        line += (f"; vs GT: rotation error mean {m['gt']['rotation_error_deg_mean']:.3f} deg, "
-                 f"centre error mean {m['gt']['center_error_rel_mean']:.2e} of scene size")
+    line = (f"registered {m.registered_images}/{m.num_images} images, {m.tie_points} tie points, "
+            f"{m.reprojected_px} observations, mean reprojection error {m.mean_reprojection_error_px:.3f} px")
+    if m.gt is not None:
+        line += (f"; vs GT: rotation error mean {m.gt.rotation_error_deg_mean:.3f} deg, "
+                 f"centre error mean {m.gt.center_error_rel_mean:.2e} of scene size")
     print(line)
-    for c in m.get("cameras", []):
-        if m.get("refine"):
-            vals = ", ".join(f"{n}={v:.6g}" for n, v in zip(c["names"], c["refined"]))
-            gt_err = (f" (focal error {100 * c['focal_error_rel']:.3f} % vs GT)"
-                      if c.get("focal_error_rel") is not None else "")
-            print(f"camera {c['camera_id']} ({c['source']}, {c['num_images']} images): refined "
-                  f"{c['model']} {vals}{gt_err}")
+    for c in r.cameras or []:
+        if r.refine:
+            vals = ", ".join(f"{n}={v:.6g}" for n, v in zip(c.names, c.refined))
+            gt_err = (f" (focal error {100 * c.focal_error_rel:.3f} % vs GT)"
+                      if c.focal_error_rel is not None else "")
+            print(f"camera {c.camera_id} ({c.source}, {c.num_images} images): refined "
+                  f"{c.model} {vals}{gt_err}")
     print(f"wrote {args.out / 'model'} ({args.model_format} + points3D.ply) and {args.out / 'metrics.json'} "
-          f"in {m['runtime_s']['total']:.1f} s")
+          f"in {r.runtime_s['total']:.1f} s")
     return 0

@@ -20,7 +20,9 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
+from polarref.atomic import atomic_write
 from polarref.errors import PolarrefError
 
 FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
@@ -168,9 +170,9 @@ class PageCheck:
     network_requests: list[str] = field(default_factory=list)   # anything not file: or data:
     images: int = 0
     broken_images: int = 0
-    summary_table: dict | None = None    # bounding rect + whether it is the element seen at its centre
-    canvas: dict | None = None           # pixel statistics of the 3D view
-    canvas_after_drag: dict | None = None  # the same after a mouse drag across it (orbit)
+    summary_table: dict[str, Any] | None = None    # bounding rect + whether it is the element seen at its centre
+    canvas: dict[str, Any] | None = None           # pixel statistics of the 3D view
+    canvas_after_drag: dict[str, Any] | None = None  # the same after a mouse drag across it (orbit)
     screenshot_png: bytes | None = None
 
 
@@ -281,7 +283,5 @@ def screenshot(html_path: str | Path, png_path: str | Path, width: int = 1280, h
     """Write the top ``width`` x ``height`` of the page as PNG (atomically); returns the page check."""
     check = check_page(html_path, width, height, screenshot=True)
     png_path = Path(png_path)
-    tmp = png_path.with_name(f".{png_path.name}.tmp")
-    tmp.write_bytes(check.screenshot_png or b"")
-    tmp.replace(png_path)
+    atomic_write(png_path, check.screenshot_png or b"")
     return check

@@ -1,6 +1,6 @@
 """The claims scorecard: for each claim of the paper, a test, measured figures and a verdict.
 
-Verdict rules are written here once, with their thresholds, so a reader can check them:
+Verdict rules are written here once (thresholds in ``thresholds.py``) so a reader can check them:
 
 * equation claims: "supported" when the max error over every sampled case is below
   ``EXACT_RAD``; otherwise "not supported" (the figures say by how much).
@@ -8,7 +8,7 @@ Verdict rules are written here once, with their thresholds, so a reader can chec
   when it ran (rules in :mod:`polarref.compare.claims_experiments`); the scene's single run is
   reported beside it with what the single-run rule alone would say:
   - single run, equal accuracy: ours-polar not worse than each baseline by more than
-    max(``report.EQUIVALENT_PX``, ``report.EQUIVALENT_REL``) in mean reprojection error and
+    max(``EQUIVALENT_PX``, ``EQUIVALENT_REL``) in mean reprojection error and
     max(``ROT_EQUIV_DEG``, ``ROT_EQUIV_REL``) in GT rotation error;
   - single run, faster: runtime ratio baseline/polar >= ``SPEEDUP_CLAIM`` x (1 - ``TIMING_SLACK``)
     supported, < 1 + ``TIMING_SLACK`` not supported, else inconclusive.
@@ -29,19 +29,15 @@ from pathlib import Path
 import numpy as np
 
 from polarref.compare import claims_experiments as cx
-from polarref.compare import report as rep
 from polarref.compare.runner import run_isolated
 from polarref.compare.claims_experiments import fig as _fig
 from polarref.compare.claims_experiments import not_tested as _not_tested
 from polarref.compare.schema import STATUS_OK, BATrace, ClaimResult, MetricsFile, TracePoint
+from polarref.compare.thresholds import (EQUIVALENT_PX, EQUIVALENT_REL, EXACT_RAD, ROT_EQUIV_DEG,
+                                         ROT_EQUIV_REL, SPEEDUP_CLAIM, TIMING_SLACK)
 
 log = logging.getLogger(__name__)
 
-EXACT_RAD = 1e-9
-SPEEDUP_CLAIM = cx.SPEEDUP_CLAIM   # one claim threshold for the scene run and the controlled experiment
-TIMING_SLACK = cx.TIMING_SLACK
-ROT_EQUIV_DEG = 0.01
-ROT_EQUIV_REL = 0.10
 DERIVATION_SAMPLES = 100_000
 MIN_EXPERIMENT_BUDGET_S = 5.0
 NO_DEADLINE_TIMEOUT_S = 900.0   # claim experiments without a budget (every seed) are still killed after this
@@ -128,7 +124,7 @@ def _scene_only(metrics: MetricsFile) -> list[ClaimResult]:
         if ec is None or eb is None:      # a missing value is not tested, never 0
             parts[-1] += " (not tested: reprojection error missing)"
             continue
-        ok_k = ec - eb <= max(rep.EQUIVALENT_PX, rep.EQUIVALENT_REL * max(ec, eb))
+        ok_k = ec - eb <= max(EQUIVALENT_PX, EQUIVALENT_REL * max(ec, eb))
         if cand.gt is not None and b.gt is not None:
             figs3 += [_fig(f"rot_b{k}", f"{b.label}: GT rotation error (mean)", b.gt.rotation_error_deg_mean, "deg")]
             rc, rb = cand.gt.rotation_error_deg_mean, b.gt.rotation_error_deg_mean
@@ -140,8 +136,8 @@ def _scene_only(metrics: MetricsFile) -> list[ClaimResult]:
         figs3.append(_fig("rot_polar", f"{cand.label}: GT rotation error (mean)", cand.gt.rotation_error_deg_mean, "deg"))
     r3 = ("ours-polar: {err_polar}" + (" / {rot_polar}" if cand.gt is not None else "")
           + " (reprojection / GT rotation error) vs " + "; ".join(parts)
-          + f". Supported when ours-polar is not worse than any baseline by more than max({rep.EQUIVALENT_PX} px, "
-          f"{rep.EQUIVALENT_REL:.0%}) in reprojection error and max({ROT_EQUIV_DEG} deg, {ROT_EQUIV_REL:.0%}) in "
+          + f". Supported when ours-polar is not worse than any baseline by more than max({EQUIVALENT_PX} px, "
+          f"{EQUIVALENT_REL:.0%}) in reprojection error and max({ROT_EQUIV_DEG} deg, {ROT_EQUIV_REL:.0%}) in "
           "rotation error (better counts as equal or better); one run, so no interval. Reprojection errors of "
           "different pipelines are over different observation sets; the GT rotation error is the common yardstick.")
     v3 = "not tested" if not verdicts3 else "supported" if all(verdicts3) else "not supported"
@@ -235,12 +231,17 @@ def traces_from(exp: dict | None) -> list[BATrace]:
     return out
 
 
-def evaluate_into(metrics: MetricsFile, job_results: dict, runs: Path, seed: int,
-                  budget_s: float, timeout_s: float) -> None:
-    """Run the claim experiments (isolated) and append the scorecard and BA traces to ``metrics``."""
-    d = run_isolated("polarref.compare.jobs:derivation_evidence",
+def evaluate_into(metrics: MetricsFile, runs: Path, seed: int, budget_s: float, timeout_s: float,
+                  reuse: bool = False) -> None:
+    """Run the claim experiments (isolated) and append the scorecard and BA traces to ``metrics``.
+
+    With ``reuse``, finished experiment jobs of an earlier run (same arguments) are loaded.
+    """
+    from polarref.compare import jobs
+
+    d = run_isolated(jobs.derivation_evidence,
                      dict(n=DERIVATION_SAMPLES, out_json=str(runs / "claims" / "derivations.json")),
-                     timeout_s, runs / "claims", "derivations")
+                     timeout_s, runs / "claims", "derivations", reuse)
     evidence = d.result if d.status == STATUS_OK else None
     if budget_s < MIN_EXPERIMENT_BUDGET_S:
         exp, why = None, (f"skipped: {budget_s:.0f} s of the run's time budget were left "
@@ -248,9 +249,9 @@ def evaluate_into(metrics: MetricsFile, job_results: dict, runs: Path, seed: int
     else:
         limit = (NO_DEADLINE_TIMEOUT_S if not np.isfinite(budget_s)
                  else min(max(timeout_s, 3 * budget_s), 2 * budget_s + 10))
-        e = run_isolated("polarref.compare.jobs:claim_experiments",
+        e = run_isolated(jobs.claim_experiments,
                          dict(seed=seed, budget_s=budget_s, out_json=str(runs / "claims" / "experiments.json")),
-                         limit, runs / "claims", "experiments")
+                         limit, runs / "claims", "experiments", reuse)
         exp, why = (e.result if e.status == STATUS_OK else None), e.reason
     claims = equation_claims(evidence, d.reason)
     claims += scene_claims(metrics, exp)

@@ -31,8 +31,10 @@ from pathlib import Path
 
 import numpy as np
 
+from polarref.atomic import atomic_write
 from polarref.compare.experiment_problems import (bearing_errors_deg, low_parallax_problem,
                                                   relative_rotation_errors_deg)
+from polarref.compare.thresholds import SUCCESS_BEARING_DEG, SUCCESS_RMS_NOISE_FACTOR, SUCCESS_ROT_DEG
 
 log = logging.getLogger(__name__)
 
@@ -58,9 +60,7 @@ LOW_PARALLAX_PROBLEM = (8, 150)
 # disparity at f = 1280 px, below the noise: points effectively at infinity)
 PARALLAX_RATIOS = (0.3, 0.03, 0.003, 0.0003)
 # A run succeeds when it reaches the noise floor with correct geometry:
-SUCCESS_RMS_PX = 2.0 * NOISE_PX      # final pixel RMS below this
-SUCCESS_ROT_DEG = 0.5                # mean relative-rotation error below this
-SUCCESS_BEARING_DEG = 1.0            # 95th percentile of the bearing error below this
+SUCCESS_RMS_PX = SUCCESS_RMS_NOISE_FACTOR * NOISE_PX   # final pixel RMS below this (thresholds.py)
 
 
 def _params() -> tuple[str, ...]:
@@ -112,7 +112,7 @@ def timing(seed: int, deadline: float, seeds: int = CONTROLLED_SEEDS, repeats: i
                 walls[p].append(summ.wall_s)
                 if rep == 0:
                     result[p] = {"seed": s, "iterations": summ.iterations, "final_rms_px": summ.final_rms_px,
-                                 "final_pixel_cost": summ.final_pixel_cost, "termination": summ.termination,
+                                 "final_pixel_cost": summ.final_pixel_cost, "termination": summ.termination_text,
                                  "rotation_error_deg": float(relative_rotation_errors_deg(rec, truth).mean())}
                     if k == 0:
                         tr = [[r.iteration, r.wall_s, r.cost] for r in summ.trace if r.accepted]
@@ -342,5 +342,5 @@ def _run_all(seed: int, budget_s: float, out_json: Path, t0: float) -> dict:
             result[name] = {"error": _err(exc)}
         result.setdefault("wall_s", {})[name] = time.perf_counter() - tic
     out_json.parent.mkdir(parents=True, exist_ok=True)
-    out_json.write_text(json.dumps(result, indent=1, default=float))
+    atomic_write(out_json, json.dumps(result, indent=1, default=float))
     return result

@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
+from polarref.atomic import atomic_open
 from polarref.compare.schema import STATUS_OK, Histogram, MetricsFile
 
 log = logging.getLogger(__name__)
@@ -38,9 +39,8 @@ def _figure(width: float, height: float):
 
 def _save(fig, path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.stem}.tmp.png")
-    fig.savefig(tmp, format="png", dpi=DPI, metadata=_PNG_META)
-    tmp.replace(path)
+    with atomic_open(path) as fh:
+        fig.savefig(fh, format="png", dpi=DPI, metadata=_PNG_META)
     return path
 
 

@@ -1,17 +1,47 @@
 """Method jobs, each run in its own process by :func:`polarref.compare.runner.run_isolated`.
 
-Every job takes JSON-able keyword arguments (paths as ``str``) and returns a JSON-able dict;
-models are written to disk in COLMAP text format and scored by the parent with
+Every job is a module-level function (passed to the runner as the callable itself) that takes
+JSON-able keyword arguments (paths as ``str``) and returns one of the typed records below; the
+runner stores it as ``<tag>.result.json`` and reads it back strictly (``polarref.records``).
+Models are written to disk in COLMAP text format and scored by the parent with
 ``polarref.metrics``, the same code for every method.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from pathlib import Path
 
+from polarref.atomic import atomic_write
 from polarref.camera import Camera
+from polarref.compare.schema import TracePoint
+from polarref.scene_folder import SkippedImage
 from polarref.peers.colmap_sfm import (ColmapSfMOptions, copy_database, count_verified_pairs,
                                        extract_and_match_sift, run_mapper)
+
+
+@dataclass
+class SharedStageResult:
+    """A stage several methods share (feature extraction/matching, a feature database)."""
+
+    stage_runtime_s: dict[str, float]
+    verified_pairs: int
+    skipped_images: list[SkippedImage] = field(default_factory=list)
+
+
+@dataclass
+class MethodJobResult:
+    """One reconstruction method's run: its model folder and timed stages."""
+
+    model_dir: str                       # COLMAP text model
+    stage_runtime_s: dict[str, float]
+    wall_s: float | None = None          # the job's own wall time (ours only)
+    num_ba_runs: int | None = None       # ours only
+    num_models: int | None = None        # pycolmap only
+    verified_pairs: int | None = None    # pycolmap only
+    registered: int | None = None        # pycolmap only
+    # ours: [iteration, wall_s, cost] of the accepted steps of the final global BA, from the initial cost
+    final_ba_trace: list[TracePoint] | None = None
 
 
 def camera_to_json(cam: Camera) -> dict:
@@ -25,22 +55,22 @@ def _camera(camera: dict) -> Camera:
 
 
 def pycolmap_sift_db(image_dir: str, image_names: list[str], camera: dict, db_path: str,
-                     seed: int, num_threads: int = 1) -> dict:
+                     seed: int, num_threads: int = 1) -> SharedStageResult:
     """pycolmap SIFT + exhaustive matching + verification into ``db_path``."""
     opts = ColmapSfMOptions(seed=seed, num_threads=num_threads)
     stages = extract_and_match_sift(Path(image_dir), _camera(camera), Path(db_path), opts,
                                     image_names=image_names, overwrite=True)
-    return {"stage_runtime_s": stages, "verified_pairs": count_verified_pairs(Path(db_path))}
+    return SharedStageResult({k: float(v) for k, v in stages.items()}, count_verified_pairs(Path(db_path)))
 
 
-def ours_features(image_dir: str, camera: dict, preset: str, cache_dir: str) -> dict:
+def ours_features(image_dir: str, camera: dict, preset: str, cache_dir: str) -> SharedStageResult:
     """Our features and verified matches, computed once per comparison into ``cache_dir``."""
     from polarref.compare import ours
 
     return ours.prepare_features(Path(image_dir), _camera(camera), preset, Path(cache_dir))
 
 
-def ours_db(image_dir: str, camera: dict, preset: str, cache_dir: str, db_path: str) -> dict:
+def ours_db(image_dir: str, camera: dict, preset: str, cache_dir: str, db_path: str) -> SharedStageResult:
     """Our keypoints and verified matches (from the shared cache) as a pycolmap database."""
     from polarref.compare import ours
 
@@ -48,7 +78,7 @@ def ours_db(image_dir: str, camera: dict, preset: str, cache_dir: str, db_path: 
 
 
 def pycolmap_map(db_path: str, image_dir: str, work_dir: str, mapper: str, seed: int,
-                 num_threads: int = 1) -> dict:
+                 num_threads: int = 1) -> MethodJobResult:
     """Map a copy of a prepared database; the largest model goes to ``work_dir/model``."""
     work = Path(work_dir)
     db = copy_database(Path(db_path), work / "database.db")
@@ -61,12 +91,12 @@ def pycolmap_map(db_path: str, image_dir: str, work_dir: str, mapper: str, seed:
     model = work / "model"
     model.mkdir(parents=True, exist_ok=True)
     rec.write_text(str(model))
-    return {"model_dir": str(model), "stage_runtime_s": run.stage_runtime_s,
-            "num_models": run.num_models, "verified_pairs": run.verified_pairs,
-            "registered": int(rec.num_reg_images())}
+    return MethodJobResult(str(model), {k: float(v) for k, v in run.stage_runtime_s.items()},
+                           num_models=int(run.num_models), verified_pairs=int(run.verified_pairs),
+                           registered=int(rec.num_reg_images()))
 
 
-def ours_sfm(image_dir: str, camera: dict, ba: str, work_dir: str, preset: str, cache_dir: str) -> dict:
+def ours_sfm(image_dir: str, camera: dict, ba: str, work_dir: str, preset: str, cache_dir: str) -> MethodJobResult:
     """Our incremental SfM (``polarref.sfm``) with one BA parameterization."""
     from polarref.compare import ours
 
@@ -93,5 +123,5 @@ def derivation_evidence(n: int, out_json: str) -> dict:
 
     cases = [dataclasses.asdict(c) for c in paper.all_case_evidence(n=n)]
     result = {"cases": cases, "samples_per_case": n, "seed": paper.SEED}
-    Path(out_json).write_text(json.dumps(result, indent=1, default=float))
+    atomic_write(out_json, json.dumps(result, indent=1, default=float))
     return result

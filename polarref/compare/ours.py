@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from polarref.camera import Camera
+from polarref.compare.jobs import MethodJobResult, SharedStageResult, SkippedImage
+from polarref.compare.schema import TracePoint
 from polarref.peers.colmap_sfm import count_verified_pairs
 
 # Timing keys of polarref.sfm that are not part of reconstructing (or double count).
@@ -38,25 +40,26 @@ def _features_and_matches(image_dir: Path, cam: Camera, preset: str, cache_dir: 
     return matches, skipped, timings
 
 
-def prepare_features(image_dir: Path, cam: Camera, preset: str, cache_dir: Path) -> dict:
+def prepare_features(image_dir: Path, cam: Camera, preset: str, cache_dir: Path) -> SharedStageResult:
     """Compute (and cache) features and verified matches; returns the timed stages."""
     matches, skipped, timings = _features_and_matches(image_dir, cam, preset, cache_dir)
-    return {"stage_runtime_s": {k: float(timings[k]) for k in ("features", "matching", "verification")
-                                if k in timings},
-            "verified_pairs": len(matches.geometries), "skipped_images": skipped}
+    return SharedStageResult({k: float(timings[k]) for k in ("features", "matching", "verification")
+                              if k in timings}, len(matches.geometries),
+                             [SkippedImage(str(s["name"]), str(s["reason"])) for s in skipped])
 
 
-def import_into_database(image_dir: Path, cam: Camera, preset: str, cache_dir: Path, db_path: Path) -> dict:
+def import_into_database(image_dir: Path, cam: Camera, preset: str, cache_dir: Path,
+                         db_path: Path) -> SharedStageResult:
     """Our keypoints, putative matches and verified geometries as a pycolmap database (no re-verification)."""
     from polarref.sfm.export import write_colmap_database
 
     matches, _, _ = _features_and_matches(image_dir, cam, preset, cache_dir)
     t0 = time.perf_counter()
     write_colmap_database(db_path, matches, [cam], np.zeros(len(matches.names), np.int64), overwrite=True)
-    return {"stage_runtime_s": {"import": time.perf_counter() - t0}, "verified_pairs": count_verified_pairs(db_path)}
+    return SharedStageResult({"import": time.perf_counter() - t0}, count_verified_pairs(db_path))
 
 
-def run(image_dir: Path, cam: Camera, ba: str, work_dir: Path, preset: str, cache_dir: Path) -> dict:
+def run(image_dir: Path, cam: Camera, ba: str, work_dir: Path, preset: str, cache_dir: Path) -> MethodJobResult:
     """``polarref.sfm.run_sfm`` with BA ``ba``; model in ``work_dir/sfm/model``."""
     from polarref.sfm.pipeline import run_sfm, with_ba
 
@@ -64,8 +67,8 @@ def run(image_dir: Path, cam: Camera, ba: str, work_dir: Path, preset: str, cach
     t0 = time.perf_counter()
     result = run_sfm(image_dir, work_dir / "sfm", config, camera=cam, overwrite=True)
     wall = time.perf_counter() - t0
-    t = result.metrics.get("runtime_s", {})
-    stages = {k: float(v) for k, v in t.items() if k not in _NOT_STAGES and isinstance(v, (int, float))}
+    t = result.report.runtime_s
+    stages = {k: float(v) for k, v in t.items() if k not in _NOT_STAGES and not isinstance(v, bool)}
     # features/matching/verification came from the shared cache: their real cost is the shared stage's.
     for k in ("features", "matching", "verification"):
         stages.pop(k, None)
@@ -73,11 +76,11 @@ def run(image_dir: Path, cam: Camera, ba: str, work_dir: Path, preset: str, cach
     if "mapping" in stages:
         stages["mapping (excl. BA)"] = max(0.0, stages.pop("mapping") - ba_s)
     stages["bundle adjustment"] = ba_s
-    bas = [b for b in result.metrics.get("ba", []) if isinstance(b, dict)]
-    final = next((b for b in reversed(bas) if b.get("kind") == "global" and b.get("trace")), None)
+    bas = list(result.report.ba or [])
+    final = next((b for b in reversed(bas) if b.kind == "global" and b.trace), None)
     trace = None
-    if final is not None:  # [iteration, wall_s, cost] of accepted steps, starting at the initial cost
-        trace = [[0, 0.0, float(final["initial_cost"])]] + [
-            [int(r["iteration"]), float(r["wall_s"]), float(r["cost"])] for r in final["trace"] if r.get("accepted")]
-    return {"model_dir": str(work_dir / "sfm" / "model"), "stage_runtime_s": stages, "wall_s": wall,
-            "num_ba_runs": len(bas), "final_ba_trace": trace}
+    if final is not None:  # accepted steps, starting at the initial cost
+        trace = [TracePoint(0, 0.0, float(final.initial_cost))] + [
+            TracePoint(int(r.iteration), float(r.wall_s), float(r.cost)) for r in final.trace if r.accepted]
+    return MethodJobResult(str(work_dir / "sfm" / "model"), stages, wall_s=wall, num_ba_runs=len(bas),
+                           final_ba_trace=trace)

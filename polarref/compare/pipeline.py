@@ -19,18 +19,23 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 from polarref import execution
 from polarref.compare import claims as claims_mod
 from polarref.compare import scenes, view3d
-from polarref.compare.jobs import camera_to_json
+from polarref.compare import jobs
+from polarref.compare.jobs import MethodJobResult, camera_to_json
 from polarref.compare.methods import METHOD_NAMES, PAIRS, RUN_ORDER, MethodSpec, select
-from polarref.compare.runner import run_isolated, run_isolated_with
+from polarref.compare.runner import JobOutcome, has_finished_result, run_isolated, run_isolated_with
 from polarref.compare.schema import (SCHEMA_VERSION, STATUS_FAILED, STATUS_OK, STATUS_TIMEOUT, BATrace,
-                                     Environment, MethodResult, MetricsFile, SceneInfo, TracePoint, save)
+                                     Environment, MethodResult, MetricsFile, SceneInfo, save)
 from polarref.errors import PolarrefError
 from polarref.progress import track
+from polarref.provenance import Provenance, collect_record
+
+if TYPE_CHECKING:
+    from polarref.reconstruction import Reconstruction
 
 log = logging.getLogger(__name__)
 
@@ -72,13 +77,14 @@ class _Context:
     seed: int
     preset: str
     cache: Path                                      # shared feature/match cache of our SfM
-    camera: dict = field(default_factory=dict)
-    db_results: dict = field(default_factory=dict)   # shared stage -> (outcome, db path or None)
+    camera: dict[str, object] = field(default_factory=dict)      # jobs.camera_to_json
+    db_results: dict[str, tuple[JobOutcome, Path | None]] = field(default_factory=dict)  # shared stage -> (outcome, db)
     run: Callable | None = None                      # how a job runs; None: run_isolated, here
-    locks: dict = field(default_factory=lambda: defaultdict(threading.Lock))  # shared stage -> its lock
+    locks: dict[str, threading.Lock] = field(default_factory=lambda: defaultdict(threading.Lock))
+    reuse: bool = False                              # load finished jobs of an earlier run (no --overwrite)
 
-    def job(self, *args):
-        return (self.run or run_isolated)(*args)
+    def job(self, *args) -> JobOutcome:
+        return (self.run or run_isolated)(*args, reuse=self.reuse)
 
 
 def default_out(scene: scenes.PreparedScene, preset: str) -> Path:
@@ -89,7 +95,8 @@ def default_out(scene: scenes.PreparedScene, preset: str) -> Path:
 
 def _refuse_finished(out: Path, overwrite: bool) -> None:
     if (out / "metrics.json").is_file() and not overwrite:
-        raise PolarrefError(f"{out} holds a finished comparison (metrics.json); use --overwrite or another --out")
+        raise PolarrefError(f"{out} holds a finished comparison (metrics.json); replace it or choose another "
+                            "output folder", option="overwrite")
 
 
 def _shared(ctx: _Context, key: str):
@@ -103,10 +110,10 @@ def _shared_once(ctx: _Context, key: str):
         return ctx.db_results[key]
     common = dict(image_dir=str(ctx.scene.image_dir), camera=ctx.camera)
     if key == "ours-features":
-        job, kw, extra = "polarref.compare.jobs:ours_features", dict(preset=ctx.preset, cache_dir=str(ctx.cache)), None
+        job, kw, extra = jobs.ours_features, dict(preset=ctx.preset, cache_dir=str(ctx.cache)), None
     elif key == "db-pycolmap-sift":
         extra = ctx.runs / key / "database.db"
-        job, kw = "polarref.compare.jobs:pycolmap_sift_db", dict(image_names=ctx.scene.image_names,
+        job, kw = jobs.pycolmap_sift_db, dict(image_names=ctx.scene.image_names,
                                                                  db_path=str(extra), seed=ctx.seed,
                                                                  num_threads=PYCOLMAP_THREADS)
     elif key == "db-ours":
@@ -115,7 +122,7 @@ def _shared_once(ctx: _Context, key: str):
             ctx.db_results[key] = (feat, None)
             return ctx.db_results[key]
         extra = ctx.runs / key / "database.db"
-        job, kw = "polarref.compare.jobs:ours_db", dict(preset=ctx.preset, cache_dir=str(ctx.cache),
+        job, kw = jobs.ours_db, dict(preset=ctx.preset, cache_dir=str(ctx.cache),
                                                         db_path=str(extra))
     else:
         raise ValueError(key)
@@ -124,7 +131,7 @@ def _shared_once(ctx: _Context, key: str):
     return ctx.db_results[key]
 
 
-def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodResult, object | None, dict]:
+def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodResult, Reconstruction | None, MethodJobResult | None]:
     """Run one method; returns (result with status/timings, Reconstruction or None, job result)."""
     from polarref.reconstruction import Reconstruction
 
@@ -141,36 +148,37 @@ def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodResult, object |
         if pre.status != STATUS_OK:
             res.status = pre.status
             res.reason = f"shared stage {key} failed: {pre.reason}"
-            return res, None, {}
-        for k, v in pre.result.get("stage_runtime_s", {}).items():
+            return res, None, None
+        for k, v in pre.result.stage_runtime_s.items():
             stages[k if key != "db-ours" else f"pycolmap {k}"] = float(v)
     if spec.family == "pycolmap":
-        outcome = ctx.job("polarref.compare.jobs:pycolmap_map",
+        outcome = ctx.job(jobs.pycolmap_map,
                           dict(db_path=str(db), image_dir=str(ctx.scene.image_dir), work_dir=str(work),
                                mapper=spec.mapper.split("-")[1], seed=ctx.seed,
                                num_threads=PYCOLMAP_THREADS),
                           ctx.timeout, work, "job")
     else:
-        outcome = ctx.job("polarref.compare.jobs:ours_sfm",
+        outcome = ctx.job(jobs.ours_sfm,
                           dict(image_dir=str(ctx.scene.image_dir), camera=ctx.camera, ba=spec.ba,
                                work_dir=str(work), preset=ctx.preset, cache_dir=str(ctx.cache)),
                           ctx.timeout, work, "job")
     res.status, res.reason = outcome.status, outcome.reason
     if outcome.status != STATUS_OK:
-        return res, None, {}
-    stages.update(outcome.result.get("stage_runtime_s", {}))
+        return res, None, None
+    stages.update(outcome.result.stage_runtime_s)
     res.stage_runtime_s = {k: float(v) for k, v in stages.items()}
     res.runtime_s = float(sum(res.stage_runtime_s.values()))
     try:
-        rec = Reconstruction.read(outcome.result["model_dir"])
-    except (PolarrefError, KeyError) as exc:
+        rec = Reconstruction.read(outcome.result.model_dir)
+    except PolarrefError as exc:
         res.status, res.reason = STATUS_FAILED, f"cannot read the method's model: {exc}"
         return res, None, outcome.result
     return res, rec, outcome.result
 
 
 def _run_methods_on_cluster(executor, ctx: _Context, ordered: list[MethodSpec], timeout: float,
-                            deadline: float | None) -> list[tuple[MethodResult, object | None, dict]]:
+                            deadline: float | None) -> list[tuple[MethodResult, Reconstruction | None,
+                                                                  MethodJobResult | None]]:
     """Every method as a task on the cluster at once (shared stages run once, first come).
 
     One thread per method waits for its task(s); the methods' own processes run on the workers.
@@ -191,15 +199,11 @@ def _score_into(res: MethodResult, rec, scene: scenes.PreparedScene, mesh, seed:
         log.exception("scoring %s failed", res.name)
         res.status, res.reason = STATUS_FAILED, f"scoring failed: {type(exc).__name__}: {exc}"
         return
-    res.registered_images = s.registered_images
-    res.tie_points = s.tie_points
-    res.reprojected_px = s.reprojected_px
-    res.mean_reprojection_error_px = s.mean_reprojection_error_px
-    res.mean_reprojection_error_per_point_px = s.mean_reprojection_error_per_point_px
+    res.set_metrics(s.metrics)
     res.gt = s.gt
     res.plot = s.plot
     notes += [f"{res.name}: {n}" for n in s.notes]
-    if s.registered_images == 0:
+    if res.registered_images == 0:
         res.status, res.reason = STATUS_FAILED, "no image registered"
 
 
@@ -207,7 +211,7 @@ PYCOLMAP_THREADS = 1   # pycolmap extraction, matching, mapping: one thread, so 
 
 
 def _environment(cfg: CompareConfig, scene: scenes.PreparedScene, timeout: float, total_s: float,
-                 prov: dict) -> Environment:
+                 prov: Provenance) -> Environment:
     variant = scene.mitsuba_variant if scene.kind == "synthetic" else "not used (real images)"
     if scene.kind == "synthetic" and not variant:
         try:
@@ -218,21 +222,19 @@ def _environment(cfg: CompareConfig, scene: scenes.PreparedScene, timeout: float
             variant = f"unknown ({type(exc).__name__})"
     return Environment(
         command=cfg.command or "polarref compare", created=datetime.now(timezone.utc).isoformat(timespec="seconds"),
-        versions=prov["versions"], cpu_count=prov["cpu_count"], mitsuba_variant=variant,
+        versions=prov.versions, cpu_count=prov.cpu_count, mitsuba_variant=variant,
         seeds={"scene": scene.seed, "methods": cfg.seed, "claims": cfg.seed}, preset=cfg.preset,
-        method_timeout_s=timeout, total_runtime_s=total_s, git_commit=prov["git_commit"],
-        git_dirty=prov["git_dirty"], cpu_model=prov["cpu_model"], machine=prov["machine"],
-        platform=prov["platform"], threads=prov["threads"])
+        method_timeout_s=timeout, total_runtime_s=total_s, git_commit=prov.git_commit,
+        git_dirty=prov.git_dirty, cpu_model=prov.cpu_model, machine=prov.machine,
+        platform=prov.platform, threads=prov.threads)
 
 
 def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
     """Run the comparison and write OUT/metrics.json, OUT/report.md, OUT/report.html, OUT/figures/."""
     from polarref.compare.report import build_report
-    from polarref.provenance import collect
-
     t_start = time.perf_counter()
     # Taken before anything is written: regenerating a committed report must not mark the run dirty.
-    prov = collect(threads={"pycolmap": PYCOLMAP_THREADS, "ba_blas": 1})
+    prov = collect_record(threads={"pycolmap": PYCOLMAP_THREADS, "ba_blas": 1})
     specs = select(list(cfg.methods) or None)
     if cfg.preset not in METHOD_TIMEOUT_S:
         raise PolarrefError(f"unknown preset {cfg.preset!r} (choose from {', '.join(METHOD_TIMEOUT_S)})")
@@ -242,7 +244,7 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
     scene = scenes.prepare(cfg.scene, cfg.preset, cfg.seed)
     out = Path(cfg.out) if cfg.out else default_out(scene, cfg.preset)
     if out.exists() and not out.is_dir():
-        raise PolarrefError(f"--out {out} exists and is not a directory")
+        raise PolarrefError(f"output folder {out} exists and is not a directory")
     _refuse_finished(out, cfg.overwrite)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -250,11 +252,12 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
         raise PolarrefError(f"cannot create report folder {out}: {exc}") from exc
     timeout = float(cfg.method_timeout_s or METHOD_TIMEOUT_S[cfg.preset])
     ctx = _Context(scene, out / "runs", timeout, cfg.seed, cfg.preset, out / "runs" / "ours-features" / "cache",
-                   camera=camera_to_json(scene.camera))
+                   camera=camera_to_json(scene.camera), reuse=not cfg.overwrite)
     from polarref.compare.scoring import load_mesh
     from polarref.metrics import scene_size
 
-    if ctx.cache.is_dir():  # our own cache from an earlier run: the shared stage must be timed afresh
+    resumed = ctx.reuse and has_finished_result(ctx.runs / "ours-features" / "job.result.json")
+    if ctx.cache.is_dir() and not resumed:  # an earlier run's cache: the shared stage must be timed afresh
         for f in ctx.cache.iterdir():
             if f.is_file() and f.name.startswith(("features-", "matches-")):
                 f.unlink()
@@ -274,7 +277,7 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
     reserve = claims_budget if claims_budget < float("inf") else CLAIMS_BUDGET_S["default"]
     deadline = None if budget is None else t_start + budget - reserve - REPORT_RESERVE_S
     results: list[MethodResult] = []
-    job_results: dict[str, dict] = {}
+    job_results: dict[str, MethodJobResult | None] = {}
     view = view3d.new_view(scene.gt, scene.camera, mesh, cfg.seed) if scene.gt is not None else None
     ordered = sorted(specs, key=lambda m: RUN_ORDER.index(m.name))
     executor = execution.current()
@@ -316,20 +319,20 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
                                  and any(r.name == p.candidate for r in results)],
                           claims=[], notes=notes, view3d=view)
     for spec in specs:
-        trace = (job_results.get(spec.name) or {}).get("final_ba_trace")
-        if trace:
+        job = job_results.get(spec.name)
+        if job is not None and job.final_ba_trace:
             metrics.ba_traces.append(BATrace(spec.ba, f"{scene.name}: final global BA of our SfM",
-                                             [TracePoint(int(i), float(t), float(c)) for i, t, c in trace]))
+                                             list(job.final_ba_trace)))
     if cfg.dense:  # after the budgeted part: the dense stage has its own (benchmarked) cost
         from polarref.compare.dense_section import run_dense_stage
 
-        metrics.dense = run_dense_stage(scene.root, {n: (job_results.get(n) or {}).get("model_dir")
+        metrics.dense = run_dense_stage(scene.root, {n: getattr(job_results.get(n), "model_dir", None)
                                                      for n in ("ours-euclidean", "ours-polar")}, out)
     if cfg.claims:
         c_budget = claims_budget
         if budget is not None:
             c_budget = max(0.0, min(claims_budget, t_start + budget - REPORT_RESERVE_S - time.perf_counter()))
-        claims_mod.evaluate_into(metrics, job_results, ctx.runs, cfg.seed, c_budget, timeout)
+        claims_mod.evaluate_into(metrics, ctx.runs, cfg.seed, c_budget, timeout, ctx.reuse)
     metrics.environment.run_budget_s = budget
     metrics.environment.total_runtime_s = time.perf_counter() - t_start
     save(metrics, out / "metrics.json")

@@ -22,15 +22,12 @@ from polarref.compare.report_render import (Badge, Badges, Bullets, Details, Fig
                                             Section, Table, to_html, to_markdown)
 from polarref.compare.schema import (STATUS_OK, ClaimResult, MethodPair, MethodResult,
                                      MetricsFile, load, write_text_atomic)
+from polarref.compare.thresholds import EQUIVALENT_PX, EQUIVALENT_REL
 
 # Bumped when the page's structure changes, so a committed example built by an older layout is
 # recognised (and regenerated) instead of being diffed against the new one.
 REPORT_LAYOUT = 2
 
-# "Equivalent" accuracy in the paper's table: 0.482 vs 0.481 px. We call two mean reprojection
-# errors equivalent when they differ by at most this many px or this fraction, whichever is larger.
-EQUIVALENT_PX = 0.01
-EQUIVALENT_REL = 0.02
 
 
 # ---- number formatting (the one place numbers become text) -------------------------------

@@ -2,14 +2,19 @@
 
 A comparison must survive any one method failing: an exception, a crash inside C++ (pycolmap),
 or a run that never ends. Each job therefore runs in a fresh ``spawn`` process whose stdout and
-stderr (including glog output from COLMAP) go to a log file; the job returns a JSON-able dict
-written to a result file. The parent sees one of: ok (the dict), failed (exception text or exit
-code plus the last log line), timeout (process killed after ``timeout_s``).
+stderr (including glog output from COLMAP) go to a log file; the job (a module-level function)
+returns a typed record (a dataclass, see ``polarref.records``) written to a result file. The
+parent sees one of: ok (the record), failed (exception text or exit code plus the last log
+line), timeout (process killed after ``timeout_s``).
+
+Finished work is not repeated (hloc style): with ``reuse``, a job whose result file holds a
+successful result of the same function with the same arguments is loaded instead of run again,
+so an interrupted hour-long comparison resumes where it stopped.
 """
 
 from __future__ import annotations
 
-import importlib
+import dataclasses
 import json
 import logging
 import multiprocessing as mp
@@ -17,25 +22,56 @@ import os
 import sys
 import time
 import traceback
-from dataclasses import dataclass, field
+import typing
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Callable, Generic, TypeVar
 
+from polarref import records
+from polarref.atomic import atomic_write
 from polarref.compare.schema import STATUS_FAILED, STATUS_OK, STATUS_TIMEOUT
 
 log = logging.getLogger(__name__)
 
 
+R = TypeVar("R")
+
+
 @dataclass
-class JobOutcome:
+class JobOutcome(Generic[R]):
     """What came back from one isolated job."""
 
     status: str                     # ok | failed | timeout
     reason: str = ""                # failure reason (one line)
     wall_s: float = 0.0             # wall time of the child process, spawn included
-    result: dict = field(default_factory=dict)
+    result: R | None = None         # the job's record (ok only)
+    reused: bool = False            # loaded from an earlier run's result file, not run now
 
 
-def _child(job: str, kwargs: dict, result_path: str, log_path: str) -> None:
+def job_name(job: Callable) -> str:
+    """``module:qualname`` of a job function (stored with its result)."""
+    return f"{job.__module__}:{job.__qualname__}"
+
+
+def _return_type(job: Callable):
+    try:
+        return typing.get_type_hints(job).get("return")
+    except Exception:  # builtins and C functions carry no usable annotations
+        return None
+
+
+def _encode(result) -> Any:
+    return records.to_dict(result) if dataclasses.is_dataclass(result) else result
+
+
+def _decode(job: Callable, value, where: Path):
+    tp = _return_type(job)
+    if tp is not None and dataclasses.is_dataclass(tp):
+        return records.from_dict(tp, value, label=str(where), where="result")
+    return value
+
+
+def _child(job: Callable, kwargs: dict, result_path: str, log_path: str) -> None:
     fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
     sys.stdout.flush(), sys.stderr.flush()
     os.dup2(fd, 1)
@@ -43,17 +79,11 @@ def _child(job: str, kwargs: dict, result_path: str, log_path: str) -> None:
     logging.basicConfig(level=logging.INFO, stream=sys.stderr,
                         format="%(levelname)s %(name)s: %(message)s")
     try:
-        module_name, func_name = job.split(":")
-        func = getattr(importlib.import_module(module_name), func_name)
-        result = func(**kwargs)
-        payload = {"ok": True, "result": result}
+        payload = {"ok": True, "job": job_name(job), "kwargs": kwargs, "result": _encode(job(**kwargs))}
     except BaseException as exc:  # report everything, including SystemExit from a library
         traceback.print_exc()
         payload = {"ok": False, "error": f"{type(exc).__name__}: {exc}".strip()}
-    tmp = result_path + ".tmp"
-    with open(tmp, "w") as f:
-        json.dump(payload, f, allow_nan=True)
-    os.replace(tmp, result_path)
+    atomic_write(result_path, json.dumps(payload, allow_nan=True))
 
 
 def _last_log_line(log_path: Path) -> str:
@@ -64,18 +94,51 @@ def _last_log_line(log_path: Path) -> str:
     return lines[-1][:300] if lines else ""
 
 
-def run_isolated(job: str, kwargs: dict, timeout_s: float, work_dir: Path, tag: str) -> JobOutcome:
-    """Run ``module:function(**kwargs)`` in a spawned process.
+def has_finished_result(result_path: Path) -> bool:
+    """Whether ``result_path`` holds a successful, timed result (of whichever call)."""
+    try:
+        payload = json.loads(Path(result_path).read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(payload, dict) and bool(payload.get("ok")) and "wall_s" in payload
+
+
+def _finished(job: Callable, kwargs: dict, result_path: Path) -> JobOutcome | None:
+    """The earlier successful result of this very job call, or None (absent, failed, other inputs)."""
+    try:
+        payload = json.loads(result_path.read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(payload, dict) or not payload.get("ok") or payload.get("job") != job_name(job) \
+            or payload.get("kwargs") != json.loads(json.dumps(kwargs)) or "wall_s" not in payload:
+        return None
+    try:
+        result = _decode(job, payload.get("result"), result_path)
+    except records.RecordError as exc:  # written by an older polarref: run it again
+        log.info("not reusing %s: %s", result_path, exc)
+        return None
+    return JobOutcome(STATUS_OK, "", float(payload["wall_s"]), result, reused=True)
+
+
+def run_isolated(job: Callable[..., R], kwargs: dict, timeout_s: float, work_dir: Path, tag: str,
+                 reuse: bool = False) -> JobOutcome[R]:
+    """Run ``job(**kwargs)`` in a spawned process.
 
     Args:
-        job: "package.module:function"; the function returns a JSON-serialisable dict.
+        job: a module-level function (the child imports it by name); it returns a typed record
+            (dataclass) or a JSON-serialisable value.
         kwargs: JSON-able keyword arguments (paths as str).
         timeout_s: wall-clock limit; the process is killed after it.
         work_dir: where ``<tag>.log`` and ``<tag>.result.json`` go.
+        reuse: load the result of an earlier successful run of the same job with the same
+            arguments from ``<tag>.result.json`` instead of running it again.
     """
     work_dir.mkdir(parents=True, exist_ok=True)
     log_path = work_dir / f"{tag}.log"
     result_path = work_dir / f"{tag}.result.json"
+    if reuse and (done := _finished(job, kwargs, result_path)) is not None:
+        log.info("%s: reusing the finished result %s", job_name(job), result_path)
+        return done
     for p in (log_path, result_path):
         if p.exists():
             p.unlink()
@@ -97,7 +160,13 @@ def run_isolated(job: str, kwargs: dict, timeout_s: float, work_dir: Path, tag: 
     payload = json.loads(result_path.read_text())
     if not payload.get("ok"):
         return JobOutcome(STATUS_FAILED, payload.get("error", "unknown error"), wall)
-    return JobOutcome(STATUS_OK, "", wall, payload.get("result") or {})
+    try:
+        result = _decode(job, payload.get("result"), result_path)
+    except records.RecordError as exc:
+        return JobOutcome(STATUS_FAILED, f"malformed job result: {exc}", wall)
+    payload["wall_s"] = wall  # a finished job, complete with its time: what a rerun may reuse
+    atomic_write(result_path, json.dumps(payload, allow_nan=True))
+    return JobOutcome(STATUS_OK, "", wall, result)
 
 
 # ---- one isolated job as a task of polarref.execution -----------------------------------------
@@ -105,11 +174,12 @@ def run_isolated(job: str, kwargs: dict, timeout_s: float, work_dir: Path, tag: 
 class IsolatedTask:
     """:func:`run_isolated` arguments as a small picklable record (paths as str)."""
 
-    job: str
-    kwargs: dict
+    job: Callable
+    kwargs: dict[str, Any]
     timeout_s: float
     work_dir: str
     tag: str
+    reuse: bool = False
 
 
 def isolated_task(task: IsolatedTask) -> JobOutcome:
@@ -121,12 +191,13 @@ def isolated_task(task: IsolatedTask) -> JobOutcome:
     if mp.current_process().daemon:
         return JobOutcome(STATUS_FAILED, "this Dask worker is a daemonic process and cannot start the job's "
                           "isolated process; start workers with DASK_DISTRIBUTED__WORKER__DAEMON=False")
-    return run_isolated(task.job, task.kwargs, task.timeout_s, Path(task.work_dir), task.tag)
+    return run_isolated(task.job, task.kwargs, task.timeout_s, Path(task.work_dir), task.tag, task.reuse)
 
 
-def run_isolated_with(executor, job: str, kwargs: dict, timeout_s: float, work_dir: Path, tag: str) -> JobOutcome:
+def run_isolated_with(executor, job: Callable[..., R], kwargs: dict, timeout_s: float, work_dir: Path, tag: str,
+                      reuse: bool = False) -> JobOutcome[R]:
     """:func:`run_isolated` through ``executor`` (a polarref.execution executor); blocks until done."""
     if executor.in_process:
-        return run_isolated(job, kwargs, timeout_s, work_dir, tag)
-    return executor.map(isolated_task, [IsolatedTask(job, kwargs, timeout_s, str(work_dir), tag)],
+        return run_isolated(job, kwargs, timeout_s, work_dir, tag, reuse)
+    return executor.map(isolated_task, [IsolatedTask(job, kwargs, timeout_s, str(work_dir), tag, reuse)],
                         desc=f"job-{tag}")[0]

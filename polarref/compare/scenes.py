@@ -14,15 +14,20 @@ import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
+from polarref.atomic import atomic_write
 from polarref.camera import Camera
 from polarref.data import cache_root
 from polarref.errors import PolarrefError
+from polarref.scene_folder import IMAGE_SUFFIXES, discover
+
+if TYPE_CHECKING:
+    from polarref.reconstruction import Reconstruction
 
 log = logging.getLogger(__name__)
 
 SYNTHETIC = ("comet", "uav")
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 # Real images wider than this (per preset) are downscaled; SIFT on 3072 px is too slow for 2 cores.
 MAX_WIDTH = {"small": 768, "default": 1024, "large": 1536}
 
@@ -38,17 +43,13 @@ class PreparedScene:
     image_dir: Path                 # images actually used (maybe downscaled copies)
     image_names: list[str]
     camera: Camera                  # fixed intrinsics every method uses
-    gt: object | None               # polarref.reconstruction.Reconstruction or None
+    gt: Reconstruction | None       # ground truth keyed by image_names, or None
     mesh_path: Path | None
     preset: str
     seed: int
     downscale: float = 1.0
     render_s: float = 0.0
     mitsuba_variant: str = ""
-
-
-def _images_in(folder: Path) -> list[str]:
-    return sorted(p.name for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
 
 
 def synthetic_root(scene: str, preset: str, seed: int) -> Path:
@@ -98,7 +99,7 @@ def _downscale_factor(width: int, height: int, max_width: int) -> int:
         if width % k == 0 and height % k == 0:
             return k
     raise PolarrefError(f"cannot downscale {width}x{height} images exactly to <= {max_width} px wide "
-                        "(no common integer factor <= 32); use --preset large")
+                        "(no common integer factor <= 32); a larger preset keeps larger images", option="preset")
 
 
 def _downscale(src_dir: Path, names: list[str], factor: int, dst_dir: Path) -> None:
@@ -114,25 +115,21 @@ def _downscale(src_dir: Path, names: list[str], factor: int, dst_dir: Path) -> N
             raise PolarrefError(f"cannot read image {src_dir / name}")
         h, w = img.shape[:2]
         small = cv2.resize(img, (w // factor, h // factor), interpolation=cv2.INTER_AREA)
-        tmp = out.with_name(f".{out.stem}.tmp.png")
-        cv2.imwrite(str(tmp), small)
-        tmp.replace(out)
+        ok, png = cv2.imencode(".png", small)
+        if not ok:
+            raise PolarrefError(f"cannot encode {out} as PNG")
+        atomic_write(out, png.tobytes())
 
 
 def _real(folder: Path, source: str, preset: str) -> PreparedScene:
     from polarref.reconstruction import Image, Reconstruction
 
-    image_dir = folder / "images" if (folder / "images").is_dir() else folder
-    names = _images_in(image_dir)
+    found = discover(folder)
+    image_dir, names = found.image_dir, found.image_names
     if not names:
         raise PolarrefError(f"no images (*{', *'.join(IMAGE_SUFFIXES)}) in {image_dir}")
-    if (folder / "gt_dense_cameras").is_dir():
-        from polarref.io import strecha
-
-        gt = strecha.read_ground_truth(folder / "gt_dense_cameras", names)  # cx, cy +0.5: corner origin
-    elif (folder / "gt").is_dir():
-        gt = Reconstruction.read(folder / "gt")
-    else:
+    gt = found.read_ground_truth()
+    if gt is None:
         raise PolarrefError(f"{folder} has images but no ground truth (gt/ COLMAP model or "
                             "gt_dense_cameras/*.camera); polarref compare needs the intrinsics")
     cam = next(iter(gt.cameras.values()))

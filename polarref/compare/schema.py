@@ -8,15 +8,12 @@ fails loudly instead of rendering half a report.
 
 from __future__ import annotations
 
-import dataclasses
-import json
 import math
-import re
-import types
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import ClassVar
 
+from polarref import records
 from polarref.atomic import atomic_write
 from polarref.compare.dense_section import DenseSection
 from polarref.errors import PolarrefError
@@ -135,6 +132,18 @@ class MethodResult:
     gt: GtAccuracy | None = None
     plot: MethodPlot | None = None
 
+    def set_metrics(self, m) -> None:
+        """Fill the counts and reprojection errors from ``m`` (a polarref.metrics.ReconstructionMetrics).
+
+        The one mapping from the metrics record to this file's names (non-finite -> None).
+        """
+        finite = lambda x: float(x) if x is not None and math.isfinite(x) else None  # noqa: E731
+        self.registered_images = int(m.registered_images)
+        self.tie_points = int(m.tie_points)
+        self.reprojected_px = int(m.reprojected_px)
+        self.mean_reprojection_error_px = finite(m.mean_reprojection_error_px)
+        self.mean_reprojection_error_per_point_px = finite(m.mean_reprojection_error_px_per_point)
+
 
 @dataclass
 class MethodPair:
@@ -235,6 +244,7 @@ class View3D:
 class MetricsFile:
     """Everything a report shows."""
 
+    SCHEMA_VERSION: ClassVar[int] = SCHEMA_VERSION
     schema_version: int
     scene: SceneInfo
     environment: Environment
@@ -250,80 +260,19 @@ class MetricsFile:
         return next((m for m in self.methods if m.name == name), None)
 
 
-# ---- (de)serialisation ----------------------------------------------------------------------
-
-def _clean(value):
-    """JSON-safe copy: NaN/inf become None (JSON has no NaN), tuples become lists."""
-    if isinstance(value, float):
-        return value if math.isfinite(value) else None
-    if isinstance(value, dict):
-        return {str(k): _clean(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_clean(v) for v in value]
-    return value
-
+# ---- (de)serialisation: polarref.records, labelled "metrics.json" ------------------------------
 
 def to_dict(obj) -> dict:
-    return _clean(dataclasses.asdict(obj))
-
-
-def _build(tp, value, where: str):
-    origin = typing.get_origin(tp)
-    if origin in (typing.Union, types.UnionType):
-        args = [a for a in typing.get_args(tp) if a is not type(None)]
-        if value is None:
-            return None
-        return _build(args[0], value, where)
-    if dataclasses.is_dataclass(tp):
-        if not isinstance(value, dict):
-            raise PolarrefError(f"metrics.json: {where} should be an object, got {type(value).__name__}")
-        hints = typing.get_type_hints(tp)
-        names = {f.name for f in dataclasses.fields(tp)}
-        unknown = set(value) - names
-        if unknown:
-            raise PolarrefError(f"metrics.json: unknown key(s) {sorted(unknown)} in {where}")
-        kwargs = {k: _build(hints[k], v, f"{where}.{k}") for k, v in value.items()}
-        try:
-            return tp(**kwargs)
-        except TypeError as exc:
-            raise PolarrefError(f"metrics.json: {where}: {exc}") from exc
-    if origin is list:
-        (inner,) = typing.get_args(tp)
-        if not isinstance(value, list):
-            raise PolarrefError(f"metrics.json: {where} should be a list")
-        return [_build(inner, v, f"{where}[{i}]") for i, v in enumerate(value)]
-    if origin is dict:
-        _, inner = typing.get_args(tp)
-        if not isinstance(value, dict):
-            raise PolarrefError(f"metrics.json: {where} should be an object, got {type(value).__name__}")
-        return {k: _build(inner, v, f"{where}.{k}") for k, v in value.items()}
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise PolarrefError(f"metrics.json: {where} should be a finite number, got {value!r}")
-        return float(value)
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-                or value != int(value):
-            raise PolarrefError(f"metrics.json: {where} should be an integer, got {value!r}")
-        return int(value)
-    return value
+    return records.to_dict(obj)
 
 
 def from_dict(data: dict) -> MetricsFile:
-    version = data.get("schema_version") if isinstance(data, dict) else None
-    if not isinstance(version, int) or version < 1 or version > SCHEMA_VERSION:
-        raise PolarrefError(f"metrics.json: unsupported schema_version {version!r} "
-                            f"(this polarref reads 1..{SCHEMA_VERSION})")
-    return _build(MetricsFile, data, "metrics")
-
-
-_NUMBER_LIST = re.compile(r"\[\s*(-?[0-9][-0-9.eE+]*(?:,\s*-?[0-9][-0-9.eE+]*)*)\s*\]")
+    return records.from_dict(MetricsFile, data, label="metrics.json", where="metrics")
 
 
 def dumps(metrics: MetricsFile) -> str:
     """Indented JSON with innermost number lists on one line (plot arrays stay compact)."""
-    text = json.dumps(to_dict(metrics), indent=1, allow_nan=False)
-    return _NUMBER_LIST.sub(lambda m: "[" + re.sub(r"\s+", "", m.group(1)).replace(",", ", ") + "]", text) + "\n"
+    return records.dumps(metrics)
 
 
 def write_text_atomic(path: Path, text: str) -> None:
@@ -333,25 +282,11 @@ def write_text_atomic(path: Path, text: str) -> None:
 
 def save(metrics: MetricsFile, path: str | Path) -> Path:
     """Write ``metrics.json`` atomically."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(path, dumps(metrics))
-    return path
+    return records.save(metrics, path)
 
 
 def load(path: str | Path) -> MetricsFile:
     path = Path(path)
     if not path.is_file():
         raise PolarrefError(f"metrics file not found: {path}")
-    try:
-        # utf-8-sig skips a byte-order mark; NaN/Infinity are not JSON (we write missing as null)
-        data = json.loads(path.read_text(encoding="utf-8-sig"), parse_constant=_reject_constant)
-    except UnicodeDecodeError as exc:
-        raise PolarrefError(f"{path} is not UTF-8 text ({exc.reason} at byte {exc.start})") from exc
-    except (json.JSONDecodeError, ValueError) as exc:
-        raise PolarrefError(f"{path} is not valid JSON: {exc}") from exc
-    return from_dict(data)
-
-
-def _reject_constant(name: str):
-    raise ValueError(f"{name} is not a JSON number (a missing value is null)")
+    return from_dict(records.read_json(path))

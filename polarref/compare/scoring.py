@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from polarref.compare.schema import GtAccuracy, Histogram, MethodPlot
+from polarref.metrics import ReconstructionMetrics
 
 log = logging.getLogger(__name__)
 
@@ -22,14 +23,10 @@ HIST_BINS = 40
 
 @dataclass
 class Score:
-    """What the report needs from one reconstruction."""
+    """What the report needs from one reconstruction: the one metrics record, plus report extras."""
 
-    registered_images: int
-    tie_points: int
-    reprojected_px: int
-    mean_reprojection_error_px: float | None
-    mean_reprojection_error_per_point_px: float | None
-    gt: GtAccuracy | None
+    metrics: ReconstructionMetrics   # polarref.metrics.evaluate, as computed (not copied)
+    gt: GtAccuracy | None            # the GT part in the report's units (absolute and relative)
     plot: MethodPlot
     notes: list[str] = field(default_factory=list)
 
@@ -90,7 +87,7 @@ def score(rec, gt, mesh, seed: int = 0) -> Score:
         plot.image_names = names
         plot.centers_est_aligned = _round([sim.apply(est_by_name[n].cam_from_world.center) for n in names])
         plot.centers_gt = _round([gt_by_name[n].cam_from_world.center for n in names])
-        rot = np.array([g.per_image[n]["rotation_error_deg"] for n in names])
+        rot = np.array([g.per_image[n].rotation_error_deg for n in names])
         plot.rotation_err_hist = _hist(rot)
         plot.rotation_err_deg = [float(f"{r:.6g}") for r in rot]
         _, xyz = rec.points_array()
@@ -118,6 +115,4 @@ def score(rec, gt, mesh, seed: int = 0) -> Score:
         if g.num_alignment_outliers:
             notes.append(f"{g.num_alignment_outliers} camera(s) left out of the Sim3 fit as outliers "
                          "(errors still reported for all)")
-    return Score(int(m.registered_images), int(m.tie_points), int(m.reprojected_px),
-                 _finite(m.mean_reprojection_error_px), _finite(m.mean_reprojection_error_px_per_point),
-                 gt_acc, plot, notes)
+    return Score(m, gt_acc, plot, notes)

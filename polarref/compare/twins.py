@@ -51,6 +51,17 @@ def default_pairing(twin: str, meta: dict) -> PairingConfig:
     return PairingConfig(method="spatial+sequential", k=12, overlap=3, look="ground", ground_z=0.0)
 
 
+@dataclass
+class TwinJobResult:
+    """What one twin stage returns (the typed record its process writes)."""
+
+    stage_runtime_s: dict[str, float]
+    peak_rss_mb: float                  # largest resident set of the stage's process
+    model_dir: str = ""                 # methods: the COLMAP text model
+    verified_pairs: int | None = None   # shared stages
+    skipped_images: list[str] = dataclasses.field(default_factory=list)
+
+
 def _peak_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # Linux: KiB
 
@@ -70,7 +81,7 @@ def _sfm_config(pairs_file: str, cache_dir: str):
 
 
 # ---- jobs (each runs in its own process) --------------------------------------------------------
-def job_ours_features(image_dir: str, camera: dict, pairs_file: str, cache_dir: str) -> dict:
+def job_ours_features(image_dir: str, camera: dict, pairs_file: str, cache_dir: str) -> TwinJobResult:
     """Our features and verified matches on the pairs file, cached for both ``ours-*`` methods."""
     import numpy as np
 
@@ -79,46 +90,47 @@ def job_ours_features(image_dir: str, camera: dict, pairs_file: str, cache_dir: 
     config, timings = _sfm_config(pairs_file, cache_dir), {}
     feats, skipped, key = load_images_and_features(Path(image_dir), config, timings)
     matches = match_and_verify(feats, [_camera(camera)], np.zeros(len(feats), np.int64), config, key, timings)
-    return {"stage_runtime_s": {k: float(timings[k]) for k in ("features", "matching", "verification") if k in timings},
-            "verified_pairs": len(matches.geometries), "skipped_images": skipped, "peak_rss_mb": _peak_mb()}
+    return TwinJobResult({k: float(timings[k]) for k in ("features", "matching", "verification") if k in timings},
+                         _peak_mb(), verified_pairs=len(matches.geometries),
+                         skipped_images=[str(x["name"]) for x in skipped])
 
 
-def job_ours_sfm(image_dir: str, camera: dict, ba: str, work_dir: str, pairs_file: str, cache_dir: str) -> dict:
+def job_ours_sfm(image_dir: str, camera: dict, ba: str, work_dir: str, pairs_file: str, cache_dir: str) -> TwinJobResult:
     """Our incremental SfM with BA ``ba`` on the cached features/matches; model in work_dir/sfm/model."""
     from polarref.sfm.pipeline import run_sfm, with_ba
 
     config = with_ba(_sfm_config(pairs_file, cache_dir), ba)
-    t0 = time.perf_counter()
     result = run_sfm(Path(image_dir), Path(work_dir) / "sfm", config, camera=_camera(camera), overwrite=True)
-    wall = time.perf_counter() - t0
-    t = result.metrics.get("runtime_s", {})
+    t = result.report.runtime_s
     skip = {"total", "metrics", "export", "features_cached", "matches_cached", "features", "matching", "verification"}
     stages = {k: float(v) for k, v in t.items() if k not in skip and isinstance(v, (int, float))}
     ba_s = stages.pop("ba", 0.0)
     if "mapping" in stages:
         stages["mapping (excl. BA)"] = max(0.0, stages.pop("mapping") - ba_s)
     stages["bundle adjustment"] = ba_s
-    return {"model_dir": str(Path(work_dir) / "sfm" / "model"), "stage_runtime_s": stages, "wall_s": wall,
-            "peak_rss_mb": _peak_mb()}
+    return TwinJobResult(stages, _peak_mb(), model_dir=str(Path(work_dir) / "sfm" / "model"))
 
 
 def job_pycolmap_db(image_dir: str, image_names: list[str], camera: dict, db_path: str, pairs_file: str,
-                    seed: int) -> dict:
+                    seed: int) -> TwinJobResult:
     """pycolmap SIFT (our feature budget) matched on exactly our pairs, verified, into ``db_path``."""
     from polarref.peers.colmap_sfm import ColmapSfMOptions, count_verified_pairs, extract_and_match_sift
 
     opts = ColmapSfMOptions(seed=seed, num_threads=1, max_num_features=PYCOLMAP_FEATURES)
     stages = extract_and_match_sift(Path(image_dir), _camera(camera), Path(db_path), opts,
                                     image_names=image_names, overwrite=True, pairs_file=Path(pairs_file))
-    return {"stage_runtime_s": stages, "verified_pairs": count_verified_pairs(Path(db_path)),
-            "options": dataclasses.asdict(opts), "peak_rss_mb": _peak_mb()}
+    return TwinJobResult({k: float(v) for k, v in stages.items()}, _peak_mb(),
+                         verified_pairs=count_verified_pairs(Path(db_path)))
 
 
-def job_pycolmap_map(db_path: str, image_dir: str, work_dir: str, mapper: str, seed: int) -> dict:
+def job_pycolmap_map(db_path: str, image_dir: str, work_dir: str, mapper: str, seed: int) -> TwinJobResult:
     from polarref.compare.jobs import pycolmap_map
 
     out = pycolmap_map(db_path, image_dir, work_dir, mapper, seed, num_threads=1)
-    return {**out, "peak_rss_mb": _peak_mb()}
+    return TwinJobResult(dict(out.stage_runtime_s), _peak_mb(), model_dir=out.model_dir)
+
+
+JOBS = {f.__name__: f for f in (job_ours_features, job_ours_sfm, job_pycolmap_db, job_pycolmap_map)}
 
 
 # ---- the run ----------------------------------------------------------------------------------
@@ -145,9 +157,12 @@ class _Stages:
         from polarref.compare.runner import run_isolated
 
         log.info("stage %s: started (log %s)", name, self.dir / f"{name}.log")
-        outcome = run_isolated(f"polarref.compare.twins:{func}", kwargs, self.timeout_s, self.dir, name)
+        from polarref import records
+
+        outcome = run_isolated(JOBS[func], kwargs, self.timeout_s, self.dir, name)
+        result = records.to_dict(outcome.result) if outcome.result is not None else {}
         rec = {"stage": name, "status": outcome.status, "reason": outcome.reason, "wall_s": outcome.wall_s,
-               "result": outcome.result, "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+               "result": result, "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
         atomic_write(self.dir / f"{name}.json", json.dumps(rec, indent=1, default=str) + "\n")
         log.info("stage %s: %s in %.0f s%s", name, outcome.status, outcome.wall_s,
                  f" ({outcome.reason})" if outcome.reason else "")
@@ -199,10 +214,10 @@ def _method_result(name: str, recs: list[dict], scene, gt) -> PT.MethodResult:
 
     rec = Reconstruction.read(Path(recs[-1]["result"]["model_dir"]))
     s = score(rec, gt, None)
-    g = s.gt
+    g, m = s.gt, s.metrics
     return PT.MethodResult(
-        name, "ok", "", n, s.registered_images, s.mean_reprojection_error_px, wall / 60.0, s.tie_points,
-        s.reprojected_px, None if g is None else g.rotation_error_deg_mean,
+        name, "ok", "", n, int(m.registered_images), float(m.mean_reprojection_error_px), wall / 60.0,
+        int(m.tie_points), int(m.reprojected_px), None if g is None else g.rotation_error_deg_mean,
         None if g is None else g.center_error_rel_mean, stages, peak)
 
 

@@ -8,12 +8,12 @@ pixel's footprint: the density of a single view, without the duplicates.
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from polarref.atomic import atomic_open
 from polarref.dense.consistency import FilteredView
 
 
@@ -69,11 +69,9 @@ def write_point_cloud(path: Path, cloud: PointCloud) -> None:
         data[name] = cloud.points[:, k]
         data["n" + name] = cloud.normals[:, k]
     data["red"], data["green"], data["blue"] = cloud.colors.T
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    with open(tmp, "wb") as fh:
+    with atomic_open(path) as fh:
         fh.write(("\n".join(header) + "\n").encode("ascii"))
         fh.write(data.tobytes())
-    os.replace(tmp, path)
 
 
 def read_point_cloud(path: Path) -> PointCloud:

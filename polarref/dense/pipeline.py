@@ -75,9 +75,10 @@ def _peak_mb() -> float:
 
 def _prepare_out(out: Path, overwrite: bool) -> None:
     if out.exists() and not out.is_dir():
-        raise PolarrefError(f"--out {out} exists and is not a directory")
+        raise PolarrefError(f"output folder {out} exists and is not a directory")
     if out.is_dir() and any(out.iterdir()) and not overwrite:
-        raise PolarrefError(f"--out {out} is not empty; pass --overwrite to replace its dense outputs")
+        raise PolarrefError(f"output folder {out} is not empty; its dense outputs are replaced only on request",
+                            option="overwrite")
     try:
         (out / "depth").mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -117,9 +118,11 @@ def _timed(m: DenseMetrics, stage: str, t0: tuple[float, float]) -> tuple[float,
 def _load(scene_dir: Path, model: str):
     """(image_dir, rec, gt or None, loaded synthetic scene or None)."""
     from polarref.reconstruction import Reconstruction
+    from polarref.scene_folder import discover
 
-    image_dir = scene_dir / "images" if (scene_dir / "images").is_dir() else scene_dir
-    gt = Reconstruction.read(scene_dir / "gt") if (scene_dir / "gt").is_dir() else None
+    found = discover(scene_dir)
+    image_dir = found.image_dir
+    gt = found.read_ground_truth()
     synth_scene = None
     if (scene_dir / "scene.json").is_file():
         from synth.scene import load_scene
@@ -127,7 +130,8 @@ def _load(scene_dir: Path, model: str):
         synth_scene = load_scene(scene_dir)
     if model == "gt":
         if gt is None:
-            raise PolarrefError(f"--model gt: {scene_dir} has no gt/ model")
+            raise PolarrefError(f"{scene_dir} has no ground truth (gt/ model or gt_dense_cameras/) to take "
+                                "the poses from")
         rec = gt
     else:
         rec = Reconstruction.read(Path(model))

@@ -15,9 +15,9 @@ class Provenance:
     machine: str
     platform: str
     python: str
-    versions: dict = field(default_factory=dict)
-    threads: dict = field(default_factory=dict)
-    seeds: dict = field(default_factory=dict)
+    versions: dict[str, str] = field(default_factory=dict)
+    threads: dict[str, int] = field(default_factory=dict)
+    seeds: dict[str, int] = field(default_factory=dict)
     command: str = ""
 
 

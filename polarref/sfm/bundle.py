@@ -8,15 +8,18 @@ the cached bearings of their observations recomputed.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from polarref.errors import PolarrefError
 from polarref.geometry import Rigid3
 from polarref.reconstruction import Image, Point3D, Reconstruction
+
+if TYPE_CHECKING:
+    from polarref.sfm.report import BARun, ColmapBARun
 
 log = logging.getLogger(__name__)
 
@@ -75,7 +78,7 @@ def _read_back(state, rec: Reconstruction, variable: list[int]) -> None:
 
 
 def _colmap_adjust(rec: Reconstruction, variable: list[int], fixed: list[int], max_iterations: int,
-                   loss: str, refine: tuple = ()) -> dict:
+                   loss: str, refine: tuple = ()) -> ColmapBARun:
     import pycolmap
 
     from polarref.model.colmap import CeresSettings, bundle_adjustment_config, bundle_adjustment_options
@@ -100,38 +103,37 @@ def _colmap_adjust(rec: Reconstruction, variable: list[int], fixed: list[int], m
 
         for cid in rec.cameras:
             rec.cameras[cid] = Camera.from_pycolmap(prec.cameras[cid])
-    info = {"param": "colmap", "loss": loss, "wall_s": wall, "refine": list(refine)}
-    for key in ("initial_cost", "final_cost", "num_successful_steps", "num_unsuccessful_steps"):
-        if hasattr(cs, key):
-            info[key] = float(getattr(cs, key))
-    return info
+    from polarref.sfm.report import ColmapBARun
+
+    return ColmapBARun(loss, wall, list(refine), **{
+        key: float(getattr(cs, key)) for key in ("initial_cost", "final_cost", "num_successful_steps",
+                                                 "num_unsuccessful_steps") if hasattr(cs, key)})
 
 
 def adjust(state, variable: list[int], fixed: list[int], ba: str, max_iterations: int,
-           loss: str = "trivial", track_ids=None, refine: tuple = ()) -> dict:
+           loss: str = "trivial", track_ids=None, refine: tuple = ()) -> BARun:
     """Adjust poses of ``variable`` images and the points (``track_ids`` or all) in place, and
     the intrinsics groups ``refine`` of the cameras involved.
 
-    Returns a JSON-ready summary (with the iteration trace for polarref's adjusters).
+    Returns the typed record of the run (the adjuster's summary with its iteration trace).
     """
+    from polarref.sfm.report import BARun
+
     if ba not in BA_NAMES:
         raise PolarrefError(f"unknown bundle adjuster {ba!r}; choose one of {', '.join(BA_NAMES)}")
     rec = to_reconstruction(state, sorted(set(variable) | set(fixed)), track_ids)
     if not rec.points3D:
-        return {"param": ba, "skipped": "no points"}
+        return BARun(ba, skipped="no points")
     if ba == "colmap":
-        info = _colmap_adjust(rec, list(variable), list(fixed), max_iterations, loss, tuple(refine))
+        info = BARun(ba, colmap=_colmap_adjust(rec, list(variable), list(fixed), max_iterations, loss,
+                                               tuple(refine)))
     else:
         from polarref.ba import BAOptions, adjust as ba_adjust
 
         opts = BAOptions(param=ba, loss=loss, max_iterations=max_iterations, refine=tuple(refine))
         summary = ba_adjust(rec, opts, variable_image_ids=[i + 1 for i in variable],
                             fixed_image_ids=[i + 1 for i in fixed])
-        info = dataclasses.asdict(summary)
-        # keep scalars and the iteration trace (convergence plots); drop bulky state dumps
-        info = {k: v for k, v in info.items()
-                if k in ("trace", "intrinsics") or not isinstance(v, (list, np.ndarray))}
-        if not info["intrinsics"]:
-            info.pop("intrinsics")
+        summary.points_state = None  # internal landmark parameters: not part of the record
+        info = BARun(ba, summary=summary)
     _read_back(state, rec, list(variable))
     return info

@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 
 from polarref.atomic import atomic_open
+from polarref.scene_folder import IMAGE_SUFFIXES, list_images  # noqa: F401 (re-exported)
 
 log = logging.getLogger(__name__)
 
 OPENCV_SIFT_BIAS = 0.25  # px (detection resolution) added by OpenCV's 2x first-octave upsampling
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".exr")
 
 
 @dataclass(frozen=True)
@@ -66,12 +66,6 @@ class Features:
     scales: np.ndarray
     orientations: np.ndarray
     colors: np.ndarray
-
-
-def list_images(image_dir: Path) -> list[Path]:
-    """Image files directly inside ``image_dir``, sorted by name."""
-    return sorted(p for p in Path(image_dir).iterdir()
-                  if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
 
 
 def read_image(path: Path) -> np.ndarray | None:

@@ -15,6 +15,7 @@ from polarref.sfm import rays as R_
 from polarref.sfm.guided import GuidedConfig, guided_extend
 from polarref.sfm.initial_pair import InitConfig, choose_initial_pair
 from polarref.sfm.registration import RegisterConfig, estimate_pose
+from polarref.sfm.report import BARun
 from polarref.sfm.state import MapState
 from polarref.sfm.verification import TwoViewGeometry
 
@@ -53,7 +54,7 @@ class MapperLog:
     initial_pair: tuple[int, int] = (-1, -1)
     registration_order: list[int] = field(default_factory=list)
     failed_registrations: dict[int, int] = field(default_factory=dict)
-    ba: list[dict] = field(default_factory=list)  # every BA summary, in order (kind: local|global)
+    ba: list[BARun] = field(default_factory=list)  # every BA run, in order (kind: local|global)
     guided_observations: int = 0  # observations added by guided matching (before filtering)
 
 
@@ -70,7 +71,7 @@ def _global_ba(state: MapState, cfg: MapperConfig, log_: MapperLog, gauge: list[
     refine = tuple(cfg.refine or ()) if enough else ()
     info = bundle.adjust(state, var, list(gauge), cfg.ba, cfg.global_ba_iterations, cfg.global_ba_loss,
                          refine=refine)
-    info.update(kind="global", num_registered=len(reg))
+    info.kind, info.num_registered = "global", len(reg)
     log_.ba.append(info)
 
 
@@ -90,7 +91,7 @@ def _local_ba(state: MapState, image: int, cfg: MapperConfig, log_: MapperLog, g
     fixed = [int(i) for i in obs_imgs if not var_mask[i]]
     info = bundle.adjust(state, variable, fixed, cfg.ba, cfg.local_ba_iterations, cfg.local_ba_loss,
                          track_ids=pts)
-    info.update(kind="local", image=image, num_variable=len(variable), num_fixed=len(fixed))
+    info.kind, info.image, info.num_variable, info.num_fixed = "local", image, len(variable), len(fixed)
     log_.ba.append(info)
     state.filter(pts)
 

@@ -27,6 +27,7 @@ from polarref.sfm import features as F
 from polarref.sfm import rays as R_
 from polarref.sfm.bundle import to_reconstruction
 from polarref.sfm.mapper import MapperConfig, run_mapper
+from polarref.sfm.report import STATUS_FAILED, STATUS_OK, SfMReport
 from polarref.sfm.matching import MatchConfig, match_pairs, select_pairs
 from polarref.sfm.state import MapState, TriangulationConfig
 from polarref.sfm.tracks import build_tracks
@@ -69,8 +70,13 @@ def with_ba(config: SfMConfig, ba: str) -> SfMConfig:
 @dataclass
 class SfMResult:
     reconstruction: Reconstruction
-    metrics: dict          # the content of OUT/metrics.json
+    report: SfMReport      # what OUT/metrics.json holds
     out_dir: Path | None
+
+    @property
+    def metrics(self) -> dict:
+        """The report in its metrics.json form (serialization view of :attr:`report`)."""
+        return self.report.to_json()
 
 
 @dataclass
@@ -322,7 +328,7 @@ def _match_on_cluster(executor, feats: list[F.Features], pairs: list[tuple[int, 
 
 def _prepare_out(out_dir: Path, overwrite: bool) -> None:
     if out_dir.exists() and any(out_dir.iterdir()) and not overwrite:
-        raise PolarrefError(f"output folder {out_dir} exists and is not empty; use --overwrite")
+        raise PolarrefError(f"output folder {out_dir} exists and is not empty", option="overwrite")
     out_dir.mkdir(parents=True, exist_ok=True)
 SFM_OUTPUTS = ("model", "metrics.json")  # what a run writes into its folder (the rest is the user's)
 
@@ -347,7 +353,7 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         PolarrefError: no images, unknown intrinsics, no initial pair, < 2 registered images.
             metrics.json is still written with what was done. A failure after the
             reconstruction (GT metrics) does not raise: the model is kept and the failure is
-            named in ``metrics["gt_skipped"]``.
+            named in ``report.gt_skipped``.
     """
     from polarref import metrics as M
 
@@ -356,12 +362,12 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         check_dir_target(target, overwrite)
         check_writable_parent(target)
     t_start = time.perf_counter()
-    timings: dict = {}
-    from polarref.provenance import collect
+    timings: dict[str, float | bool] = {}
+    from polarref.provenance import collect_record
+    from polarref.scene_folder import SkippedImage
 
-    result: dict = {"image_dir": str(image_dir), "config": dataclasses.asdict(config), "status": "running",
-                    "environment": collect(seeds={"verification": config.verification.seed,
-                                                  "registration": config.mapper.register.seed})}
+    report = SfMReport(str(image_dir), config, collect_record(seeds={
+        "verification": config.verification.seed, "registration": config.mapper.register.seed}))
 
     def _publish(rec: Reconstruction | None) -> None:
         if target is None:
@@ -375,13 +381,13 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
                 write_model(rec, out / "model", model_format)
                 timings["export"] = time.perf_counter() - t0
             timings["total"] = time.perf_counter() - t_start
-            result["runtime_s"] = timings
-            M.write_json(out / "metrics.json", result)
+            report.runtime_s = timings
+            M.write_json(out / "metrics.json", report.to_json())
 
     try:
         feats, skipped, fkey = load_images_and_features(Path(image_dir), config, timings)
-        result["skipped_images"] = skipped
-        result["num_images"] = len(feats) + len(skipped)
+        report.skipped_images = [SkippedImage(str(s["name"]), str(s["reason"])) for s in skipped]
+        report.num_images = len(feats) + len(skipped)
         if len(feats) < 2:
             raise PolarrefError(f"{len(feats)} readable image(s) in {image_dir}; need at least 2")
         sizes = [(f.width, f.height) for f in feats]
@@ -399,51 +405,51 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
                 config.mapper, refine=auto_refine))
         initial_cameras = list(cameras)
         matches = match_and_verify(feats, cameras, cam_idx, config, fkey, timings)
-        result["num_verified_pairs"] = len(matches.geometries)
+        report.num_verified_pairs = len(matches.geometries)
         t0 = time.perf_counter()
         tracks = build_tracks([len(f.keypoints) for f in feats],
                               {k: g.inliers for k, g in matches.geometries.items()},
                               conflicts=config.track_conflicts)
         timings["tracks"] = time.perf_counter() - t0
-        result["num_tracks"] = tracks.num_tracks
-        result["num_conflicting_tracks_dropped"] = tracks.num_conflicting
+        report.num_tracks = int(tracks.num_tracks)
+        report.num_conflicting_tracks_dropped = int(tracks.num_conflicting)
         t0 = time.perf_counter()
         state = MapState([f.name for f in feats], list(cameras), cam_idx, [f.keypoints for f in feats],
                          tracks, config.triangulation)
         mlog = run_mapper(state, matches.geometries, config.mapper, [f.descriptors for f in feats])
         timings["mapping"] = time.perf_counter() - t0
-        timings["ba"] = float(sum(b.get("wall_s", 0.0) for b in mlog.ba))
-        result["initial_pair"] = [feats[i].name for i in mlog.initial_pair]
-        result["registration_order"] = [feats[i].name for i in mlog.registration_order]
-        result["unregistered_images"] = [f.name for i, f in enumerate(feats) if not state.registered[i]]
-        result["guided_observations"] = mlog.guided_observations
-        result["ba"] = mlog.ba
+        timings["ba"] = float(sum(b.wall_s for b in mlog.ba))
+        report.initial_pair = [feats[i].name for i in mlog.initial_pair]
+        report.registration_order = [feats[i].name for i in mlog.registration_order]
+        report.unregistered_images = [f.name for i, f in enumerate(feats) if not state.registered[i]]
+        report.guided_observations = int(mlog.guided_observations)
+        report.ba = mlog.ba
         from polarref.sfm.calibration import camera_reports
 
-        result["refine"] = list(config.mapper.refine)
-        result["cameras"] = [r.to_dict() for r in camera_reports(
-            initial_cameras, state.cameras, sources, cam_idx, [f.name for f in feats], gt)]
+        report.refine = list(config.mapper.refine)
+        report.cameras = camera_reports(initial_cameras, state.cameras, sources, cam_idx,
+                                        [f.name for f in feats], gt)
         rec = to_reconstruction(state, colors=[f.colors for f in feats])
     except PolarrefError as exc:
-        result["status"] = "failed"
-        result["error"] = str(exc)
+        report.status = STATUS_FAILED
+        report.error = str(exc)
         timings["total"] = time.perf_counter() - t_start
-        result["runtime_s"] = timings
+        report.runtime_s = timings
         _publish(None)
         raise
     t0 = time.perf_counter()
-    result.update(_score(rec, gt, mesh, result["num_images"]))
+    report.metrics, report.gt_skipped = _score(rec, gt, mesh, report.num_images)
     timings["metrics"] = time.perf_counter() - t0
-    result["status"] = "ok"
+    report.status = STATUS_OK
     timings["total"] = time.perf_counter() - t_start
-    result["runtime_s"] = timings
+    report.runtime_s = timings
     _publish(rec)
-    return SfMResult(rec, result, target)
+    return SfMResult(rec, report, target)
 
 
-def _score(rec: Reconstruction, gt: Reconstruction | None, mesh, num_images: int) -> dict:
-    """Metrics of a finished reconstruction. A GT comparison that cannot be made is skipped
-    with its reason (``gt_skipped``) rather than losing the reconstruction."""
+def _score(rec: Reconstruction, gt: Reconstruction | None, mesh, num_images: int):
+    """(metrics, gt_skipped) of a finished reconstruction. A GT comparison that cannot be made is
+    skipped with its reason rather than losing the reconstruction."""
     from polarref import metrics as M
 
     if gt is not None:
@@ -451,12 +457,11 @@ def _score(rec: Reconstruction, gt: Reconstruction | None, mesh, num_images: int
         if len(common) < 3:
             reason = (f"only {len(common)} registered image name(s) also in gt/ (need 3 to align); "
                       "image names must match the gt/ model")
-            return {**M.evaluate(rec, num_images=num_images).to_dict(), "gt_skipped": reason}
+            return M.evaluate(rec, num_images=num_images), reason
     try:
-        return M.evaluate(rec, gt=gt, mesh=mesh, num_images=num_images).to_dict()
+        return M.evaluate(rec, gt=gt, mesh=mesh, num_images=num_images), ""
     except (ValueError, np.linalg.LinAlgError, PolarrefError) as exc:
-        reason = f"{type(exc).__name__}: {exc}"
-        return {**M.evaluate(rec, num_images=num_images).to_dict(), "gt_skipped": reason}
+        return M.evaluate(rec, num_images=num_images), f"{type(exc).__name__}: {exc}"
 
 
 def _update_point_errors(rec: Reconstruction) -> None:

@@ -1,0 +1,131 @@
+"""The typed record of one ``polarref sfm`` run (``OUT/metrics.json``).
+
+:func:`polarref.sfm.pipeline.run_sfm` fills one :class:`SfMReport` stage by stage; the scores of
+the finished model are one :class:`polarref.metrics.ReconstructionMetrics`, embedded, not copied.
+The file keeps its flat layout (the metrics' keys at the top level, keys of stages that did not
+run left out), written by :meth:`SfMReport.to_json`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from polarref import records
+from polarref.ba.options import BASummary, IterationRecord
+from polarref.metrics import ReconstructionMetrics
+from polarref.provenance import Provenance
+from polarref.scene_folder import SkippedImage
+
+if TYPE_CHECKING:
+    from polarref.sfm.pipeline import SfMConfig
+
+STATUS_RUNNING, STATUS_OK, STATUS_FAILED = "running", "ok", "failed"
+
+
+@dataclass
+class ColmapBARun:
+    """pycolmap's (Ceres) bundle adjustment of one mapper step."""
+
+    loss: str
+    wall_s: float
+    refine: list[str]
+    initial_cost: float | None = None
+    final_cost: float | None = None
+    num_successful_steps: float | None = None
+    num_unsuccessful_steps: float | None = None
+
+
+@dataclass
+class BARun:
+    """One bundle adjustment inside the mapper (``polarref.sfm.bundle.adjust``)."""
+
+    param: str                           # BA parameterization, or "colmap"
+    kind: str = ""                       # global | local (set by the mapper)
+    skipped: str = ""                    # why it did not run ("" when it ran)
+    summary: BASummary | None = None     # polarref's adjusters
+    colmap: ColmapBARun | None = None    # ba="colmap"
+    num_registered: int | None = None    # global: registered images
+    image: int | None = None             # local: the image just registered
+    num_variable: int | None = None      # local: images with variable poses
+    num_fixed: int | None = None         # local: images held fixed
+
+    @property
+    def wall_s(self) -> float:
+        run = self.summary or self.colmap
+        return float(run.wall_s) if run is not None else 0.0
+
+    @property
+    def initial_cost(self) -> float | None:
+        run = self.summary or self.colmap
+        return None if run is None else run.initial_cost
+
+    @property
+    def trace(self) -> list[IterationRecord]:
+        return list(self.summary.trace) if self.summary is not None else []
+
+    def to_json(self) -> dict[str, Any]:
+        """Flat JSON form: the adjuster's scalars and iteration trace, then the mapper's fields."""
+        out: dict[str, Any] = {"param": self.param}
+        if self.skipped:
+            out["skipped"] = self.skipped
+        elif self.colmap is not None:
+            out.update({k: v for k, v in dataclasses.asdict(self.colmap).items() if v is not None})
+        elif self.summary is not None:
+            # keep scalars and the iteration trace (convergence plots); drop bulky state dumps
+            info = {k: v for k, v in dataclasses.asdict(self.summary).items() if k != "points_state"
+                    and (k in ("trace", "intrinsics") or not isinstance(v, (list, np.ndarray)))
+                    and not (k == "first_stage_termination" and v is None)}
+            if not info["intrinsics"]:
+                info.pop("intrinsics")
+            out.update(info)
+        out.update({k: getattr(self, k) for k in ("kind", "num_registered", "image", "num_variable", "num_fixed")
+                    if getattr(self, k) not in (None, "")})
+        return out
+
+
+@dataclass
+class SfMReport:
+    """What one SfM run did and how good its model is."""
+
+    image_dir: str
+    config: SfMConfig
+    environment: Provenance
+    status: str = STATUS_RUNNING         # running | ok | failed
+    error: str = ""                      # why it failed ("" unless failed)
+    skipped_images: list[SkippedImage] = field(default_factory=list)
+    num_images: int | None = None        # readable + skipped
+    num_verified_pairs: int | None = None
+    num_tracks: int | None = None
+    num_conflicting_tracks_dropped: int | None = None
+    initial_pair: list[str] | None = None
+    registration_order: list[str] | None = None
+    unregistered_images: list[str] | None = None
+    guided_observations: int | None = None
+    ba: list[BARun] | None = None        # every bundle adjustment of the mapper, in order
+    refine: list[str] | None = None          # intrinsics groups refined
+    cameras: list[Any] | None = None         # polarref.sfm.calibration.CameraReport per camera
+    metrics: ReconstructionMetrics | None = None   # scores of the finished model
+    gt_skipped: str = ""                 # why the GT comparison was not made ("" when made or no GT)
+    runtime_s: dict[str, float | bool] = field(default_factory=dict)   # stage -> s; *_cached flags
+
+    def to_json(self) -> dict[str, Any]:
+        """The metrics.json object: flat, stages that did not run and empty reasons left out."""
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if f.name == "metrics":
+                if value is not None:
+                    out.update(records.to_dict(value))
+                continue
+            if f.name == "ba" and value is not None:
+                value = [b.to_json() for b in value]
+            if value is None or (f.name in ("error", "gt_skipped") and not value):
+                continue
+            out[f.name] = records._clean(dataclasses.asdict(value) if dataclasses.is_dataclass(value) else
+                                         [dataclasses.asdict(v) if dataclasses.is_dataclass(v) else v
+                                          for v in value] if isinstance(value, list) else value)
+        return out
