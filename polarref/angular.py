@@ -41,6 +41,14 @@ def _f64(x: ArrayLike) -> Array:
     return np.asarray(x, dtype=np.float64)
 
 
+def last_axis(a: ArrayLike, n: int, name: str) -> Array:
+    """``a`` as float64 with shape (..., n); ValueError naming ``name`` otherwise."""
+    a = np.asarray(a, dtype=np.float64)
+    if a.ndim == 0 or a.shape[-1] != n:
+        raise ValueError(f"{name} must have shape (..., {n}), got {a.shape}")
+    return a
+
+
 def _nan_rows(out: Array, alpha: Array, beta: Array, trailing: int) -> Array:
     """Whole output rows NaN where any input is NaN (z = sin(beta) alone would hide a NaN alpha)."""
     bad = np.isnan(alpha) | np.isnan(beta)

@@ -29,16 +29,10 @@ import numpy as np
 
 from polarref.angular import (azimuth_elevation_from_direction, direction_from_azimuth_elevation,
                               direction_jacobian)
+from polarref.angular import last_axis as _last
 
 Array = np.ndarray
 _ERR = dict(invalid="ignore", divide="ignore", over="ignore")
-
-
-def _last(a, n: int, name: str) -> Array:
-    a = np.asarray(a, dtype=np.float64)
-    if a.ndim == 0 or a.shape[-1] != n:
-        raise ValueError(f"{name} must have shape (..., {n}), got {a.shape}")
-    return a
 
 
 def _infinity(X: Array, J: Array, at_inf: Array, strict: bool, what: str):

@@ -73,24 +73,39 @@ class GTErrors:
 
 @dataclass
 class SurfaceErrors:
+    """Point-to-surface distances (undefined, NaN when computed and None when read, without points)."""
+
     num_points: int
-    mean: float                    # GT units
-    median: float
-    p90: float
-    mean_rel: float                # mean / scene_size
-    median_rel: float
+    mean: float | None             # GT units
+    median: float | None
+    p90: float | None
+    mean_rel: float | None         # mean / scene_size
+    median_rel: float | None
+
+
+# Version of the one metrics.json schema written by ``polarref sfm`` and ``polarref compare``:
+# both embed a ReconstructionMetrics as one object under "metrics" (v1: compare spelled its own
+# names per method, sfm wrote the fields at the top level; see polarref.compare.schema's v1 reader).
+SCHEMA_VERSION = 2
 
 
 @dataclass
 class ReconstructionMetrics:
+    """The scores of one reconstruction, the one record embedded in every metrics.json.
+
+    A mean over nothing is NaN when computed and ``None`` once read back (JSON has no NaN);
+    ``None`` also marks a figure an older file did not record (v1 compare files lack the
+    median error and the mean track length).
+    """
+
     num_images: int
     registered_images: int
     tie_points: int
     reprojected_px: int
-    mean_reprojection_error_px: float
-    mean_reprojection_error_px_per_point: float
-    median_reprojection_error_px: float
-    mean_track_length: float
+    mean_reprojection_error_px: float | None
+    mean_reprojection_error_px_per_point: float | None
+    median_reprojection_error_px: float | None
+    mean_track_length: float | None
     gt: GTErrors | None = None
     surface: SurfaceErrors | None = None
 
@@ -318,6 +333,26 @@ def evaluate(rec, gt=None, mesh: tuple[np.ndarray, np.ndarray] | None = None,
         if mesh is not None:
             m.surface = surface_errors(rec, alignment[0], mesh[0], mesh[1], m.gt.scene_size)
     return m
+
+
+def read_metrics(data: dict, *, label: str = "metrics.json") -> ReconstructionMetrics:
+    """The :class:`ReconstructionMetrics` under ``"metrics"`` of a parsed ``polarref sfm``
+    metrics.json, read strictly (``polarref compare``'s: ``polarref.compare.schema.load``, whose
+    ``MethodResult.metrics`` is the same record).
+
+    Raises:
+        polarref.records.RecordError: wrong schema version, no metrics, or a key that is not a
+            ReconstructionMetrics field.
+    """
+    from polarref import records
+
+    version = data.get("schema_version") if isinstance(data, dict) else None
+    if version != SCHEMA_VERSION or isinstance(version, bool):
+        raise records.RecordError(f"{label}: unsupported schema_version {version!r} (this polarref "
+                                  f"reads {SCHEMA_VERSION} for polarref sfm output)")
+    if not isinstance(data.get("metrics"), dict):
+        raise records.RecordError(f"{label}: no metrics object")
+    return records.from_dict(ReconstructionMetrics, data["metrics"], label=label, where="metrics")
 
 
 def write_json(path: str | Path, data: dict) -> None:

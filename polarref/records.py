@@ -128,6 +128,12 @@ def from_dict(tp: type[T], data, *, label: str = "record", where: str | None = N
     return _build(tp, data, where or tp.__name__, label)
 
 
+def coerce(tp: type[T], value, *, label: str = "record") -> T:
+    """The record ``tp`` from an in-memory JSON-like value, as :func:`save` then :func:`load`
+    would give it (NaN/inf become None, tuples lists), strictly."""
+    return from_dict(tp, _clean(value), label=label)
+
+
 _NUMBER_LIST = re.compile(r"\[\s*(-?[0-9][-0-9.eE+]*(?:,\s*-?[0-9][-0-9.eE+]*)*)\s*\]")
 
 

@@ -57,6 +57,15 @@ def test_bench_records_settings_repeats_and_time_to_common_cost(tmp_path):
     assert all(rows[n]["ratio_to_fastest_ceres"] >= 1.0 for n in ceres)
     ratio = rows["euclidean"]["ratio_to_fastest_ceres"]
     assert ratio == pytest.approx(rows["euclidean"]["time_to_target_s"]["median"] / res["fastest_ceres_time_to_target_s"])
+    # per-iteration cost of every form, side by side; the kernel path and its warm-up recorded
+    for n in ["euclidean", "parallax", "polar", "angular"]:
+        per = rows[n]["s_per_accepted_iteration"]
+        assert per["n"] == 2 and 0 < per["min"] <= per["median"] <= per["max"] < rows[n]["wall_s"]["max"]
+        assert rows[n]["per_iteration_vs_euclidean"] == pytest.approx(per["median"] / rows["euclidean"]["s_per_accepted_iteration"]["median"])
+    assert rows["euclidean"]["per_iteration_vs_euclidean"] == pytest.approx(1.0)
+    assert doc["settings"]["kernels"]["used"] in ("numba", "numpy") and doc["settings"]["kernels"]["threads"] == 1
+    assert rows["euclidean"]["settings"]["kernels"] == opts.kernels
+    assert "ceres_own_cost" not in res      # Euclidean and Ceres reach the common target here
     table = readme_table(doc)            # the README's figures come from bench.json only
     assert f"{ratio:.2f}x" in table and fastest in table
     assert np.isfinite(res["load_1min"]) and (tmp_path / "bench.md").read_text().count("| ceres-") == 4
@@ -89,3 +98,35 @@ def test_update_readme_round_trip(tmp_path):
     assert text.startswith("intro\n") and text.endswith("tail\n") and "old" not in text
     assert readme_block(text).strip() == readme_table(doc).strip()
     assert "| p | ceres-our-tol-1t (0.200) | 1.50x | did not reach | did not reach | did not reach |" in text
+
+
+def test_ceres_own_cost_when_the_common_target_is_missed():
+    """Euclidean vs Ceres to Ceres' best final cost: limits by trace (ours) and bisection (Ceres)."""
+    from polarref.ba.bench import TARGET_REL, _ceres_own_cost, _Solver
+
+    costs = {"euclidean": [100.0, 50.0, 20.0, 10.0], "ceres-a": [100.0, 80.0, 60.0, 40.0]}
+    calls = []
+
+    def fn_for(name):
+        def fn(limit):
+            c = costs[name]
+            k = len(c) - 1 if limit is None else min(limit, len(c) - 1)
+            calls.append((name, limit))
+            run = {"final_cost": c[k], "wall_s": 0.1 * k + (0.05 if name == "euclidean" else 0.0),
+                   "iterations": k, "accepted": k}
+            if name == "euclidean":
+                run["trace"] = [[i, True, 0.1 * i, c[i]] for i in range(1, k + 1)]
+            return run
+        return fn
+
+    solvers = [_Solver(n, "ours" if n == "euclidean" else "ceres", {}, fn_for(n)) for n in costs]
+    rows = {s.name: {"kind": s.kind, "full_runs": [s.fn(None)]} for s in solvers}
+    # common target 5: nobody reaches it -> compare on Ceres' own best cost (40)
+    out = _ceres_own_cost(solvers, rows, {"euclidean": None, "ceres-a": None}, 5.0, repeat=2)
+    assert out["target_cost"] == pytest.approx(40.0 * (1 + TARGET_REL))
+    assert out["rows"]["euclidean"]["iterations_limit"] == 2      # 20 <= 40.04 first at iteration 2
+    assert out["rows"]["ceres-a"]["iterations_limit"] == 3        # bisection: 40 first at 3
+    assert len(out["rows"]["euclidean"]["runs"]) == 2
+    assert out["euclidean_ratio_to_fastest_ceres"] == pytest.approx(0.25 / 0.3)
+    # when Euclidean and a Ceres setting both reached the common target there is nothing to add
+    assert _ceres_own_cost(solvers, rows, {"euclidean": 2, "ceres-a": 3}, 50.0, repeat=1) is None

@@ -103,7 +103,7 @@ def _dense_step(p, prm, mu):
 
 
 @pytest.mark.parametrize("param", PARAMS)
-@pytest.mark.parametrize("mode", ["syrk", "pairs", "sparse"])
+@pytest.mark.parametrize("mode", ["syrk", "pairs", "sparse", "kernels", "kernels-sparse"])
 def test_schur_step_equals_dense_normal_equations(param, mode, monkeypatch):
     init, _ = synthetic_reconstruction(6, 40, seed=3, noise_px=0.5, rot_deg=0.3,
                                        point_sigma=0.05, center_sigma=0.05)
@@ -112,24 +112,28 @@ def test_schur_step_equals_dense_normal_equations(param, mode, monkeypatch):
     prm = make_param(p, BAOptions(param=param))
     mu = 1e-3
     ref, _ = _dense_step(p, prm, mu)
-    if mode != "syrk":  # make the camera-pair GEMM path the cheaper one
+    fast = mode.startswith("kernels")  # compiled kernels (ba/kernels.py), dense anchors
+    if fast:
+        pytest.importorskip("numba")
+    if mode != "syrk":  # make the camera-pair GEMM / entry-pair kernel path the cheaper one
         monkeypatch.setattr(schur_mod, "_PAIR_S", 0.0)
         monkeypatch.setattr(schur_mod, "_SEGMENT_S", 0.0)
+        monkeypatch.setattr(schur_mod, "_PAIR_KERNEL_S", 0.0)
+    sparse = mode in ("sparse", "kernels-sparse")
     st = SchurStructure(prm.slot_cams, prm.slot_cols, p.obs_pt, p.cam_mask.any(1),
-                        p.num_points, dense_max_cameras=1 if mode == "sparse" else 700)
-    assert st.use_gemm == (mode == "syrk") and st.sparse_S == (mode == "sparse")
-    r, Jp, Jc = prm.evaluate(p.R, p.C, prm.init_points(), True, factored=True)
-    builder = st if param == "euclidean" else AnchorTerms(st, p.obs_pt, *prm.anchor_cams)
+                        p.num_points, dense_max_cameras=1 if sparse else 700, fast=fast)
+    assert st.use_gemm == (mode == "syrk") and st.sparse_S == sparse
+    r, Jp, Jc = prm.evaluate(p.R, p.C, prm.init_points(), True, factored=not fast)
+    builder = st if param == "euclidean" or fast else AnchorTerms(st, p.obs_pt, *prm.anchor_cams)
     mask_v = p.cam_mask[st.var_cams].astype(float)
     g_c, W, U = st.apply_mask(mask_v, *builder.build(Jc, Jp, r))
-    if param != "euclidean":  # factored anchor blocks == generic slot products
+    if param != "euclidean" and not fast:  # factored anchor blocks == generic slot products
         dense = [Jc[0], *Jc[1].dense(Jc[0], p.obs_pt)]
         g2, W2, U2 = st.apply_mask(mask_v, *st.build(dense, Jp, r))
         np.testing.assert_allclose(U, U2, atol=1e-9 * np.abs(U2).max())
         np.testing.assert_allclose(W, W2, atol=1e-9 * np.abs(W2).max())
         np.testing.assert_allclose(g_c, g2, atol=1e-9 * np.abs(g2).max())
-    V = st.reduce_points(np.matmul(Jp.transpose(0, 2, 1), Jp))
-    g_p = st.reduce_points(np.einsum("mki,mk->mi", Jp, r))
+    V, g_p = st.point_terms(Jp, r)
     D_p = np.clip(np.diagonal(V, axis1=1, axis2=2), 1e-6, 1e32)
     Vd = V + mu * D_p[:, :, None] * np.eye(3)
     diag_u = np.zeros((st.Nv, 6))

@@ -7,17 +7,21 @@ from test_report_build import synthetic_metrics
 
 import numpy as np
 
+from polarref import records
 from polarref.compare import claims, claims_experiments, schema
+from polarref.compare.experiment_records import Conditioning, DerivationEvidence, Experiments, Robustness, Timing
 
 
 def _metrics(euclid_runtime, polar_runtime, euclid_tp=1000, polar_tp=1000, euclid_rp=5000, polar_rp=5000,
              euclid_err=0.30, polar_err=0.30, euclid_rot=0.10, polar_rot=0.10):
     data = copy.deepcopy(synthetic_metrics())
     eu, po = data["methods"][0], data["methods"][1]
-    eu.update(runtime_s=euclid_runtime, tie_points=euclid_tp, reprojected_px=euclid_rp,
-              mean_reprojection_error_px=euclid_err)
-    po.update(runtime_s=polar_runtime, tie_points=polar_tp, reprojected_px=polar_rp,
-              mean_reprojection_error_px=polar_err)
+    for meth, runtime, tp, rp, err in ((eu, euclid_runtime, euclid_tp, euclid_rp, euclid_err),
+                                       (po, polar_runtime, polar_tp, polar_rp, polar_err)):
+        meth["runtime_s"] = runtime
+        meth["metrics"].update(tie_points=tp, reprojected_px=rp, mean_reprojection_error_px=err)
+        if tp is None:   # an ok method without metrics (counts unknown)
+            meth["metrics"] = None
     eu["gt"]["rotation_error_deg_mean"] = euclid_rot
     po["gt"]["rotation_error_deg_mean"] = polar_rot
     return schema.from_dict(data)
@@ -66,7 +70,8 @@ def test_more_tie_points_verdict(kw, verdict):
 def test_missing_reprojection_error_is_not_tested():
     m = _metrics(10, 10)
     for meth in m.methods:
-        meth.mean_reprojection_error_px = None
+        if meth.metrics is not None:   # the failed method has none
+            meth.metrics.mean_reprojection_error_px = None
     assert _verdict(claims.scene_claims(m), "C3").verdict == "not tested"
 
 
@@ -81,7 +86,7 @@ def test_scene_claims_not_tested_when_candidate_failed():
 def _evidence(printed, claim7, nan=0):
     case = dict(case="random", printed_eq3_max_err=printed, printed_eq3_nan=nan,
                 printed_is_complement_max_err=1e-12, corrected_eq3_max_err=1e-12, claim7_max_err=claim7)
-    return {"cases": [case], "samples_per_case": 1000}
+    return records.coerce(DerivationEvidence, {"cases": [case], "samples_per_case": 1000})
 
 
 def test_equation_verdicts():
@@ -95,12 +100,13 @@ def test_equation_verdicts():
     assert c1.verdict == c2.verdict == "not tested" and "derivations crashed" in c1.rationale
 
 
-def _cond(eu, pa, corr_eu, corr_pa):
+def _cond(eu, pa, corr_eu, corr_pa, pa_error=""):
     row = lambda c, r: {"cond_JtJ": c, "cond_JtJ_scaled": c, "cond_schur": 1.0, "cond_schur_scaled": 1.0,
                         "mean_abs_point_corr": r, "max_abs_point_corr": r, "error": ""}
-    return {"problem": "p", "seeds": list(range(len(eu))), "gauge": "g",
-            "params": {"euclidean": {"per_seed": [row(c, r) for c, r in zip(eu, corr_eu)], "error": ""},
-                       "parallax": {"per_seed": [row(c, r) for c, r in zip(pa, corr_pa)], "error": ""}}}
+    return records.coerce(Conditioning, {
+        "problem": "p", "seeds": list(range(len(eu))), "gauge": "g",
+        "params": {"euclidean": {"per_seed": [row(c, r) for c, r in zip(eu, corr_eu)], "error": ""},
+                   "parallax": {"per_seed": [row(c, r) for c, r in zip(pa, corr_pa)], "error": pa_error}}})
 
 
 def _runs(successes, rot=0.03, flip=0.0):
@@ -112,9 +118,10 @@ def _rob(out_eu, out_pa, levels, start=None, rot_pa=0.03):
     """levels: list of (euclidean successes, parallax successes) per parallax level."""
     st = start or [0] * len(out_eu)
     unit = lambda e, p: {"start": _runs(st, rot=2.0), "euclidean": _runs(e), "parallax": _runs(p, rot=rot_pa)}  # noqa: E731
-    return {"seeds_run": len(out_eu), "success_rule": "r", "outlier_problem": "o", "parallax_problem": "l",
-            "outliers": {"0.1": unit(out_eu, out_pa)},
-            "low_parallax": {f"{0.3 / 10 ** i:g}": unit(e, p) for i, (e, p) in enumerate(levels)}}
+    return records.coerce(Robustness, {
+        "seeds_run": len(out_eu), "success_rule": "r", "outlier_problem": "o", "parallax_problem": "l",
+        "outliers": {"0.1": unit(out_eu, out_pa)},
+        "low_parallax": {f"{0.3 / 10 ** i:g}": unit(e, p) for i, (e, p) in enumerate(levels)}})
 
 
 ALL, NONE, SOME = [1] * 5, [0] * 5, [1, 1, 0, 1, 0]
@@ -170,9 +177,9 @@ def test_robustness_verdict(rob, verdict):
     c8 = claims_experiments.robustness_claim(rob, "")
     assert c8.verdict == verdict
     f = {x.key: x.value for x in c8.figures}
-    assert f["out0_parallax"] == pytest.approx(np.mean([r["success"] for r in rob["outliers"]["0.1"]["parallax"]["runs"]]))
+    assert f["out0_parallax"] == pytest.approx(np.mean([r.success for r in rob.outliers["0.1"]["parallax"].runs]))
     starts = [v for k, v in f.items() if k.endswith("_start_success")]
-    assert len(starts) == 1 + len(rob["low_parallax"])
+    assert len(starts) == 1 + len(rob.low_parallax)
     assert c8.sample_size.startswith("5 seeds x (1 outlier levels + ")
 
 
@@ -192,13 +199,13 @@ def test_tost_outcomes():
 def test_broken_experiments_are_not_tested_with_reason():
     assert all(c.verdict == "not tested" and "timed out" in c.rationale
                for c in claims.experiment_claims(None, "timed out"))
-    exp = {"conditioning": {"error": "LinAlgError: singular"}, "robustness": {"error": "ValueError: boom"}}
+    exp = Experiments(0, conditioning=Conditioning(error="LinAlgError: singular"),
+                      robustness=Robustness(error="ValueError: boom"))
     c6, c7, c8 = claims.experiment_claims(exp, "")
     assert (c6.verdict, c7.verdict, c8.verdict) == ("not tested",) * 3
     assert "singular" in c6.rationale and "boom" in c8.rationale
     # every form of a seed failed: nothing to compare -> not tested, never "not supported"
-    cond = _cond([], [], [], [])
-    cond["params"]["parallax"]["error"] = "ValueError: x"
+    cond = _cond([], [], [], [], pa_error="ValueError: x")
     assert {c.verdict for c in claims_experiments.conditioning_claims(cond, "")} == {"not tested"}
     # a robustness run with no completed runs is inconclusive, not a verdict
     rob = _rob([], [], [([], [])])
@@ -209,9 +216,9 @@ def _timing(rms_eu, rms_po, rot_eu, rot_po, wall_eu, wall_po):
     def rows(rms, rot, wall):
         return [{"seed": s, "final_rms_px": a, "rotation_error_deg": b, "wall_s": c, "iterations": 5}
                 for s, (a, b, c) in enumerate(zip(rms, rot, wall))]
-    return {"timing": {"problem": "p", "params": {
+    return Experiments(0, timing=records.coerce(Timing, {"problem": "p", "params": {
         "euclidean": {"per_seed": rows(rms_eu, rot_eu, wall_eu), "runs": [], "trace": [], "error": ""},
-        "polar": {"per_seed": rows(rms_po, rot_po, wall_po), "runs": [], "trace": [], "error": ""}}}}
+        "polar": {"per_seed": rows(rms_po, rot_po, wall_po), "runs": [], "trace": [], "error": ""}}}))
 
 
 RMS = [0.46, 0.47, 0.45, 0.48, 0.46]
@@ -247,6 +254,18 @@ def test_controlled_speedup(factor, verdict):
 
 
 def test_controlled_missing_falls_back_to_scene_rule():
-    exp = {"timing": {"error": "RuntimeError: x"}}
+    exp = Experiments(0, timing=Timing(error="RuntimeError: x"))
     c4 = _verdict(claims.scene_claims(_metrics(10, 7), exp), "C4")
     assert c4.verdict == "supported" and "not run" in c4.rationale
+
+
+def test_derivation_evidence_is_a_typed_record_that_round_trips(tmp_path):
+    from polarref.compare import jobs
+
+    ev = jobs.derivation_evidence(n=200, out_json=str(tmp_path / "derivations.json"))
+    assert isinstance(ev, DerivationEvidence) and ev.samples_per_case == 200 and len(ev.cases) >= 3
+    assert records.load(DerivationEvidence, tmp_path / "derivations.json") == ev
+    c1, c2 = claims.equation_claims(ev, "")
+    assert c1.verdict == "not supported" and c2.verdict == "supported"   # the printed Eq. 3 fails; claim 7 holds
+    with pytest.raises(records.RecordError, match="unknown key"):
+        records.coerce(DerivationEvidence, {"cases": [], "samples_per_case": 1, "bogus": 0})

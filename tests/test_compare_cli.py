@@ -94,8 +94,8 @@ def test_failed_method_is_reported_and_others_still_report(tmp_path, monkeypatch
     by = {r["name"]: r for r in m["methods"]}
     eu, pc = by["ours-euclidean"], by["pycolmap-incremental-sift"]
     assert pc["status"] == "failed" and "registered no images" in pc["reason"]
-    assert eu["status"] == "ok" and eu["registered_images"] == 4
-    assert eu["tie_points"] == 60 and eu["reprojected_px"] == truth.num_observations
+    assert eu["status"] == "ok" and eu["metrics"]["registered_images"] == 4
+    assert eu["metrics"]["tie_points"] == 60 and eu["metrics"]["reprojected_px"] == truth.num_observations
     assert 0.0 <= eu["gt"]["rotation_error_deg_max"] < 1e-6          # the model IS the truth
     assert eu["runtime_s"] == pytest.approx(1.0 + 3.0)               # shared features + own stages
     assert calls.count("pycolmap_sift_db") == 1 and calls.count("ours_features") == 1
@@ -127,9 +127,9 @@ def test_full_compare_on_small_comet(tmp_path, isolated_cache):
     for name in ("ours-euclidean", "pycolmap-incremental-sift", "pycolmap-global-sift"):
         r = by[name]
         assert r["status"] == "ok", (name, r["reason"])
-        assert r["registered_images"] == m["scene"]["num_images"]
+        assert r["metrics"]["registered_images"] == m["scene"]["num_images"]
         assert 0.0 < r["gt"]["rotation_error_deg_mean"] < 0.5
-        assert 0.05 < r["mean_reprojection_error_px"] < 1.0
+        assert 0.05 < r["metrics"]["mean_reprojection_error_px"] < 1.0
     assert len(m["claims"]) == 8
     assert all(c["verdict"] in ("supported", "not supported", "inconclusive", "not tested") for c in m["claims"])
     html = (out / "report.html").read_text()
@@ -193,7 +193,7 @@ def test_compare_on_strecha_fountain(tmp_path, isolated_cache, shared_data):
     assert m["scene"]["downscale"] == 4.0 and m["scene"]["width"] == 768
     for r in m["methods"]:
         assert r["status"] == "ok", (r["name"], r["reason"])
-        assert r["registered_images"] == 11
+        assert r["metrics"]["registered_images"] == 11
         assert 0.0 < r["gt"]["rotation_error_deg_mean"] < 0.2
 
 

@@ -1,11 +1,14 @@
 """Claim experiments: the low-parallax problem, gauge-free errors, and tiny experiment runs."""
 
+import json
 import re
 import time
 
 import numpy as np
 import pytest
 
+from polarref import records
+from polarref.compare.experiment_records import Experiments
 from polarref.compare import claims, experiments
 from polarref.compare.experiment_problems import (bearing_errors_deg, low_parallax_problem,
                                                   observation_geometry, relative_rotation_errors_deg)
@@ -68,26 +71,31 @@ def test_tiny_experiments_shapes_and_finiteness(tmp_path):
                                  parallax_size=(5, 40))
     params = experiments._params()
     for p in params:
-        v = tim["params"][p]
-        assert v["error"] == "" and len(v["per_seed"]) == 2 and len(v["runs"]) == 4
-        for r in v["per_seed"]:
-            assert np.isfinite([r["wall_s"], r["final_rms_px"], r["rotation_error_deg"]]).all()
-            assert 0.2 < r["final_rms_px"] < 0.8                     # converged to the 0.5 px noise floor
-        assert len(cond["params"][p]["per_seed"]) == 2
-        assert all(np.isfinite(r["cond_JtJ_scaled"]) and r["cond_JtJ_scaled"] >= 1
-                   for r in cond["params"][p]["per_seed"])
-        for unit in list(rob["outliers"].values()) + list(rob["low_parallax"].values()):
-            assert len(unit[p]["runs"]) == 2 and not unit[p]["errors"]
-    assert rob["seeds_run"] == 2 and set(rob["low_parallax"]) == {"0.1", "0.001"}
+        v = tim.params[p]
+        assert v.error == "" and len(v.per_seed) == 2 and len(v.runs) == 4
+        for r in v.per_seed:
+            assert np.isfinite([r.wall_s, r.final_rms_px, r.rotation_error_deg]).all()
+            assert 0.2 < r.final_rms_px < 0.8                     # converged to the 0.5 px noise floor
+        assert len(cond.params[p].per_seed) == 2
+        assert all(r.cond_JtJ_scaled is not None and r.cond_JtJ_scaled >= 1
+                   for r in cond.params[p].per_seed)
+        for unit in list(rob.outliers.values()) + list(rob.low_parallax.values()):
+            assert len(unit[p].runs) == 2 and not unit[p].errors
+    assert rob.seeds_run == 2 and set(rob.low_parallax) == {"0.1", "0.001"}
     # the reduced camera system does not depend on the point parameterization (same residuals,
     # same solution): XYZ and parallax landmarks agree; polar adds a view-angle residual
-    schur = {p: cond["params"][p]["per_seed"][0]["cond_schur"] for p in params}
+    schur = {p: cond.params[p].per_seed[0].cond_schur for p in params}
     assert schur["parallax"] == pytest.approx(schur["euclidean"], rel=1e-6)
     assert schur["polar"] != pytest.approx(schur["euclidean"], rel=1e-6)
-    assert "fixed" in cond["gauge"]
+    assert "fixed" in cond.gauge
+    # the typed records round-trip through their JSON file exactly (what compare's job runner does)
+    exp = Experiments(0, conditioning=cond, timing=tim, robustness=rob, wall_s={"timing": 1.5})
+    back = records.load(Experiments, records.save(exp, tmp_path / "experiments.json"))
+    assert back == exp and back.robustness.outliers["0.2"]["start"].runs[0].iterations is None
+    assert json.loads((tmp_path / "experiments.json").read_text())["timing"]["params"]["polar"]["per_seed"][0]["seed"] == 0
     # the scorecard consumes this JSON: every claim gets a verdict and every placeholder a figure
-    res = claims.scene_claims(_no_scene(), {"timing": tim}) + claims.experiment_claims(
-        {"conditioning": cond, "robustness": rob}, "")
+    res = claims.scene_claims(_no_scene(), Experiments(0, timing=tim)) + claims.experiment_claims(
+        Experiments(0, conditioning=cond, robustness=rob), "")
     for c in res:
         keys = {f.key for f in c.figures}
         assert set(re.findall(r"\{(\w+)\}", c.rationale)) <= keys, c.claim_id
@@ -142,21 +150,21 @@ def test_start_point_fails_the_success_rule_at_every_level():
     """C8 can only come out either way if the start point itself fails (issue 12): at the scorecard's
     levels, with the scorecard's initial perturbation, the untouched start fails on every seed."""
     rob = experiments.robustness(0, time.perf_counter() + 100, seeds=2, outlier_size=(5, 40), parallax_size=(5, 40))
-    units = list(rob["outliers"].values()) + list(rob["low_parallax"].values())
+    units = list(rob.outliers.values()) + list(rob.low_parallax.values())
     assert len(units) == len(experiments.OUTLIER_FRACTIONS) + len(experiments.PARALLAX_RATIOS)
     for unit in units:
-        start = unit["start"]["runs"]
-        assert len(start) == 2 and not any(r["success"] for r in start)
-        assert all(r["rotation_error_deg"] > experiments.SUCCESS_ROT_DEG for r in start)
-    for unit in rob["low_parallax"].values():   # and BA gets somewhere from it (outliers on 5x40 may defeat it)
-        eu, start = unit["euclidean"]["runs"], unit["start"]["runs"]
-        assert np.median([r["rotation_error_deg"] for r in eu]) < 0.5 * np.median([r["rotation_error_deg"] for r in start])
-    for unit in rob["outliers"].values():      # C5's counts: within [0, all observations]
-        for r in unit["polar"]["runs"]:
-            assert 0 < r["tie_points"] <= 40 and 0 < r["inlier_observations"] <= 5 * 40
+        start = unit["start"].runs
+        assert len(start) == 2 and not any(r.success for r in start)
+        assert all(r.rotation_error_deg > experiments.SUCCESS_ROT_DEG for r in start)
+    for unit in rob.low_parallax.values():   # and BA gets somewhere from it (outliers on 5x40 may defeat it)
+        eu, start = unit["euclidean"].runs, unit["start"].runs
+        assert np.median([r.rotation_error_deg for r in eu]) < 0.5 * np.median([r.rotation_error_deg for r in start])
+    for unit in rob.outliers.values():      # C5's counts: within [0, all observations]
+        for r in unit["polar"].runs:
+            assert 0 < r.tie_points <= 40 and 0 < r.inlier_observations <= 5 * 40
         # the start point (C5's baseline) keeps far fewer observations within 4 px than BA does
-        start = np.mean([r["inlier_observations"] for r in unit["start"]["runs"]])
-        assert start < 0.5 * np.mean([r["inlier_observations"] for r in unit["euclidean"]["runs"]])
-    c8 = claims.experiment_claims({"robustness": rob}, "")[-1]
+        start = np.mean([r.inlier_observations for r in unit["start"].runs])
+        assert start < 0.5 * np.mean([r.inlier_observations for r in unit["euclidean"].runs])
+    c8 = claims.experiment_claims(Experiments(0, robustness=rob), "")[-1]
     starts = [f.value for f in c8.figures if f.key.endswith("_start_success")]
     assert starts and max(starts) <= 0.2

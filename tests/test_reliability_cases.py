@@ -40,9 +40,9 @@ def test_gt_names_mismatch_keeps_model_and_names_failure(small_copy, tmp_path, m
     lines = _err_lines(capsys)
     assert len(lines) == 1 and "metrics vs ground truth skipped" in lines[0] and str(out) in lines[0]
     m = json.loads((out / "metrics.json").read_text())
-    assert m["status"] == "ok" and m.get("gt") is None
+    assert m["status"] == "ok" and m["metrics"].get("gt") is None
     assert "image names must match" in m["gt_skipped"]
-    assert m["registered_images"] >= 5 and m["tie_points"] > 100  # the reconstruction itself is fine
+    assert m["metrics"]["registered_images"] >= 5 and m["metrics"]["tie_points"] > 100  # the reconstruction itself is fine
     assert (out / "model" / "points3D.txt").stat().st_size > 1000
 
 
@@ -239,7 +239,7 @@ def test_corrupt_cache_entry_recomputed(small_copy, tmp_path, monkeypatch, caplo
     assert len(corrupt) == 1 and entries[0].name in corrupt[0].getMessage()
     second = json.loads((tmp_path / "b" / "metrics.json").read_text())
     assert second["runtime_s"]["features_cached"] is False
-    assert second["tie_points"] == first["tie_points"]  # recomputed, same result
+    assert second["metrics"]["tie_points"] == first["metrics"]["tie_points"]  # recomputed, same result
     caplog.clear()
     with caplog.at_level(logging.WARNING):
         assert _sfm(small_copy, tmp_path / "c") == 0

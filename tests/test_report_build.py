@@ -39,11 +39,11 @@ def _method(name, label, rng, status="ok", reason=""):
         "runtime_s": float(rng.uniform(1, 9)) if ok else None,
         "stage_runtime_s": {"features": 0.5, "mapping": 1.25} if ok else {},
         "timeout_s": 60.0, "num_images": n,
-        "registered_images": n if ok else None,
-        "tie_points": int(rng.integers(1000, 5000)) if ok else None,
-        "reprojected_px": int(rng.integers(5000, 20000)) if ok else None,
-        "mean_reprojection_error_px": float(rng.uniform(0.1, 0.9)) if ok else None,
-        "mean_reprojection_error_per_point_px": float(rng.uniform(0.1, 0.9)) if ok else None,
+        "metrics": {"num_images": n, "registered_images": n, "tie_points": int(rng.integers(1000, 5000)),
+                    "reprojected_px": int(rng.integers(5000, 20000)),
+                    "mean_reprojection_error_px": float(rng.uniform(0.1, 0.9)),
+                    "mean_reprojection_error_px_per_point": float(rng.uniform(0.1, 0.9)),
+                    "median_reprojection_error_px": 0.25, "mean_track_length": 3.5} if ok else None,
         "gt": {"aligned_images": n, "rotation_error_deg_mean": float(rng.uniform(0.01, 0.3)),
                "rotation_error_deg_median": 0.1, "rotation_error_deg_max": 0.4, "center_error_mean": 0.5,
                "center_error_max": 0.9, "center_error_rel_mean": 0.001, "point_to_surface_mean": None,
@@ -97,14 +97,14 @@ def test_report_numbers_come_from_metrics_json(tmp_path):
     d = _write(tmp_path, data)
     build_report(d)
     md = (d / "report.md").read_text()
-    polar = dict(data["methods"][1])
+    polar = dict(data["methods"][1]["metrics"])
     assert f"{polar['mean_reprojection_error_px']:.3f}" in md
     assert f"{polar['tie_points']:,}" in md
     assert "Speed-up 1.2345 x on 4,321 points." in md           # rationale filled from figures
     assert "registered no images" in md and "failed" in md      # failed method reported with reason
     # Change numbers in metrics.json only: the rebuilt report follows.
-    data["methods"][1]["tie_points"] = 987654
-    data["methods"][1]["mean_reprojection_error_px"] = 0.777777
+    data["methods"][1]["metrics"]["tie_points"] = 987654
+    data["methods"][1]["metrics"]["mean_reprojection_error_px"] = 0.777777
     data["claims"][0]["figures"][0]["value"] = 3.25
     data["environment"]["created"] = "2031-05-06T07:08:09+00:00"
     (d / "metrics.json").write_text(json.dumps(data))
@@ -114,7 +114,7 @@ def test_report_numbers_come_from_metrics_json(tmp_path):
     assert "2031-05-06T07:08:09+00:00" in md2
     assert f"{polar['tie_points']:,}" not in md2
     # Improving column: candidate minus baseline tie points, computed from the file's values.
-    base_tp = data["methods"][0]["tie_points"]
+    base_tp = data["methods"][0]["metrics"]["tie_points"]
     assert f"↑ {987654 - base_tp:,}" in md2
 
 
@@ -142,7 +142,9 @@ def test_existing_files_are_kept(tmp_path):
 @pytest.mark.parametrize("mutate, message", [
     (lambda m: m.update(schema_version=99), "schema_version"),
     (lambda m: m["scene"].update(bogus=1), "unknown key"),
-    (lambda m: m["methods"][0].update(tie_points="many"), "integer"),
+    (lambda m: m["methods"][0]["metrics"].update(tie_points="many"), "integer"),
+    (lambda m: m["methods"][0]["metrics"].update(mean_reprojection_error_per_point_px=0.1), "unknown key"),
+    (lambda m: m["methods"][0].update(tie_points=5), "unknown key"),   # v1's per-method names, in a v2 file
     (lambda m: m["environment"].update(versions=["numpy"]), r"environment\.versions should be an object"),
 ])
 def test_bad_metrics_json_is_a_clear_error(tmp_path, mutate, message):
@@ -164,7 +166,7 @@ def test_schema_round_trip():
     data = synthetic_metrics(2)
     m = schema.from_dict(copy.deepcopy(data))
     assert json.loads(schema.dumps(m)) == schema.to_dict(m)
-    assert schema.to_dict(m)["methods"][1]["tie_points"] == data["methods"][1]["tie_points"]
+    assert schema.to_dict(m)["methods"][1]["metrics"] == {**data["methods"][1]["metrics"], "gt": None, "surface": None}
 
 
 def test_improving_column_rules():

@@ -90,7 +90,7 @@ def test_sfm_on_exif_jpegs_registers_all_and_refines_camera(jpeg_scene, tmp_path
         assert main(["sfm", str(folder), "--out", str(out), "--preset", "small"]) == 0
     assert sum("no EXIF focal length" in r.getMessage() for r in caplog.records) == 1
     m = json.loads((out / "metrics.json").read_text())
-    assert m["status"] == "ok" and m["registered_images"] == 12
+    assert m["status"] == "ok" and m["metrics"]["registered_images"] == 12
     assert m["refine"] == ["focal", "dist"]
     exif, default = m["cameras"]
     assert (exif["source"], exif["num_images"]) == ("exif", 11)
@@ -100,7 +100,7 @@ def test_sfm_on_exif_jpegs_registers_all_and_refines_camera(jpeg_scene, tmp_path
     assert abs(exif["initial"][0] / f_gt - 1) > 0.10
     assert abs(exif["refined"][0] / f_gt - 1) < 0.02
     assert exif["refined"][1:3] == exif["initial"][1:3]  # principal point held (COLMAP default)
-    assert m["mean_reprojection_error_px"] < 0.5
+    assert m["metrics"]["mean_reprojection_error_px"] < 0.5
     # intrinsics are refined only in global BAs with >= 10 registered images, never in local BA
     for b in m["ba"]:
         refined = "intrinsics" in b

@@ -25,16 +25,16 @@ def test_cli_writes_model_and_refuses_existing_out(small_copy, tmp_path, monkeyp
     assert main(["sfm", str(small_copy), "--out", str(out), "--ba", "colmap", "--preset", "small"]) == 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["status"] == "ok"
-    assert m["num_images"] == 7 and m["registered_images"] == 6
+    assert m["num_images"] == 7 and m["metrics"]["registered_images"] == 6
     assert m["skipped_images"] == [{"name": "broken.png", "reason": "unreadable (OpenCV could not decode it)"}]
-    assert 0 < m["mean_reprojection_error_px"] < 0.6 and m["tie_points"] > 100
-    assert m["gt"]["num_matched"] == 6 and m["gt"]["rotation_error_deg_mean"] < 1.0
+    assert 0 < m["metrics"]["mean_reprojection_error_px"] < 0.6 and m["metrics"]["tie_points"] > 100
+    assert m["metrics"]["gt"]["num_matched"] == 6 and m["metrics"]["gt"]["rotation_error_deg_mean"] < 1.0
     rec = pycolmap.Reconstruction(str(out / "model"))
-    assert rec.num_reg_images() == 6 and rec.num_points3D() == m["tie_points"]
+    assert rec.num_reg_images() == 6 and rec.num_points3D() == m["metrics"]["tie_points"]
     # default --format both: text and binary model plus a coloured PLY with one vertex per point
     assert {"cameras.txt", "images.bin", "points3D.bin", "points3D.ply"} <= {p.name for p in (out / "model").iterdir()}
     head = (out / "model" / "points3D.ply").read_bytes()[:300].decode("ascii", "replace")
-    assert "binary_little_endian" in head and f"element vertex {m['tie_points']}\n" in head
+    assert "binary_little_endian" in head and f"element vertex {m['metrics']['tie_points']}\n" in head
     before = (out / "metrics.json").read_bytes()
     (out / "notes.txt").write_text("mine")
     assert main(["sfm", str(small_copy), "--out", str(out)]) == 1
@@ -44,7 +44,7 @@ def test_cli_writes_model_and_refuses_existing_out(small_copy, tmp_path, monkeyp
     assert main(["sfm", str(small_copy), "--out", str(out), "--ba", "colmap", "--preset", "small",
                  "--overwrite", "--camera", _cam_arg(small_copy)]) == 0
     assert (out / "notes.txt").read_text() == "mine"
-    assert json.loads((out / "metrics.json").read_text())["registered_images"] == 6
+    assert json.loads((out / "metrics.json").read_text())["metrics"]["registered_images"] == 6
 
 
 def test_cli_no_images(tmp_path, capsys):

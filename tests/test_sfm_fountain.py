@@ -38,15 +38,15 @@ def test_fountain_all_registered_and_accurate(shared_data, tmp_path):
                        ColmapSfMOptions(max_num_features=8192, max_image_size=1024))
     ref = Reconstruction.from_pycolmap(run.reconstruction)
     ref_m = M.evaluate(ref, gt, num_images=11)
-    print("ours", ours["registered_images"], ours["tie_points"], ours["reprojected_px"],
-          ours["mean_reprojection_error_px"], ours["gt"]["rotation_error_deg_mean"],
-          ours["gt"]["rotation_error_deg_max"], ours["gt"]["center_error_rel_mean"], ours["runtime_s"]["total"])
+    print("ours", ours["metrics"]["registered_images"], ours["metrics"]["tie_points"], ours["metrics"]["reprojected_px"],
+          ours["metrics"]["mean_reprojection_error_px"], ours["metrics"]["gt"]["rotation_error_deg_mean"],
+          ours["metrics"]["gt"]["rotation_error_deg_max"], ours["metrics"]["gt"]["center_error_rel_mean"], ours["runtime_s"]["total"])
     print("pycolmap", ref_m.registered_images, ref_m.tie_points, ref_m.reprojected_px,
           ref_m.mean_reprojection_error_px, ref_m.gt.rotation_error_deg_mean, ref_m.gt.rotation_error_deg_max,
           ref_m.gt.center_error_rel_mean)
     # measured: ours 11/11, 0.031 deg mean (0.047 max), 5612 points, 0.385 px
-    assert ours["registered_images"] == 11
-    assert 0.0 < ours["gt"]["rotation_error_deg_mean"] <= 0.2
-    assert ours["gt"]["center_error_rel_mean"] < 0.01
-    assert 0.05 < ours["mean_reprojection_error_px"] < 1.0
-    assert ours["tie_points"] >= 0.9 * ref_m.tie_points
+    assert ours["metrics"]["registered_images"] == 11
+    assert 0.0 < ours["metrics"]["gt"]["rotation_error_deg_mean"] <= 0.2
+    assert ours["metrics"]["gt"]["center_error_rel_mean"] < 0.01
+    assert 0.05 < ours["metrics"]["mean_reprojection_error_px"] < 1.0
+    assert ours["metrics"]["tie_points"] >= 0.9 * ref_m.tie_points

@@ -24,10 +24,10 @@ def test_fountain_focal_10_percent_off_is_refined(shared_data, ba):
     cal_cfg = dataclasses.replace(cfg, mapper=dataclasses.replace(cfg.mapper, refine=("focal",)))
     cal = run_sfm(root / "images", None, cal_cfg, camera=start, gt=gt).metrics
     cam = cal["cameras"][0]
-    print(ba, "fixed", fixed["gt"]["rotation_error_deg_mean"], "refined", cal["gt"]["rotation_error_deg_mean"],
+    print(ba, "fixed", fixed["metrics"]["gt"]["rotation_error_deg_mean"], "refined", cal["metrics"]["gt"]["rotation_error_deg_mean"],
           cam["refined"][:2], cam["focal_error_rel"])
-    assert cal["registered_images"] == fixed["registered_images"] == 11
+    assert cal["metrics"]["registered_images"] == fixed["metrics"]["registered_images"] == 11
     assert abs(cam["initial"][0] / g.params[0] - 1) > 0.05  # the start fails the bound below
     for k in (0, 1):  # fx and fy each within 0.5 % of GT
         assert abs(cam["refined"][k] / g.params[k] - 1) < 0.005
-    assert cal["gt"]["rotation_error_deg_mean"] <= 1.10 * fixed["gt"]["rotation_error_deg_mean"]
+    assert cal["metrics"]["gt"]["rotation_error_deg_mean"] <= 1.10 * fixed["metrics"]["gt"]["rotation_error_deg_mean"]

@@ -39,18 +39,18 @@ def _run_both(scene_dir, tmp_path):
 
 def _check_against_pycolmap(ours, ref, n_views, rot_max):
     m = ours.metrics
-    print({k: m[k] for k in ("registered_images", "tie_points", "reprojected_px", "mean_reprojection_error_px")},
-          m["gt"]["rotation_error_deg_mean"], "pycolmap:", ref.registered_images, ref.tie_points,
+    print({k: m["metrics"][k] for k in ("registered_images", "tie_points", "reprojected_px", "mean_reprojection_error_px")},
+          m["metrics"]["gt"]["rotation_error_deg_mean"], "pycolmap:", ref.registered_images, ref.tie_points,
           ref.mean_reprojection_error_px, ref.gt.rotation_error_deg_mean,
-          m["gt"]["rotation_error_rotalign_deg_mean"], ref.gt.rotation_error_rotalign_deg_mean)
-    assert m["registered_images"] == n_views == ref.registered_images
+          m["metrics"]["gt"]["rotation_error_rotalign_deg_mean"], ref.gt.rotation_error_rotalign_deg_mean)
+    assert m["metrics"]["registered_images"] == n_views == ref.registered_images
     assert m["skipped_images"] == []
-    assert 0.0 < m["gt"]["rotation_error_deg_mean"] <= ref.gt.rotation_error_deg_mean
-    assert 0.0 < m["gt"]["rotation_error_rotalign_deg_mean"] <= ref.gt.rotation_error_rotalign_deg_mean
-    assert m["gt"]["rotation_error_deg_mean"] < rot_max
-    assert 0.02 < m["mean_reprojection_error_px"] <= 0.6
-    assert 0.9 * ref.tie_points <= m["tie_points"] <= 3.0 * ref.tie_points
-    assert m["surface"]["median_rel"] < 0.01
+    assert 0.0 < m["metrics"]["gt"]["rotation_error_deg_mean"] <= ref.gt.rotation_error_deg_mean
+    assert 0.0 < m["metrics"]["gt"]["rotation_error_rotalign_deg_mean"] <= ref.gt.rotation_error_rotalign_deg_mean
+    assert m["metrics"]["gt"]["rotation_error_deg_mean"] < rot_max
+    assert 0.02 < m["metrics"]["mean_reprojection_error_px"] <= 0.6
+    assert 0.9 * ref.tie_points <= m["metrics"]["tie_points"] <= 3.0 * ref.tie_points
+    assert m["metrics"]["surface"]["median_rel"] < 0.01
     assert m["status"] == "ok"
 
 
@@ -58,12 +58,12 @@ def _check_model_files(ours):
     import pycolmap
 
     rec = pycolmap.Reconstruction(str(ours.out_dir / "model"))
-    assert rec.num_reg_images() == ours.metrics["registered_images"]
-    assert rec.num_points3D() == ours.metrics["tie_points"]
-    assert sum(p.track.length() for p in rec.points3D.values()) == ours.metrics["reprojected_px"]
+    assert rec.num_reg_images() == ours.metrics["metrics"]["registered_images"]
+    assert rec.num_points3D() == ours.metrics["metrics"]["tie_points"]
+    assert sum(p.track.length() for p in rec.points3D.values()) == ours.metrics["metrics"]["reprojected_px"]
     rec.update_point_3d_errors()
     # COLMAP averages per point; our per-point figure must agree with its own computation
-    assert abs(rec.compute_mean_reprojection_error() - ours.metrics["mean_reprojection_error_px_per_point"]) < 1e-6
+    assert abs(rec.compute_mean_reprojection_error() - ours.metrics["metrics"]["mean_reprojection_error_px_per_point"]) < 1e-6
     timings = ours.metrics["runtime_s"]
     for stage in ("features", "matching", "verification", "tracks", "mapping", "ba", "total"):
         assert timings[stage] >= 0.0
@@ -96,10 +96,12 @@ def test_cache_reused_and_results_identical(request, tmp_path):
     assert a.metrics["runtime_s"]["features_cached"] is False and a.metrics["runtime_s"]["matches_cached"] is False
     assert b.metrics["runtime_s"]["features_cached"] is True and b.metrics["runtime_s"]["matches_cached"] is True
     for key in ("registered_images", "tie_points", "reprojected_px"):
-        assert a.metrics[key] == b.metrics[key]
-    assert a.metrics["gt"]["rotation_error_deg_mean"] == pytest.approx(b.metrics["gt"]["rotation_error_deg_mean"], abs=1e-9)
+        assert getattr(a.report.metrics, key) == getattr(b.report.metrics, key)
+    assert a.report.metrics.gt.rotation_error_deg_mean == pytest.approx(b.report.metrics.gt.rotation_error_deg_mean,
+                                                                        abs=1e-9)
     # DLT instead of the MOCI triangulation gives the same reconstruction quality
     d = run_sfm(scene_dir / "images", None, dataclasses.replace(
         cfg, triangulation=dataclasses.replace(cfg.triangulation, method="dlt")), gt=gt)
-    assert d.metrics["registered_images"] == a.metrics["registered_images"]
-    assert abs(d.metrics["tie_points"] - a.metrics["tie_points"]) < 0.05 * a.metrics["tie_points"]
+    dm, am = d.report.metrics, a.report.metrics
+    assert dm.registered_images == am.registered_images
+    assert abs(dm.tie_points - am.tie_points) < 0.05 * am.tie_points

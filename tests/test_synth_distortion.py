@@ -135,6 +135,6 @@ def test_refined_distortion_matches_the_rendered_lens(distorted, ba, tmp_path, m
     prof = fr * r * (1 + k1 * r**2 + k2 * r**4) - f * r * (1 + K1 * r**2 + K2 * r**4)
     print(f"{distorted.name} {ba}: f {fr:.3f} (err {100 * rep['focal_error_rel']:.3f} %), k1 {k1:.5f}, "
           f"k2 {k2:.5f}, profile max {np.abs(prof).max():.3f} px, rotation error "
-          f"{m['gt']['rotation_error_deg_mean']:.4f} deg")
+          f"{m['metrics']['gt']['rotation_error_deg_mean']:.4f} deg")
     assert np.abs(prof).max() < 4.0
-    assert m["registered_images"] == 12
+    assert m["metrics"]["registered_images"] == 12

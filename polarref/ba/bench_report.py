@@ -66,7 +66,51 @@ def markdown(doc: dict) -> str:
                        f"{x['iterations']} | {_rng(x.get('time_to_target_s'))} | {_iters(x)} | "
                        f"{'-' if ratio is None else f'{ratio:.2f}'} | {x['full_runs'][0].get('termination', '')} |")
             name = ""
+    out += _per_iteration_lines(doc) + _own_cost_lines(doc)
     return "\n".join(out) + "\n"
+
+
+FORMS = ("euclidean", "parallax", "polar", "angular")
+
+
+def _per_iteration_lines(doc: dict) -> list[str]:
+    """Our forms' seconds per accepted iteration (full runs, median) and the ratio to the
+    Euclidean form's, side by side per problem; empty for a bench.json without them."""
+    probs = [r for r in doc.get("problems", []) if any("s_per_accepted_iteration" in x for x in r["rows"])]
+    if not probs:
+        return []
+    out = ["", "Per-iteration cost (our forms, same problem, same run, 1 thread): (full-run wall - "
+           "setup) / accepted iterations, median over the repeats, in ms; ratio to the Euclidean form.", "",
+           "| problem | " + " | ".join(FORMS) + " |", "|---|" + "---|" * len(FORMS)]
+    for res in probs:
+        t = {x["solver"]: x for x in res["rows"]}
+        cells = []
+        for f in FORMS:
+            x = t.get(f) or {}
+            v = (x.get("s_per_accepted_iteration") or {}).get("median")
+            ratio = x.get("per_iteration_vs_euclidean")
+            cells.append("-" if v is None else f"{1e3 * v:.1f} ({ratio:.2f}x)" if ratio else f"{1e3 * v:.1f}")
+        out.append(f"| {res['problem']} | " + " | ".join(cells) + " |")
+    return out
+
+
+def _own_cost_lines(doc: dict) -> list[str]:
+    """Euclidean vs Ceres to the best Ceres final cost, where the common target was not usable."""
+    probs = [r for r in doc.get("problems", []) if r.get("ceres_own_cost")]
+    if not probs:
+        return []
+    out = ["", "Euclidean vs Ceres to Ceres' own best final cost (+0.1 %), where our Euclidean form or "
+           "no Ceres setting reached the common target:", "",
+           "| problem | target | euclidean t s | fastest Ceres (t s) | ratio |", "|---|---|---|---|---|"]
+    for res in probs:
+        o = res["ceres_own_cost"]
+        e = o["rows"]["euclidean"]["time_to_target_s"]
+        f = o.get("fastest_ceres")
+        ft = o["rows"][f]["time_to_target_s"] if f else None
+        r = o.get("euclidean_ratio_to_fastest_ceres")
+        out.append(f"| {res['problem']} | {o['target_cost']:.6g} | {_rng(e)} | "
+                   f"{f or 'none'} ({_rng(ft)}) | {'-' if r is None else f'{r:.2f}x'} |")
+    return out
 
 
 def _readme_cell(row: dict, target: float | None) -> str:
@@ -96,6 +140,7 @@ def readme_table(doc: dict) -> str:
             cells.append(_readme_cell(t.get(p) or {}, res.get("target_cost")))
         head = "none reached the target" if f is None else f"{f} ({res['fastest_ceres_time_to_target_s']:.3f})"
         out.append(f"| {res['problem']} | {head} | " + " | ".join(cells) + " |")
+    out += _per_iteration_lines(doc) + _own_cost_lines(doc)
     return "\n".join(out) + "\n"
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from polarref.ba.kernels import use_kernels
 from polarref.ba.problem import BAProblem
 from polarref.ba.projection import Projector
 
@@ -33,6 +34,7 @@ class Euclidean:
     def __init__(self, problem: BAProblem, options=None):
         self.p = problem
         self.proj = Projector(problem.cameras, problem.obs_cam)
+        self.fast = options is not None and use_kernels(options.kernels)  # kernels.py
         self.slot_cams = problem.obs_cam[None, :]
         self.slot_cols = ((0, 6),)  # the observing camera: rotation and centre
 
@@ -41,6 +43,9 @@ class Euclidean:
 
     def camera_frame(self, R, C, pts):
         p = self.p
+        if self.fast:
+            from polarref.ba import kernels
+            return None, kernels.euclidean_rays(R, C, pts, p.obs_cam, p.obs_pt)
         Ri = R[p.obs_cam]
         Xc = np.einsum("mij,mj->mi", Ri, pts[p.obs_pt] - C[p.obs_cam])
         return Ri, Xc
@@ -51,6 +56,10 @@ class Euclidean:
         if not jac:
             return self.proj(Xc, jac=False) - self.p.obs_uv, None, None
         uv, Juv = self.proj(Xc)
+        if self.fast:
+            from polarref.ba import kernels
+            Jp, Jc = kernels.euclidean_jacobians(Juv, Xc, R, self.p.obs_cam)
+            return uv - self.p.obs_uv, Jp, [Jc]
         Jp = Juv @ Ri
         Jc = np.empty((len(Xc), 2, 6))
         Jc[:, :, :3] = rot_columns(Xc, Juv)

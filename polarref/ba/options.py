@@ -55,6 +55,9 @@ class BAOptions:
     # "theta" = theta only (a cone at the axis; stalls LM when rays cross it)
     axis_residual: str = "chart"
     dense_max_cameras: int = 700  # reduced camera system solved densely up to this many cameras
+    # per-iteration sums: "numba" compiled kernels (ba/kernels.py), "numpy" the reference
+    # path, "auto" numba when it imports
+    kernels: str = "auto"
     # BLAS threads inside the solve (threadpoolctl); None leaves the process setting alone. One
     # thread is fastest here: the BLAS calls are small and multi-threaded OpenBLAS on 2 busy
     # cores spent 0.64 s instead of 0.014 s in the Ladybug-49 Cholesky solves.
@@ -78,6 +81,8 @@ class BAOptions:
             raise ValueError(f"unknown lm_gauge {self.lm_gauge!r}; choose free or fixed")
         if not self.nielsen_tau > 0:
             raise ValueError(f"nielsen_tau must be > 0, got {self.nielsen_tau}")
+        if self.kernels not in ("auto", "numba", "numpy"):
+            raise ValueError(f"unknown kernels {self.kernels!r}; choose auto, numba or numpy")
         if self.axis_residual not in ("chart", "theta"):
             raise ValueError(f"unknown axis_residual {self.axis_residual!r}; choose chart or theta")
         if self.blas_threads is not None and self.blas_threads < 1:

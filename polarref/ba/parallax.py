@@ -31,6 +31,7 @@ from polarref.angular import (azimuth_elevation_from_direction, direction_from_a
                               direction_jacobian)
 from polarref.ba.anchor_terms import AnchorJacobian
 from polarref.ba.euclidean import rot_columns
+from polarref.ba.kernels import use_kernels
 from polarref.ba.problem import BAProblem
 from polarref.ba.projection import Projector
 from polarref.errors import PolarrefError
@@ -106,6 +107,8 @@ class Parallax:
         self.slot_cols = ((0, 6), (3, 6), (3, 6))
         self.anchor_cams = (self.main, self.assoc)  # Jc = [J_obs, AnchorJacobian]
         self.frame = direction_frames(problem.X - problem.C[self.main])
+        # compiled rays and chain rule (kernels.py) for the solver's dense slot Jacobians
+        self.fast = options is not None and use_kernels(options.kernels)
 
     def init_points(self) -> np.ndarray:
         p = self.p
@@ -132,9 +135,25 @@ class Parallax:
         sw, cw = np.sin(pts[:, 2]), np.cos(pts[:, 2])
         return Cm, d, e, c, s, sw, cw, sw * c + cw * s
 
+    def point_derivatives(self, pts, d, e, c, s, sw, cw, h):
+        """Per point (see :meth:`landmark_terms`): ``dh/de`` (P, 3), ``dv/d(alpha, beta)``
+        without the observation-dependent part (P, 3, 2) and ``dh/dw`` (P,)."""
+        Dd = self.frame @ direction_jacobian(pts[:, 0], pts[:, 1])  # (P, 3, 2)
+        inv_s = 1.0 / s
+        e2 = np.einsum("pi,pi->p", e, e)
+        dh_dd = sw[:, None] * e + (cw * inv_s)[:, None] * (e2[:, None] * d - c[:, None] * e)
+        dh_de = sw[:, None] * d + (cw * inv_s)[:, None] * (e - c[:, None] * d)
+        dv_dab = d[:, :, None] * np.einsum("pi,pij->pj", dh_dd, Dd)[:, None, :] + h[:, None, None] * Dd
+        return dh_de, dv_dab, cw * c - sw * s
+
     def rays(self, R, C, pts, jac: bool):
         """Camera-frame rays Xc (M, 3) = R_i v_i and, with jac, the pieces of their Jacobians."""
         p = self.p
+        if self.fast and not jac:
+            from polarref.ba import kernels
+            Cm, _, sw, _, hd, *_ = kernels.parallax_points(self.frame, pts, C, self.main,
+                                                           self.assoc, False)
+            return kernels.parallax_rays(R, C, p.obs_cam, p.obs_pt, Cm, sw, hd), None
         Cm, d, e, c, s, sw, cw, h = self.landmark_terms(C, pts)
         op, oc = p.obs_pt, p.obs_cam
         sw_o = sw[op]
@@ -144,14 +163,7 @@ class Parallax:
         Xc = np.einsum("mij,mj->mi", Ri, v)
         if not jac:
             return Xc, None
-        # per point: dv/d(alpha, beta) (excluding the observation-dependent part) and dh/de
-        Dd = self.frame @ direction_jacobian(pts[:, 0], pts[:, 1])  # (P, 3, 2)
-        inv_s = 1.0 / s
-        e2 = np.einsum("pi,pi->p", e, e)
-        dh_dd = sw[:, None] * e + (cw * inv_s)[:, None] * (e2[:, None] * d - c[:, None] * e)
-        dh_de = sw[:, None] * d + (cw * inv_s)[:, None] * (e - c[:, None] * d)
-        dv_dab = d[:, :, None] * np.einsum("pi,pij->pj", dh_dd, Dd)[:, None, :] + h[:, None, None] * Dd
-        dh_dw = cw * c - sw * s
+        dh_de, dv_dab, dh_dw = self.point_derivatives(pts, d, e, c, s, sw, cw, h)
         dv_dw = (dh_dw[:, None] * d)[op] + cw[op][:, None] * base  # (M, 3)
         return Xc, (Ri, sw_o, d, dh_de, dv_dab, dv_dw)
 
@@ -167,6 +179,8 @@ class Parallax:
         Jacobians ``[res_D_obs (M, k, 6), res_D_main_centre (M, k, 3), res_D_assoc_centre
         (M, k, 3)]`` (see ``slot_cams``/``slot_cols``), or with ``factored`` ``[res_D_obs,
         AnchorJacobian]`` (the solver's form, see anchor_terms.py)."""
+        if jac and self.fast and not factored:
+            return self._evaluate_kernels(R, C, pts)
         Xc, parts = self.rays(R, C, pts, jac)
         res, Jx = self.residual_rows(Xc, jac)
         if not jac:
@@ -189,6 +203,19 @@ class Parallax:
         if factored:
             return res, Jp, [J_obs, anchors]
         return res, Jp, [J_obs, *anchors.dense(J_obs, op)]
+
+    def _evaluate_kernels(self, R, C, pts):
+        """:meth:`evaluate` with dense slot Jacobians through the compiled kernels."""
+        from polarref.ba import kernels
+        p = self.p
+        Cm, d, sw, cw, hd, dh_dw, dh_de, dv_dab = kernels.parallax_points(
+            self.frame, pts, C, self.main, self.assoc, True)
+        Xc = kernels.parallax_rays(R, C, p.obs_cam, p.obs_pt, Cm, sw, hd)
+        res, Jx = self.residual_rows(Xc, True)
+        Jp, J_obs, J_m, J_a = kernels.parallax_jacobians(
+            np.ascontiguousarray(Jx), Xc, R, C, p.obs_cam, p.obs_pt, Cm, d, sw, cw,
+            dh_dw, dh_de, dv_dab)
+        return res, Jp, [J_obs, J_m, J_a]
 
     def num_behind_camera(self, R, C, pts) -> int:
         """Observations whose point has depth <= 0 in the observing camera. ``v_i`` is

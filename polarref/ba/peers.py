@@ -34,7 +34,8 @@ class PeerResult:
     behind_camera: int = -1  # observations whose point ends with depth <= 0 in its camera
     accepted_iterations: int = -1
     rejected_iterations: int = -1
-    settings: dict = field(default_factory=dict)   # what the solver actually used (threads, linear solver)
+    # what the solver actually used (CeresSettings fields, threads, linear solver, ...)
+    settings: dict[str, str | int | float | bool] = field(default_factory=dict)
 
 
 def ceres_settings(options: BAOptions, which: str, threads: int) -> CeresSettings:

@@ -49,7 +49,7 @@ class BAProblem:
     # filled by prepare():
     cam_mask: np.ndarray | None = None  # (N, 6) True = free parameter
     gauge: str = ""
-    exclusions: dict = field(default_factory=dict)
+    exclusions: dict[str, int] = field(default_factory=dict)   # reason -> count of dropped data
     # (N,) intrinsics group per camera for self-calibration (None: equal cameras share one)
     camera_group: np.ndarray | None = None
 
@@ -216,6 +216,6 @@ def fix_gauge(p: BAProblem) -> None:
     p.gauge = gauge
 
 
-def nonzero_counts(d: dict) -> dict:
+def nonzero_counts(d: dict[str, int]) -> dict[str, int]:
     """The entries of a count dict that are non-zero (exclusions worth reporting)."""
     return {k: v for k, v in d.items() if v}

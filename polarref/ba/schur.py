@@ -31,6 +31,7 @@ import scipy.sparse.linalg
 _PAIR_S = 3.0e-8
 _SEGMENT_S = 4.0e-6
 _FLOP_S = 1.0e-10
+_PAIR_KERNEL_S = 3.0e-8  # compiled kernel: one 6x6x3 block product per entry pair (measured below)
 
 
 def _group_starts(sorted_keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -39,6 +40,14 @@ def _group_starts(sorted_keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         return np.zeros(0, np.int64), sorted_keys
     starts = np.flatnonzero(np.r_[True, sorted_keys[1:] != sorted_keys[:-1]])
     return starts, sorted_keys[starts]
+
+
+_EMPTY_J6, _EMPTY_J3 = np.zeros((0, 2, 6)), np.zeros((0, 2, 3))  # schur_dense without cross terms
+
+
+def _c(a: np.ndarray) -> np.ndarray:
+    """C-contiguous float64 (the kernels are compiled for that layout only)."""
+    return np.ascontiguousarray(a, dtype=np.float64)
 
 
 class Reducer:
@@ -105,10 +114,12 @@ class SchurStructure:
     """
 
     def __init__(self, slot_cams: np.ndarray, slot_cols, obs_pt: np.ndarray,
-                 cam_var: np.ndarray, num_points: int, dense_max_cameras: int = 700):
+                 cam_var: np.ndarray, num_points: int, dense_max_cameras: int = 700,
+                 fast: bool = False):
         S, M = slot_cams.shape
         N, P = len(cam_var), num_points
         self.S, self.M, self.N, self.P = S, M, N, P
+        self.fast = fast  # compiled kernels (kernels.py) instead of numpy gathers/reducers
         self.slot_cols = [tuple(c) for c in slot_cols]
         self.var_index = -np.ones(N, np.int64)
         self.var_cams = np.flatnonzero(cam_var)
@@ -118,6 +129,7 @@ class SchurStructure:
         self.pt_starts, _ = _group_starts(obs_pt)
         if len(self.pt_starts) != P:
             raise ValueError("SchurStructure: every point needs >= 1 observation, sorted by point")
+        self.obs_pt = np.ascontiguousarray(obs_pt, np.int64)
         self.pt_reduce = Reducer(obs_pt, P)
         vc = self.var_index[slot_cams]  # (S, M), -1 = fixed camera
         self.slot_vc = vc
@@ -127,10 +139,41 @@ class SchurStructure:
         self.E = E = len(ukeys)
         self.entry_pt, self.entry_cam = ukeys // nv, ukeys % nv
         slot_entry = np.where(key >= 0, np.searchsorted(ukeys, np.maximum(key, 0)), -1)
-        self.w_reduce = [Reducer(slot_entry[s], E) for s in range(S)]
-        self.g_reduce = [Reducer(vc[s], Nv) for s in range(S)]
+        self.slot_entry = slot_entry
         self.entry_cam_reduce = Reducer(self.entry_cam, Nv)
         self.entry_pt_starts, self.pts_with_entries = _group_starts(self.entry_pt)
+        # -- choose how to form Z Z^T ----------------------------------------------------------
+        counts = np.diff(np.r_[self.entry_pt_starts, E])
+        self.num_pairs = int((counts * (counts + 1) // 2).sum())
+        self.sparse_S = Nv > dense_max_cameras
+        gemm_s = (6.0 * Nv) ** 2 * 3 * len(counts) * _FLOP_S
+        if fast:
+            pair_s = self.num_pairs * _PAIR_KERNEL_S
+        else:
+            segments = min(Nv * (Nv + 1) // 2, self.num_pairs)  # upper bound, without building
+            pair_s = self.num_pairs * _PAIR_S + segments * _SEGMENT_S
+        self.use_gemm = (not self.sparse_S) and gemm_s < pair_s
+        # Kernel path, dense S by entry pairs, three slots (parallax forms): the camera blocks
+        # that couple two different cameras of one observation go straight into S inside the
+        # Schur kernel (both cameras are entries of the observation's point, so the kernel
+        # touches that block of S anyway); U keeps only the diagonal camera blocks.
+        self.fused = (fast and self.slot_cols == [(0, 6), (3, 6), (3, 6)] and not self.sparse_S
+                      and not self.use_gemm)
+        if fast:
+            self._build_u_fast(vc)
+            self.entry_bounds = np.r_[self.entry_pt_starts, E].astype(np.int64)
+            self.obs_bounds = np.r_[self.pt_starts, M].astype(np.int64)
+        else:
+            self._build_u_reducers(vc, slot_entry)
+        if not self.use_gemm and (self.sparse_S or not fast):
+            self._build_pairs(counts)
+
+    def _build_u_reducers(self, vc: np.ndarray, slot_entry: np.ndarray) -> None:
+        """numpy path: sparse 0/1 reducers per slot and slot pair (U, W, g)."""
+        S, M, Nv, E = self.S, self.M, self.Nv, self.E
+        nv = max(Nv, 1)
+        self.w_reduce = [Reducer(slot_entry[s], E) for s in range(S)]
+        self.g_reduce = [Reducer(vc[s], Nv) for s in range(S)]
         # -- U: slot pairs a <= b; diagonal slot pairs by per-camera GEMM over sorted rows ---
         self.u_keys = []
         self.u_diag = []  # per slot: (row order, segment starts/ends, camera of each segment)
@@ -159,16 +202,36 @@ class SchurStructure:
         self.u_cross_idx = [(np.searchsorted(allk, uk),
                              np.searchsorted(allk, (uk % nv) * nv + uk // nv))
                             for _, _, _, uk in self.u_cross]
-        # -- choose how to form Z Z^T ----------------------------------------------------------
-        counts = np.diff(np.r_[self.entry_pt_starts, E])
-        self.num_pairs = int((counts * (counts + 1) // 2).sum())
-        self.sparse_S = Nv > dense_max_cameras
-        gemm_s = (6.0 * Nv) ** 2 * 3 * len(counts) * _FLOP_S
-        segments = min(Nv * (Nv + 1) // 2, self.num_pairs)  # upper bound, without building
-        pair_s = self.num_pairs * _PAIR_S + segments * _SEGMENT_S
-        self.use_gemm = (not self.sparse_S) and gemm_s < pair_s
-        if not self.use_gemm:
-            self._build_pairs(counts)
+
+    def _build_u_fast(self, vc: np.ndarray) -> None:
+        """Kernel path: the U block of every observation and slot pair (a <= b), and of its
+        transpose (a < b), as (M,) index arrays (-1 = a fixed camera). Fused: the diagonal
+        camera blocks only (the rest goes into S, see __init__)."""
+        S, nv = self.S, max(self.Nv, 1)
+        if self.fused:  # kernels.build_three_slots: U block index = variable camera
+            self.u_ca = self.u_cb = np.arange(self.Nv)
+            self.B = self.Nv
+            return
+        pairs = [(a, b) for a in range(S) for b in range(a, S)]
+        keys = []
+        for a, b in pairs:
+            ok = (vc[a] >= 0) & (vc[b] >= 0)
+            keys.append(np.where(ok, vc[a] * nv + vc[b], -1))
+            if a != b:
+                keys.append(np.where(ok, vc[b] * nv + vc[a], -1))
+        allk = np.unique(np.concatenate(keys))
+        allk = allk[allk >= 0]
+        self.u_ca, self.u_cb = allk // nv, allk % nv
+        self.B = len(allk)
+
+        def index(k):
+            return np.where(k >= 0, np.searchsorted(allk, np.maximum(k, 0)), -1)
+
+        self.u_pairs, it = [], iter(keys)
+        none = -np.ones(self.M, np.int64)
+        for a, b in pairs:
+            idx = index(next(it))
+            self.u_pairs.append((a, b, idx, index(next(it)) if a != b else none))
 
     def _build_pairs(self, counts: np.ndarray) -> None:
         """Entry pairs (ea <= eb) sharing a point, sorted by camera pair into segments."""
@@ -197,12 +260,23 @@ class SchurStructure:
 
     # ------------------------------------------------------------------------------------------
     def linear_solver_name(self) -> str:
-        how = "dense syrk" if self.use_gemm else "camera-pair GEMMs"
-        return f"Schur ({how}) + {'sparse LU' if self.sparse_S else 'dense Cholesky'}"
+        how = ("dense syrk" if self.use_gemm else
+               "entry-pair kernel" if self.fast and not self.sparse_S else "camera-pair GEMMs")
+        kern = "; numba kernels" if self.fast else "; numpy"
+        return f"Schur ({how}) + {'sparse LU' if self.sparse_S else 'dense Cholesky'}{kern}"
 
     def reduce_points(self, per_obs: np.ndarray) -> np.ndarray:
         """Sum per-observation arrays (M, ...) over each point -> (P, ...)."""
         return self.pt_reduce(per_obs)
+
+    def point_terms(self, Jp: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(V (P, 3, 3), g_p (P, 3)): sums of Jp^T Jp and Jp^T r over each point's rows."""
+        if not self.fast:
+            return self.pt_reduce(gram(Jp)), self.pt_reduce(np.einsum("mki,mk->mi", Jp, r))
+        from polarref.ba import kernels
+        V, g = np.zeros((self.P, 3, 3)), np.zeros((self.P, 3))
+        kernels.point_sums(_c(Jp), _c(r), self.obs_pt, V, g)
+        return V, g
 
     def entries_W(self, Jc: list[np.ndarray], Jp: np.ndarray) -> np.ndarray:
         """W blocks (E, 6, 3) = sum of Jc^T Jp over the observations/slots of each entry."""
@@ -223,6 +297,7 @@ class SchurStructure:
 
         mask_v: (Nv, 6) 1 = free. Fully fixed cameras have no entries at all.
         """
+        self.mask_v = mask_v
         partial = ~(mask_v > 0).all(1)
         if not partial.any():
             return g_c, W, U
@@ -235,7 +310,26 @@ class SchurStructure:
 
     def build(self, Jc: list[np.ndarray], Jp: np.ndarray, r: np.ndarray):
         """(g_c (Nv, 6), W (E, 6, 3), U (B, 6, 6)) from per-slot Jacobians, unmasked."""
+        if self.fast:
+            return self._build_fast(Jc, Jp, r)
         return self.camera_vector(Jc, r), self.entries_W(Jc, Jp), self.camera_U(Jc)
+
+    def _build_fast(self, Jc: list[np.ndarray], Jp: np.ndarray, r: np.ndarray):
+        from polarref.ba import kernels
+        g_c, W, U = np.zeros((self.Nv, 6)), np.zeros((self.E, 6, 3)), np.zeros((self.B, 6, 6))
+        Jc = [_c(J) for J in Jc]
+        Jp, r = _c(Jp), _c(r)
+        if self.fused:  # one pass; the cross-camera blocks are added to S in reduced_system
+            kernels.build_three_slots(*Jc, Jp, r, self.slot_vc, self.slot_entry, W, g_c, U)
+            self.cross_jacobians = Jc
+            return g_c, W, U
+        for s, J in enumerate(Jc):
+            kernels.slot_w_g(J, self.slot_cols[s][0], Jp, r, self.slot_entry[s],
+                             self.slot_vc[s], W, g_c)
+        for a, b, idx, idx_t in self.u_pairs:
+            kernels.slot_gram(Jc[a], self.slot_cols[a][0], Jc[b], self.slot_cols[b][0],
+                              idx, idx_t, U)
+        return g_c, W, U
 
     def add_diagonal_gram(self, U: np.ndarray, s: int, J: np.ndarray) -> None:
         """U[(c, c)] += sum of J^T J over the rows of slot s with camera c (one GEMM per c)."""
@@ -284,6 +378,24 @@ class SchurStructure:
             return None
         q = np.matmul(Li, g_p[:, :, None])[:, :, 0]  # L^-1 g_p
         b = -g_c.copy()
+        if self.fast and not self.sparse_S and not self.use_gemm:
+            from polarref.ba import kernels
+            S = np.zeros((Nv, 6, Nv, 6))
+            S[self.u_ca, :, self.u_cb, :] = U_blocks
+            S = S.reshape(6 * Nv, 6 * Nv)
+            if E:
+                J = self.cross_jacobians if self.fused else (_EMPTY_J6, _EMPTY_J3, _EMPTY_J3)
+                kernels.schur_dense(_c(W), Li, q, self.entry_bounds, self.entry_pt,
+                                    self.entry_cam, S, b, self.fused, *J, self.slot_entry,
+                                    self.obs_bounds)
+            if self.fused:
+                mask_v = getattr(self, "mask_v", None)  # from apply_mask: the held gauge columns
+                if mask_v is not None:
+                    held = np.flatnonzero(mask_v.reshape(-1) == 0)
+                    S[held, :] = 0.0
+                    S[:, held] = 0.0
+            S[np.diag_indices_from(S)] += diag_c.reshape(-1)
+            return S, b.reshape(-1), Li
         Z = np.matmul(W, Li[self.entry_pt].transpose(0, 2, 1)) if E else np.zeros((0, 6, 3))
         if E:
             b += self.entry_cam_reduce(np.matmul(Z, q[self.entry_pt][:, :, None])[:, :, 0])
@@ -355,7 +467,10 @@ class SchurStructure:
     def back_substitute(self, W, Li, g_p, dc: np.ndarray) -> np.ndarray:
         """Point steps dp = V^-1 (-g_p - sum_e W_e^T dc_cam(e)) -> (P, 3)."""
         rhs = -g_p.copy()
-        if self.E:
+        if self.E and self.fast:
+            from polarref.ba import kernels
+            kernels.back_substitute_rhs(_c(W), _c(dc), self.entry_pt, self.entry_cam, rhs)
+        elif self.E:
             wtd = np.matmul(W.transpose(0, 2, 1), dc[self.entry_cam][:, :, None])[:, :, 0]
             rhs[self.pts_with_entries] -= np.add.reduceat(wtd, self.entry_pt_starts, axis=0)
         y = np.matmul(Li, rhs[:, :, None])

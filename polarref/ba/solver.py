@@ -48,7 +48,8 @@ from polarref.ba.options import (DEFAULT_DAMPING, DEFAULT_LM_GAUGE, BAOptions, B
 from polarref.ba.parameterization import (AnchoredJacobians, BoundedPoints, Parameterization,
                                           Staged, make_param)
 from polarref.ba.problem import BAProblem, nonzero_counts, prepare
-from polarref.ba.schur import SchurStructure, gram
+from polarref.ba.kernels import use_kernels
+from polarref.ba.schur import SchurStructure
 from polarref.geometry import so3_exp
 
 log = logging.getLogger(__name__)
@@ -178,9 +179,11 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     tic = time.perf_counter()
     cam_var = problem.cam_mask.any(1)
     st = SchurStructure(param.slot_cams, param.slot_cols, problem.obs_pt, cam_var,
-                        problem.num_points, options.dense_max_cameras)
+                        problem.num_points, options.dense_max_cameras,
+                        fast=use_kernels(options.kernels))
     builder = st
-    if isinstance(param, AnchoredJacobians) and param.anchor_cams is not None:
+    # the kernels take the anchors' Jacobians dense; numpy keeps them factored (anchor_terms.py)
+    if isinstance(param, AnchoredJacobians) and param.anchor_cams is not None and not st.fast:
         from polarref.ba.anchor_terms import AnchorTerms
         builder = AnchorTerms(st, problem.obs_pt, *param.anchor_cams)
     mask_v = problem.cam_mask[st.var_cams].astype(np.float64)  # (Nv, 6)
@@ -194,7 +197,8 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     loss, scale = options.loss, options.loss_scale
 
     tic = time.perf_counter()
-    r, Jp, Jc = param.evaluate(R, C, pts, jac=True, factored=True)
+    factored = builder is not st
+    r, Jp, Jc = param.evaluate(R, C, pts, jac=True, factored=factored)
     times["evaluate"] += time.perf_counter() - tic
     if not np.isfinite(r).all():
         from polarref.errors import PolarrefError
@@ -239,7 +243,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
                 r_w, Jp_w, Jc_w = r, Jp, Jc
             if any_pt_fixed:
                 Jp_w = Jp_w * pt_free[problem.obs_pt][:, :, None]
-            g_p = st.reduce_points(np.einsum("mki,mk->mi", Jp_w, r_w))
+            V, g_p = st.point_terms(Jp_w, r_w)
             active = None
             if bounds is not None:
                 # at a bound with the descent direction pointing out of the box: held
@@ -247,9 +251,9 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
                 if active.any():
                     Jp_w = Jp_w * (~active)[problem.obs_pt][:, None, :]
                     g_p = np.where(active, 0.0, g_p)
+                    V = st.point_terms(Jp_w, r_w)[0]
                 else:
                     active = None
-            V = st.reduce_points(gram(Jp_w))
             # gauge-fixed columns and fixed cameras are masked on the assembled blocks
             g_c, W, U = builder.build(Jc_w, Jp_w, r_w)
             g_c, W, U = st.apply_mask(mask_v, g_c, W, U)
@@ -334,7 +338,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             pts_new = np.clip(pts_new, bounds[0], bounds[1])
         times["update"] += time.perf_counter() - tic
         tic = time.perf_counter()
-        r_new, Jp_new, Jc_new = param.evaluate(R_new, C_new, pts_new, jac=True, factored=True)
+        r_new, Jp_new, Jc_new = param.evaluate(R_new, C_new, pts_new, jac=True, factored=factored)
         times["evaluate"] += time.perf_counter() - tic
         new_cost, w_new = _robust(r_new, param.groups, loss, scale)
         gain = (cost - new_cost) / model if model > 0 else -1.0

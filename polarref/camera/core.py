@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from polarref.angular import last_axis as _last
 from polarref.angular import ray_angles
 from polarref.camera import opencv
 from polarref.camera.models import MODELS, ModelSpec, radial_map
@@ -30,13 +31,6 @@ from polarref.camera.radial import RadialMap
 
 Array = np.ndarray
 _ERR = dict(invalid="ignore", divide="ignore", over="ignore")
-
-
-def _last(a, n: int, name: str) -> Array:
-    a = np.asarray(a, dtype=np.float64)
-    if a.ndim == 0 or a.shape[-1] != n:
-        raise ValueError(f"{name} must have shape (..., {n}), got {a.shape}")
-    return a
 
 
 def _masked(out: Array, valid: Array, strict: bool, what: str) -> Array:

@@ -32,6 +32,7 @@ from polarref.compare import claims_experiments as cx
 from polarref.compare.runner import run_isolated
 from polarref.compare.claims_experiments import fig as _fig
 from polarref.compare.claims_experiments import not_tested as _not_tested
+from polarref.compare.experiment_records import DerivationEvidence, Experiments
 from polarref.compare.schema import STATUS_OK, BATrace, ClaimResult, MetricsFile, TracePoint
 from polarref.compare.thresholds import (EQUIVALENT_PX, EQUIVALENT_REL, EXACT_RAD, ROT_EQUIV_DEG,
                                          ROT_EQUIV_REL, SPEEDUP_CLAIM, TIMING_SLACK)
@@ -47,7 +48,7 @@ BASELINES = ("ours-euclidean", "pycolmap-incremental-sift")
 
 # ---- claims 1-2: the printed equation and claim 7 ------------------------------------------
 
-def equation_claims(evidence: dict | None, reason: str) -> list[ClaimResult]:
+def equation_claims(evidence: DerivationEvidence | None, reason: str) -> list[ClaimResult]:
     c1 = ("C1", "The printed view-angle equation (Eq. 3 with Eq. 4-7) gives the view angle theta",
           "Section 2.4, Eq. 3-7", "Evaluate the printed formula literally (asin form, sigma_1 = -sigma_2, "
           "Eq. 6 is lost from our copy of the paper, so sigma_1 is derived) on seeded random angles and edge cases; compare with the exact "
@@ -57,8 +58,8 @@ def equation_claims(evidence: dict | None, reason: str) -> list[ClaimResult]:
           "and take the largest change.")
     if evidence is None:
         return [_not_tested(*c1, reason), _not_tested(*c2, reason)]
-    cases = evidence["cases"]
-    n = int(evidence["samples_per_case"])
+    cases = evidence.cases
+    n = evidence.samples_per_case
 
     def worst(key):
         vals = [c[key] for c in cases if c[key] is not None and np.isfinite(c[key])]
@@ -115,11 +116,12 @@ def _scene_only(metrics: MetricsFile) -> list[ClaimResult]:
         why = f"{CANDIDATE} did not succeed" if cand is None else "no baseline succeeded"
         return [_not_tested(*c, why) for c in (c3, c4, c5)]
     # C3 -------------------------------------------------------------------------------
-    figs3 = [_fig("err_polar", f"{cand.label}: mean reprojection error", cand.mean_reprojection_error_px, "px")]
+    err = "mean_reprojection_error_px"
+    figs3 = [_fig("err_polar", f"{cand.label}: mean reprojection error", cand.metric(err), "px")]
     verdicts3, parts = [], []
     for k, b in enumerate(bases):
-        figs3.append(_fig(f"err_b{k}", f"{b.label}: mean reprojection error", b.mean_reprojection_error_px, "px"))
-        ec, eb = cand.mean_reprojection_error_px, b.mean_reprojection_error_px
+        figs3.append(_fig(f"err_b{k}", f"{b.label}: mean reprojection error", b.metric(err), "px"))
+        ec, eb = cand.metric(err), b.metric(err)
         parts.append(f"{b.label} {{err_b{k}}}")
         if ec is None or eb is None:      # a missing value is not tested, never 0
             parts[-1] += " (not tested: reprojection error missing)"
@@ -164,13 +166,14 @@ def _scene_only(metrics: MetricsFile) -> list[ClaimResult]:
           f"{1 + TIMING_SLACK:.2f}. One timed run per method on a shared 2-core machine.")
     res4 = ClaimResult(*c4, figs4, f"1 run per method on {scene}", verdict4, r4)
     # C5 -------------------------------------------------------------------------------
-    figs5 = [_fig("tp_polar", f"{cand.label}: #tie points", cand.tie_points, "count"),
-             _fig("rp_polar", f"{cand.label}: #reprojected px", cand.reprojected_px, "count")]
+    figs5 = [_fig("tp_polar", f"{cand.label}: #tie points", cand.metric("tie_points"), "count"),
+             _fig("rp_polar", f"{cand.label}: #reprojected px", cand.metric("reprojected_px"), "count")]
     more = None
     for k, b in enumerate(bases):
-        figs5 += [_fig(f"tp_b{k}", f"{b.label}: #tie points", b.tie_points, "count"),
-                  _fig(f"rp_b{k}", f"{b.label}: #reprojected px", b.reprojected_px, "count")]
-        counts = (cand.tie_points, b.tie_points, cand.reprojected_px, b.reprojected_px)
+        figs5 += [_fig(f"tp_b{k}", f"{b.label}: #tie points", b.metric("tie_points"), "count"),
+                  _fig(f"rp_b{k}", f"{b.label}: #reprojected px", b.metric("reprojected_px"), "count")]
+        counts = (cand.metric("tie_points"), b.metric("tie_points"),
+                  cand.metric("reprojected_px"), b.metric("reprojected_px"))
         if k == 0 and eu is not None and None not in counts:   # a missing count is not tested, never 0
             more = all(c - e > max(1.0, cx.TIE_MARGIN_REL * e) for c, e in ((counts[0], counts[1]), (counts[2], counts[3])))
     r5 = ("ours-polar: {tp_polar} tie points / {rp_polar} reprojected px; "
@@ -199,18 +202,18 @@ def _merge(res: ClaimResult, controlled: tuple, problem: str, unit: str = "seeds
                        verdict, rationale)
 
 
-def scene_claims(metrics: MetricsFile, exp: dict | None = None) -> list[ClaimResult]:
-    """C3-C5. With ``exp`` (the experiments' JSON), C3 and C4 are decided by the controlled
+def scene_claims(metrics: MetricsFile, exp: Experiments | None = None) -> list[ClaimResult]:
+    """C3-C5. With ``exp`` (the experiments' record), C3 and C4 are decided by the controlled
     multi-seed BA experiment and the scene's single run is reported beside it."""
     res3, res4, res5 = _scene_only(metrics)
-    timing = (exp or {}).get("timing")
+    timing = exp.timing if exp is not None else None
     if timing is not None:
-        problem = timing.get("problem", timing.get("error", ""))
+        problem = timing.problem or timing.error
         res3 = _merge(res3, cx.equal_accuracy(timing), problem)
         res4 = _merge(res4, cx.speedup(timing), problem)
-    rob = (exp or {}).get("robustness")
+    rob = exp.robustness if exp is not None else None
     if rob is not None:
-        res5 = _merge(res5, cx.more_tie_points(rob), rob.get("outlier_problem", rob.get("error", "")),
+        res5 = _merge(res5, cx.more_tie_points(rob), rob.outlier_problem or rob.error,
                       "paired runs (seeds x outlier levels)")
     return [res3, res4, res5]
 
@@ -220,15 +223,13 @@ def scene_claims(metrics: MetricsFile, exp: dict | None = None) -> list[ClaimRes
 experiment_claims = cx.experiment_claims
 
 
-def traces_from(exp: dict | None) -> list[BATrace]:
-    if not exp or "timing" not in exp or "params" not in exp["timing"]:
+def traces_from(exp: Experiments | None) -> list[BATrace]:
+    timing = exp.timing if exp is not None else None
+    if timing is None or timing.error:
         return []
-    out = []
-    for p, v in exp["timing"]["params"].items():
-        if v.get("trace"):
-            out.append(BATrace(p, exp["timing"].get("trace_problem", exp["timing"].get("problem", "")),
-                               [TracePoint(int(i), float(t), float(c)) for i, t, c in v["trace"]]))
-    return out
+    return [BATrace(p, timing.trace_problem or timing.problem,
+                    [TracePoint(int(i), float(t), float(c)) for i, t, c in v.trace])
+            for p, v in timing.params.items() if v.trace]
 
 
 def evaluate_into(metrics: MetricsFile, runs: Path, seed: int, budget_s: float, timeout_s: float,

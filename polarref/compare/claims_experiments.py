@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from polarref.compare.experiment_records import Conditioning, Experiments, Robustness, Timing
 from polarref.compare.schema import ClaimResult, Figure
 
 # Equivalence and difference margins, declared before any run, live in thresholds.py:
@@ -60,11 +61,11 @@ def not_tested(cid: str, claim: str, source: str, test: str, reason: str) -> Cla
 
 # ---- C3/C4 controlled part ------------------------------------------------------------------
 
-def _paired(timing: dict, key: str, cand: str = PAPER_FORM, base: str = "euclidean"):
+def _paired(timing: Timing, key: str, cand: str = PAPER_FORM, base: str = "euclidean"):
     """(candidate, baseline) arrays over the seeds both forms completed."""
-    ps = timing.get("params", {})
-    c = {r["seed"]: r.get(key) for r in ps.get(cand, {}).get("per_seed", [])}
-    b = {r["seed"]: r.get(key) for r in ps.get(base, {}).get("per_seed", [])}
+    ps = timing.params
+    c = {r.seed: getattr(r, key) for r in ps[cand].per_seed} if cand in ps else {}
+    b = {r.seed: getattr(r, key) for r in ps[base].per_seed} if base in ps else {}
     seeds = sorted(s for s in set(c) & set(b) if c[s] is not None and b[s] is not None)
     return np.array([c[s] for s in seeds], float), np.array([b[s] for s in seeds], float)
 
@@ -89,9 +90,9 @@ def tost(d, margin: float, alpha: float = ALPHA) -> tuple[float, float, float, s
     return m, lo, hi, outcome
 
 
-def equal_accuracy(timing: dict | None) -> tuple[str, list[Figure], str, int]:
+def equal_accuracy(timing: Timing | None) -> tuple[str, list[Figure], str, int]:
     """Controlled C3 verdict (TOST), figures, text (with placeholders) and the number of seeds."""
-    if not timing or "params" not in timing:
+    if timing is None or timing.error:
         return "not tested", [], "controlled experiment did not run", 0
     figs, outcomes, parts = [], [], []
     for key, unit, floor, rel, name in (("final_rms_px", "px", RMS_MARGIN_PX, RMS_MARGIN_REL, "final RMS"),
@@ -121,9 +122,9 @@ def equal_accuracy(timing: dict | None) -> tuple[str, list[Figure], str, int]:
                            + ". Equal = the interval lies inside the margin; worse/better = it lies beyond it"), n
 
 
-def speedup(timing: dict | None) -> tuple[str, list[Figure], str, int]:
+def speedup(timing: Timing | None) -> tuple[str, list[Figure], str, int]:
     """Controlled C4 verdict from BA-only wall times (median of repeats, per seed)."""
-    if not timing or "params" not in timing:
+    if timing is None or timing.error:
         return "not tested", [], "controlled experiment did not run", 0
     c, b = _paired(timing, "wall_s")
     ci, bi = _paired(timing, "iterations")
@@ -135,8 +136,8 @@ def speedup(timing: dict | None) -> tuple[str, list[Figure], str, int]:
             fig("c_ratio_max", "controlled speed-up, highest seed", r.max(), "x"),
             fig("c_it_polar", "controlled: polar median iterations", np.median(ci), "count"),
             fig("c_it_eu", "controlled: euclidean median iterations", np.median(bi), "count")]
-    for p, v in timing["params"].items():
-        w = [x["wall_s"] for x in v.get("per_seed", []) if "wall_s" in x]
+    for p, v in timing.params.items():
+        w = [x.wall_s for x in v.per_seed if x.wall_s is not None]
         if w:
             figs.append(fig(f"ba_{p}", f"controlled BA-only median wall time, {p}", np.median(w), "s"))
     m = float(np.median(r))
@@ -144,14 +145,16 @@ def speedup(timing: dict | None) -> tuple[str, list[Figure], str, int]:
                "not supported" if m < 1 + TIMING_SLACK else "inconclusive")
     text = ("Controlled BA-only speed-up euclidean/polar {c_ratio} (range {c_ratio_min} - {c_ratio_max}); "
             "median iterations {c_it_polar} (polar) vs {c_it_eu} (euclidean); median BA wall time "
-            + ", ".join("{ba_" + p + "} " + p for p in timing["params"] if any(f.key == f"ba_{p}" for f in figs)))
+            + ", ".join("{ba_" + p + "} " + p for p in timing.params if any(f.key == f"ba_{p}" for f in figs)))
     return verdict, figs, text, len(r)
 
 
 # ---- C6/C7 ----------------------------------------------------------------------------------
 
-def _per_seed(cond: dict, p: str, key: str, variant: str = "per_seed") -> np.ndarray:
-    return np.array([r[key] for r in cond["params"].get(p, {}).get(variant, [])], float)
+def _per_seed(cond: Conditioning, p: str, key: str, variant: str = "per_seed") -> np.ndarray:
+    """``key`` of form ``p`` per seed (an undefined figure, e.g. an infinite condition number, is inf)."""
+    rows = getattr(cond.params[p], variant) if p in cond.params else []
+    return np.array([np.inf if getattr(r, key) is None else getattr(r, key) for r in rows], float)
 
 
 def _ratio_verdict(ratios: np.ndarray) -> str:
@@ -179,11 +182,11 @@ C7 = ("C7", "Parallax-angle landmarks reduce the correlation of the structure va
       "Section 1.2.2 (after Zhao et al. 2015)", "Mean |correlation coefficient| between the three parameters "
       "of each point, from the point blocks of (J^T J)^-1 (marginal covariance, same gauge as C6) at the true "
       "solution of seeded problems; XYZ vs (azimuth, elevation, parallax angle).")
-def _c6(cond: dict, ratios: dict, errs: dict, size: str) -> ClaimResult:
+def _c6(cond: Conditioning, ratios: dict[str, np.ndarray], errs: dict[str, str], size: str) -> ClaimResult:
     # Ties (parallax and angular landmarks share J^T J up to rounding) go to the first form.
     low = min(r.mean() for r in ratios.values())
     best = next(p for p in ratios if ratios[p].mean() <= low * (1 + 1e-6))
-    scale = cond.get("unit_rescale")
+    scale = cond.unit_rescale
     figs = []
     for p in ["euclidean"] + list(ratios):
         figs += _mean_range(f"jtj_{p}", f"{p}: cond(J^T J), Jacobi-scaled", _per_seed(cond, p, "cond_JtJ_scaled"))
@@ -222,21 +225,21 @@ def _c6(cond: dict, ratios: dict, errs: dict, size: str) -> ClaimResult:
             "choosing kilometres over metres) but the scaled number does not, and LM solvers (Ceres, ours) "
             "apply exactly this diagonal scaling through their damping. What the paper attributes to angles "
             "beyond units must therefore show in the scaled number. "
-            f"Better means a scaled ratio below {1 - MARGIN:.2f} on every seed. Gauge: {cond.get('gauge', '')}. "
+            f"Better means a scaled ratio below {1 - MARGIN:.2f} on every seed. Gauge: {cond.gauge}. "
             "Failed forms: " + (", ".join(f"{p} ({e})" for p, e in errs.items()) or "none") + ".")
     return ClaimResult(*C6, figs, size, _ratio_verdict(ratios[best]), text)
 
 
-def conditioning_claims(cond: dict | None, reason: str) -> list[ClaimResult]:
-    if not cond or "params" not in cond:
-        why = (cond or {}).get("error") or reason
+def conditioning_claims(cond: Conditioning | None, reason: str) -> list[ClaimResult]:
+    if cond is None or cond.error:
+        why = (cond.error if cond is not None else "") or reason
         return [not_tested(*C6, why), not_tested(*C7, why)]
-    n = len(cond.get("seeds", []))
-    size = f"{n} seeds ({cond.get('problem', '')})"
-    errs = {p: v["error"] for p, v in cond["params"].items() if v.get("error")}
+    n = len(cond.seeds)
+    size = f"{n} seeds ({cond.problem})"
+    errs = {p: v.error for p, v in cond.params.items() if v.error}
     out = []
     eu = _per_seed(cond, "euclidean", "cond_JtJ_scaled")
-    ratios = {p: _per_seed(cond, p, "cond_JtJ_scaled") / eu for p in cond["params"]
+    ratios = {p: _per_seed(cond, p, "cond_JtJ_scaled") / eu for p in cond.params
               if p != "euclidean" and len(_per_seed(cond, p, "cond_JtJ_scaled")) == len(eu) > 0}
     if not ratios:
         out.append(not_tested(*C6, "the Euclidean or every angular form failed: "
@@ -259,18 +262,18 @@ def conditioning_claims(cond: dict | None, reason: str) -> list[ClaimResult]:
     return out
 
 
-def robustness_claim(rob: dict | None, reason: str) -> ClaimResult:
+def robustness_claim(rob: Robustness | None, reason: str) -> ClaimResult:
     from polarref.compare.claims_robustness import robustness_claim as claim
     return claim(rob, reason)
 
 
-def more_tie_points(rob: dict | None) -> tuple[str, list[Figure], str, int]:
+def more_tie_points(rob: Robustness | None) -> tuple[str, list[Figure], str, int]:
     from polarref.compare.claims_robustness import more_tie_points as controlled
     return controlled(rob)
 
 
-def experiment_claims(exp: dict | None, reason: str) -> list[ClaimResult]:
-    """C6, C7 and C8 from the experiments' JSON (None: all "not tested" with ``reason``)."""
+def experiment_claims(exp: Experiments | None, reason: str) -> list[ClaimResult]:
+    """C6, C7 and C8 from the experiments' record (None: all "not tested" with ``reason``)."""
     if exp is None:
         return conditioning_claims(None, reason) + [robustness_claim(None, reason)]
-    return conditioning_claims(exp.get("conditioning"), reason) + [robustness_claim(exp.get("robustness"), reason)]
+    return conditioning_claims(exp.conditioning, reason) + [robustness_claim(exp.robustness, reason)]

@@ -10,7 +10,10 @@ import numpy as np
 
 from polarref.compare.claims_experiments import (ALPHA, CONTINUOUS_FACTOR, PAPER_FORM, START_MAX_SUCCESS,
                                                  SUCCESS_MARGIN, TIE_MARGIN_REL, fig, not_tested, tost)
+from polarref.compare.experiment_records import FormRuns, Robustness
 from polarref.compare.schema import ClaimResult, Figure
+
+_NONE = FormRuns()   # a form that did not run
 
 C8 = ("C8", "Angular/parallax forms are more robust to outliers (Sec. 1.2.1) and to low parallax (Sec. 1.2.2, "
       "4.1 (3))", "Section 1.2.1 (outliers: angular pixel coordinates), Section 1.2.2 and Discussion 4.1 (3) "
@@ -23,18 +26,18 @@ C8 = ("C8", "Angular/parallax forms are more robust to outliers (Sec. 1.2.1) and
 
 # ---- C8 -------------------------------------------------------------------------------------
 
-def _rate(v: dict):
-    runs = v.get("runs", [])
+def _rate(v: FormRuns):
+    runs = v.runs
     if not runs:
         return None, None, 0
-    return (float(np.mean([r["success"] for r in runs])),
-            float(np.median([r["rotation_error_deg"] for r in runs])), len(runs))
+    return (float(np.mean([r.success for r in runs])),
+            float(np.median(np.array([r.rotation_error_deg for r in runs], float))), len(runs))
 
 
-def _paired_ratio(form: dict, base: dict, key: str = "rotation_error_deg") -> np.ndarray:
+def _paired_ratio(form: FormRuns, base: FormRuns, key: str = "rotation_error_deg") -> np.ndarray:
     """Per-seed ratio form / base of ``key`` over the seeds both completed."""
-    a = {r.get("seed"): r.get(key) for r in form.get("runs", [])}
-    b = {r.get("seed"): r.get(key) for r in base.get("runs", [])}
+    a = {r.seed: getattr(r, key) for r in form.runs}
+    b = {r.seed: getattr(r, key) for r in base.runs}
     seeds = [s for s in a if s in b and a[s] is not None and b[s] is not None and b[s] > 0]
     return np.array([a[s] / b[s] for s in seeds], float)
 
@@ -55,28 +58,28 @@ def _compare(a: float | None, e: float | None, ratio: np.ndarray) -> str:
     return "equal"
 
 
-def _level(key: str, name: str, forms: dict, figs: list, flipped: list, crashed: list):
+def _level(key: str, name: str, forms: dict[str, FormRuns], figs: list, flipped: list, crashed: list):
     """Figures and text of one level; returns (text, start rate, euclidean rate, {form: outcome})."""
     rates = {p: _rate(v) for p, v in forms.items() if p != "start"}
-    start = _rate(forms.get("start", {}))[0]
+    start = _rate(forms.get("start", _NONE))[0]
     figs.append(fig(f"{key}_start_success", f"{name}: start point (no optimisation) success rate", start))
     parts, outcome = [f"start {{{key}_start_success}}"], {}
-    eu = forms.get("euclidean", {})
+    eu = forms.get("euclidean", _NONE)
     for p, (sr, med, n) in rates.items():
         figs += [fig(f"{key}_{p}", f"{name}: {p} success rate ({n} runs)", sr),
                  fig(f"{key}_{p}_med", f"{name}: {p} median relative-rotation error", med, "deg")]
-        runs = forms[p].get("runs", [])
-        flips = [r.get("flipped_fraction") for r in runs if r.get("flipped_fraction") is not None]
+        runs = forms[p].runs
+        flips = [r.flipped_fraction for r in runs if r.flipped_fraction is not None]
         if flips:
             figs.append(fig(f"{key}_{p}_flip", f"{name}: {p} mean fraction of observations with the point "
                             "behind the camera (bearing error > 90 deg)", np.mean(flips)))
             if np.mean(flips) > 0.005:
                 flipped.append(f"{name}/{p} {{{key}_{p}_flip}}")
-        its = [r["iterations"] for r in runs if r.get("iterations") is not None]
+        its = [r.iterations for r in runs if r.iterations is not None]
         figs.append(fig(f"{key}_{p}_it", f"{name}: {p} median LM iterations", np.median(its) if its else None, "count"))
         text = f"{p} {{{key}_{p}}} ({{{key}_{p}_med}}, {{{key}_{p}_it}} it"
-        if forms[p].get("errors"):
-            crashed.append(f"{name}/{p}: {len(forms[p]['errors'])} runs raised ({forms[p]['errors'][0]})")
+        if forms[p].errors:
+            crashed.append(f"{name}/{p}: {len(forms[p].errors)} runs raised ({forms[p].errors[0]})")
         if p != "euclidean":
             ratio = _paired_ratio(forms[p], eu)
             gm = float(np.exp(np.log(ratio).mean())) if len(ratio) and (ratio > 0).all() else None
@@ -85,7 +88,7 @@ def _level(key: str, name: str, forms: dict, figs: list, flipped: list, crashed:
             text += f", {{{key}_{p}_ratio}} vs euclidean"
             outcome[p] = _compare(sr, rates.get("euclidean", (None,))[0], ratio)
         parts.append(text + ")")
-    init_rms = [r["initial_rms_px"] for r in eu.get("runs", []) if "initial_rms_px" in r]
+    init_rms = [r.initial_rms_px for r in eu.runs if r.initial_rms_px is not None]
     if init_rms:
         figs.append(fig(f"{key}_rms0", f"{name}: median initial pixel RMS", np.median(init_rms), "px"))
         parts.insert(0, f"initial RMS {{{key}_rms0}}")
@@ -111,13 +114,13 @@ def _half(levels: list) -> tuple[str, str]:
     return "not supported", desc
 
 
-def robustness_claim(rob: dict | None, reason: str) -> ClaimResult:
-    if not rob or "outliers" not in rob or "low_parallax" not in rob:
-        return not_tested(*C8, (rob or {}).get("error") or reason or "robustness experiment did not run")
+def robustness_claim(rob: Robustness | None, reason: str) -> ClaimResult:
+    if rob is None or rob.error:
+        return not_tested(*C8, (rob.error if rob is not None else "") or reason or "robustness experiment did not run")
     figs, texts, crashed, flipped = [], [], [], []
     halves = {}
-    for h, prefix, label, data in (("outliers", "out", lambda lv: f"outliers {float(lv):.0%}", rob["outliers"]),
-                                   ("low parallax", "lp", lambda lv: f"baseline/depth {lv}", rob["low_parallax"])):
+    for h, prefix, label, data in (("outliers", "out", lambda lv: f"outliers {float(lv):.0%}", rob.outliers),
+                                   ("low parallax", "lp", lambda lv: f"baseline/depth {lv}", rob.low_parallax)):
         levels = []
         for i, (lvl, forms) in enumerate(data.items()):
             text, start, eu, outcome = _level(f"{prefix}{i}", label(lvl), forms, figs, flipped, crashed)
@@ -131,35 +134,35 @@ def robustness_claim(rob: dict | None, reason: str) -> ClaimResult:
           "not supported" if all(v == "not supported" for v in verdicts) else "inconclusive")
     rationale = ("Success rate (median relative-rotation error, median LM iterations, paired rotation-error ratio "
                  "vs euclidean) per form, beside the start point's success rate -- " + "; ".join(texts)
-                 + f". Success: {rob.get('success_rule', '')}. Levels whose start point succeeds in more than "
+                 + f". Success: {rob.success_rule}. Levels whose start point succeeds in more than "
                  f"{START_MAX_SUCCESS:.0%} of the runs are left out. Better/worse = success rate differs by >= "
                  f"{SUCCESS_MARGIN:.0%}, or equal rates and the rotation error is lower/higher on every seed by a "
                  f"geometric-mean factor >= {CONTINUOUS_FACTOR}."
                  + (" Points ending behind the cameras (mean fraction of observations over the runs; reprojection cannot "
                     "see it, since -X projects like X): " + ", ".join(flipped) + "." if flipped else "")
                  + (" Runs that raised (solver bugs, not counted): " + "; ".join(crashed) if crashed else ""))
-    nforms = len([p for p in next(iter(rob["outliers"].values()), {}) if p != "start"])
-    size = (f"{rob.get('seeds_run', 0)} seeds x ({len(rob['outliers'])} outlier levels + {len(rob['low_parallax'])} "
-            f"parallax levels) x {nforms} forms + start point ({rob.get('outlier_problem', '')}; "
-            f"{rob.get('parallax_problem', '')})")
+    nforms = len([p for p in next(iter(rob.outliers.values()), {}) if p != "start"])
+    size = (f"{rob.seeds_run} seeds x ({len(rob.outliers)} outlier levels + {len(rob.low_parallax)} "
+            f"parallax levels) x {nforms} forms + start point ({rob.outlier_problem}; "
+            f"{rob.parallax_problem})")
     return ClaimResult(*C8, figs, size, v8, rationale)
 
 
 # ---- C5 controlled ---------------------------------------------------------------------------
 
-def more_tie_points(rob: dict | None) -> tuple[str, list[Figure], str, int]:
+def more_tie_points(rob: Robustness | None) -> tuple[str, list[Figure], str, int]:
     """Controlled C5 from the outlier runs: counts after a 4 px filter, polar vs euclidean (TOST)."""
-    if not rob or "outliers" not in rob:
+    if rob is None or rob.error:
         return "not tested", [], "controlled experiment did not run", 0
     figs, outcomes, parts = [], [], []
     n = 0
     for key, name in (("tie_points", "tie points"), ("inlier_observations", "observations within 4 px")):
         rel, base = [], []
-        start = [r[key] for forms in rob["outliers"].values() for r in forms.get("start", {}).get("runs", [])
-                 if r.get(key) is not None]
-        for forms in rob["outliers"].values():
-            c = {r["seed"]: r.get(key) for r in forms.get(PAPER_FORM, {}).get("runs", [])}
-            b = {r["seed"]: r.get(key) for r in forms.get("euclidean", {}).get("runs", [])}
+        start = [getattr(r, key) for forms in rob.outliers.values() for r in forms.get("start", _NONE).runs
+                 if getattr(r, key) is not None]
+        for forms in rob.outliers.values():
+            c = {r.seed: getattr(r, key) for r in forms.get(PAPER_FORM, _NONE).runs}
+            b = {r.seed: getattr(r, key) for r in forms.get("euclidean", _NONE).runs}
             for s_ in c:
                 if s_ in b and c[s_] is not None and b[s_]:
                     rel.append((c[s_] - b[s_]) / b[s_])

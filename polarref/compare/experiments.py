@@ -24,16 +24,16 @@ from the parameterization only. Errors are gauge-free (see
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from pathlib import Path
 
 import numpy as np
 
-from polarref.atomic import atomic_write
+from polarref import records
 from polarref.compare.experiment_problems import (bearing_errors_deg, low_parallax_problem,
                                                   relative_rotation_errors_deg)
+from polarref.compare.experiment_records import Conditioning, ConditioningRow, Experiments, Robustness, Timing
 from polarref.compare.thresholds import SUCCESS_BEARING_DEG, SUCCESS_RMS_NOISE_FACTOR, SUCCESS_ROT_DEG
 
 log = logging.getLogger(__name__)
@@ -80,7 +80,7 @@ def _err(exc: Exception) -> str:
 # ---- C3/C4: accuracy, iterations and time on several seeds ----------------------------------
 
 def timing(seed: int, deadline: float, seeds: int = CONTROLLED_SEEDS, repeats: int = TIMING_REPEATS,
-           size: tuple[int, int] = TIMING_PROBLEM, timed_seeds: int = TIMED_SEEDS) -> dict:
+           size: tuple[int, int] = TIMING_PROBLEM, timed_seeds: int = TIMED_SEEDS) -> Timing:
     """Per seed and form: median wall time over ``repeats`` interleaved runs (the first
     ``timed_seeds`` seeds; one run on the others), accuracy, iterations."""
     from polarref.ba.synthetic import clone, synthetic_reconstruction
@@ -123,7 +123,7 @@ def timing(seed: int, deadline: float, seeds: int = CONTROLLED_SEEDS, repeats: i
                 out["params"][p]["per_seed"].append(result[p])
                 out["params"][p]["runs"] += [{"wall_s": w, "seed": s} for w in walls[p]]
         out["seeds"].append(s)
-    return out
+    return records.coerce(Timing, out, label="timing")
 
 
 # ---- C6/C7: conditioning and correlation at the true solution -------------------------------
@@ -157,8 +157,9 @@ def _scaled(A: np.ndarray) -> np.ndarray:
     return A / d[:, None] / d[None, :]
 
 
-def conditioning_one(truth, param: str) -> dict:
-    """Condition numbers and structure correlations of one form at ``truth`` (noise-free)."""
+def conditioning_one(truth, param: str) -> tuple[ConditioningRow, str]:
+    """Condition numbers and structure correlations of one form at ``truth`` (noise-free), and
+    the gauge the solver fixed."""
     from polarref.ba import BAOptions, problem_from_reconstruction
     from polarref.ba.problem import prepare
     from polarref.ba.solver import make_param
@@ -173,10 +174,9 @@ def conditioning_one(truth, param: str) -> dict:
     blocks = cov.reshape(P, dp, P, dp)[np.arange(P), :, np.arange(P), :]           # (P, dp, dp)
     sd = np.sqrt(np.einsum("pii->pi", blocks))
     corr = np.abs(blocks / sd[:, :, None] / sd[:, None, :])[:, *np.triu_indices(dp, 1)]
-    return {"cond_JtJ": _cond(H), "cond_JtJ_scaled": _cond(_scaled(H)),
-            "cond_schur": _cond(S), "cond_schur_scaled": _cond(_scaled(S)),
-            "mean_abs_point_corr": float(corr.mean()), "max_abs_point_corr": float(corr.max()),
-            "point_params": dp, "gauge": problem.gauge, "error": ""}
+    row = ConditioningRow(_cond(H), _cond(_scaled(H)), _cond(S), _cond(_scaled(S)),
+                          float(corr.mean()), float(corr.max()), dp)
+    return row, problem.gauge
 
 
 def rescaled(rec, factor: float):
@@ -193,7 +193,7 @@ def rescaled(rec, factor: float):
     return out
 
 
-def conditioning(seed: int, seeds: int = CONDITIONING_SEEDS, size: tuple[int, int] = SMALL_PROBLEM) -> dict:
+def conditioning(seed: int, seeds: int = CONDITIONING_SEEDS, size: tuple[int, int] = SMALL_PROBLEM) -> Conditioning:
     """:func:`conditioning_one` for every form on ``seeds`` seeded problems (``per_seed`` lists),
     once in the scene's units and once with every length times ``UNIT_RESCALE`` (``per_seed_rescaled``)."""
     from polarref.ba.synthetic import synthetic_reconstruction
@@ -207,15 +207,14 @@ def conditioning(seed: int, seeds: int = CONDITIONING_SEEDS, size: tuple[int, in
         for variant, rec in (("per_seed", truth), ("per_seed_rescaled", rescaled(truth, UNIT_RESCALE))):
             for p in _params():
                 try:
-                    r = conditioning_one(rec, p)
+                    r, gauge = conditioning_one(rec, p)
                 except Exception as exc:
                     out["params"][p]["error"] = _err(exc)
                     continue
-                gauge = r.pop("gauge")
                 out["gauge"] = out["gauge"] or gauge
-                out["params"][p][variant].append(r)
+                out["params"][p][variant].append(records.to_dict(r))
         out["seeds"].append(seed + k)
-    return out
+    return records.coerce(Conditioning, out, label="conditioning")
 
 
 # ---- C8: outliers and low parallax ----------------------------------------------------------
@@ -279,7 +278,7 @@ def inlier_counts(rec, max_error_px: float = FILTER_MAX_ERROR_PX) -> dict:
 
 def robustness(seed: int, deadline: float, seeds: int = ROBUST_SEEDS, ratios=PARALLAX_RATIOS,
                fractions=OUTLIER_FRACTIONS, outlier_size: tuple[int, int] = ROBUST_PROBLEM,
-               parallax_size: tuple[int, int] = LOW_PARALLAX_PROBLEM) -> dict:
+               parallax_size: tuple[int, int] = LOW_PARALLAX_PROBLEM) -> Robustness:
     """Outlier and low-parallax runs; seeds outermost so a deadline cut keeps every level balanced.
 
     Every level also scores its start point (``start``: the initial reconstruction, no
@@ -315,10 +314,10 @@ def robustness(seed: int, deadline: float, seeds: int = ROBUST_SEEDS, ratios=PAR
                                                rot_deg=PARALLAX_INIT_ROT_DEG)
             _run_forms(init, truth, {}, out["low_parallax"][f"{r:g}"], s)
         out["seeds_run"] = k + 1
-    return out
+    return records.coerce(Robustness, out, label="robustness")
 
 
-def run_all(seed: int, budget_s: float, out_json: Path) -> dict:
+def run_all(seed: int, budget_s: float, out_json: Path) -> Experiments:
     """Run every experiment within roughly ``budget_s``; the JSON also goes to ``out_json``."""
     t0 = time.perf_counter()
     from threadpoolctl import threadpool_limits
@@ -329,18 +328,18 @@ def run_all(seed: int, budget_s: float, out_json: Path) -> dict:
         return _run_all(seed, budget_s, out_json, t0)
 
 
-def _run_all(seed: int, budget_s: float, out_json: Path, t0: float) -> dict:
-    result: dict = {"seed": seed}
-    for name, fn in (("conditioning", lambda: conditioning(seed)),
-                     ("timing", lambda: timing(seed, t0 + 0.4 * budget_s)),
-                     ("robustness", lambda: robustness(seed, t0 + budget_s))):
+def _run_all(seed: int, budget_s: float, out_json: Path, t0: float) -> Experiments:
+    result = Experiments(seed)
+    for name, kind, fn in (("conditioning", Conditioning, lambda: conditioning(seed)),
+                           ("timing", Timing, lambda: timing(seed, t0 + 0.4 * budget_s)),
+                           ("robustness", Robustness, lambda: robustness(seed, t0 + budget_s))):
         tic = time.perf_counter()
         try:
-            result[name] = fn()
+            value = fn()
         except Exception as exc:
             log.exception("experiment %s failed", name)
-            result[name] = {"error": _err(exc)}
-        result.setdefault("wall_s", {})[name] = time.perf_counter() - tic
-    out_json.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(out_json, json.dumps(result, indent=1, default=float))
+            value = kind(error=_err(exc))
+        setattr(result, name, value)
+        result.wall_s[name] = time.perf_counter() - tic
+    records.save(result, out_json)
     return result

@@ -108,7 +108,7 @@ def point_clouds(metrics: MetricsFile, path: Path) -> Path | None:
             ax.tick_params(labelsize=6)
             title = f"{m.label}: {name}"
             if row == 0:
-                title += f"\n{m.tie_points or 0:,} points ({len(pts):,} drawn, {outside} off-axes)"
+                title += f"\n{m.metric('tie_points') or 0:,} points ({len(pts):,} drawn, {outside} off-axes)"
             ax.set_title(title, fontsize=7)
     fig.tight_layout()
     return _save(fig, path)

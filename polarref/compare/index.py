@@ -30,7 +30,8 @@ def _main_row(m: MetricsFile) -> list[str]:
         return ["—", "—", "—"]
     b, c = m.method(pair.baseline), m.method(pair.candidate)
     ok = b.status == STATUS_OK and c.status == STATUS_OK
-    acc = f"{fmt(b.mean_reprojection_error_px)} / {fmt(c.mean_reprojection_error_px)}" if ok else "n/a"
+    err = "mean_reprojection_error_px"
+    acc = f"{fmt(b.metric(err))} / {fmt(c.metric(err))}" if ok else "n/a"
     return [f"{b.label} vs {c.label}", acc, improving_runtime(b.runtime_s, c.runtime_s) if ok else "n/a"]
 
 

@@ -12,8 +12,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from polarref.atomic import atomic_write
+from polarref import records
 from polarref.camera import Camera
+from polarref.compare.experiment_records import DerivationEvidence, Experiments
 from polarref.compare.schema import TracePoint
 from polarref.scene_folder import SkippedImage
 from polarref.peers.colmap_sfm import (ColmapSfMOptions, copy_database, count_verified_pairs,
@@ -103,25 +104,24 @@ def ours_sfm(image_dir: str, camera: dict, ba: str, work_dir: str, preset: str, 
     return ours.run(Path(image_dir), _camera(camera), ba, Path(work_dir), preset, Path(cache_dir))
 
 
-def claim_experiments(seed: int, budget_s: float, out_json: str) -> dict:
+def claim_experiments(seed: int, budget_s: float, out_json: str) -> Experiments:
     """Controlled BA experiments for the scorecard (conditioning, correlation, robustness)."""
     from polarref.compare import experiments
 
     return experiments.run_all(seed=seed, budget_s=budget_s, out_json=Path(out_json))
 
 
-def derivation_evidence(n: int, out_json: str) -> dict:
+def derivation_evidence(n: int, out_json: str) -> DerivationEvidence:
     """Numeric evidence on the printed view-angle equation and claim 7, from ``derivations.paper``.
 
     Runs in its own process: the derivations package imports SymPy/mpmath, which runtime code
     must not import.
     """
     import dataclasses
-    import json
 
     from derivations import paper
 
     cases = [dataclasses.asdict(c) for c in paper.all_case_evidence(n=n)]
-    result = {"cases": cases, "samples_per_case": n, "seed": paper.SEED}
-    atomic_write(out_json, json.dumps(result, indent=1, default=float))
+    result = records.coerce(DerivationEvidence, {"cases": cases, "samples_per_case": n, "seed": paper.SEED})
+    records.save(result, out_json)
     return result

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from polarref.ba.parameterization import PARAMS
 from polarref.compare.schema import MethodPair
 
-BA_PARAMS = ("euclidean", "parallax", "polar", "angular")
+BA_PARAMS = PARAMS   # the one registry of BA parameterizations
 
 
 @dataclass(frozen=True)

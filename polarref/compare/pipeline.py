@@ -203,7 +203,7 @@ def _score_into(res: MethodResult, rec, scene: scenes.PreparedScene, mesh, seed:
     res.gt = s.gt
     res.plot = s.plot
     notes += [f"{res.name}: {n}" for n in s.notes]
-    if res.registered_images == 0:
+    if res.metric("registered_images") == 0:
         res.status, res.reason = STATUS_FAILED, "no image registered"
 
 

@@ -99,19 +99,18 @@ def _cell(m: MethodResult, value: str) -> str:
 
 def pair_table(pair: MethodPair, base: MethodResult, cand: MethodResult) -> Table:
     ok = base.status == STATUS_OK and cand.status == STATUS_OK
+    b, c = base.metric, cand.metric
+    err, tp, rp, reg = ("mean_reprojection_error_px", "tie_points", "reprojected_px", "registered_images")
     rows = [
-        ["Accuracy (px)", _cell(base, fmt(base.mean_reprojection_error_px)),
-         _cell(cand, fmt(cand.mean_reprojection_error_px)),
-         improving_accuracy(base.mean_reprojection_error_px, cand.mean_reprojection_error_px) if ok else "n/a"],
+        ["Accuracy (px)", _cell(base, fmt(b(err))), _cell(cand, fmt(c(err))),
+         improving_accuracy(b(err), c(err)) if ok else "n/a"],
         ["Efficiency (s)", _cell(base, fmt(base.runtime_s, 2)), _cell(cand, fmt(cand.runtime_s, 2)),
          improving_runtime(base.runtime_s, cand.runtime_s) if ok else "n/a"],
-        ["#Tie point", _cell(base, fmt(base.tie_points)), _cell(cand, fmt(cand.tie_points)),
-         improving_count(base.tie_points, cand.tie_points) if ok else "n/a"],
-        ["#Reprojected px", _cell(base, fmt(base.reprojected_px)), _cell(cand, fmt(cand.reprojected_px)),
-         improving_count(base.reprojected_px, cand.reprojected_px) if ok else "n/a"],
-        ["Registered images", _cell(base, f"{fmt(base.registered_images)} / {base.num_images}"),
-         _cell(cand, f"{fmt(cand.registered_images)} / {cand.num_images}"),
-         improving_count(base.registered_images, cand.registered_images) if ok else "n/a"],
+        ["#Tie point", _cell(base, fmt(b(tp))), _cell(cand, fmt(c(tp))), improving_count(b(tp), c(tp)) if ok else "n/a"],
+        ["#Reprojected px", _cell(base, fmt(b(rp))), _cell(cand, fmt(c(rp))),
+         improving_count(b(rp), c(rp)) if ok else "n/a"],
+        ["Registered images", _cell(base, f"{fmt(b(reg))} / {base.num_images}"),
+         _cell(cand, f"{fmt(c(reg))} / {cand.num_images}"), improving_count(b(reg), c(reg)) if ok else "n/a"],
     ]
     if base.gt is not None or cand.gt is not None:
         rb = base.gt.rotation_error_deg_mean if base.gt else None
@@ -129,8 +128,9 @@ def _methods_section(m: MetricsFile) -> list:
     for r in m.methods:
         reason = r.reason.replace("|", "/").replace("\n", " ") if r.reason else ""
         rows.append([f"`{r.name}`", r.label, r.status,
-                     f"{fmt(r.registered_images)} / {r.num_images}", fmt(r.tie_points), fmt(r.reprojected_px),
-                     fmt(r.mean_reprojection_error_px), fmt(r.mean_reprojection_error_per_point_px),
+                     f"{fmt(r.metric('registered_images'))} / {r.num_images}", fmt(r.metric("tie_points")),
+                     fmt(r.metric("reprojected_px")), fmt(r.metric("mean_reprojection_error_px")),
+                     fmt(r.metric("mean_reprojection_error_px_per_point")),
                      fmt_s(r.runtime_s), fmt_s(r.timeout_s), reason or "—"])
     return [Para("All methods run on the same images with the same fixed intrinsics, one after another "
                  "(never in parallel, so runtimes are comparable), each in its own process with a "

@@ -8,8 +8,7 @@ fails loudly instead of rendering half a report.
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import ClassVar
 
@@ -17,8 +16,9 @@ from polarref import records
 from polarref.atomic import atomic_write
 from polarref.compare.dense_section import DenseSection
 from polarref.errors import PolarrefError
+from polarref.metrics import SCHEMA_VERSION, ReconstructionMetrics
 
-SCHEMA_VERSION = 1
+_METRIC_FIELDS = frozenset(f.name for f in fields(ReconstructionMetrics))
 
 STATUS_OK = "ok"
 STATUS_FAILED = "failed"
@@ -124,25 +124,19 @@ class MethodResult:
     stage_runtime_s: dict[str, float] = field(default_factory=dict)
     timeout_s: float | None = None
     num_images: int = 0
-    registered_images: int | None = None
-    tie_points: int | None = None        # 3D points
-    reprojected_px: int | None = None    # observations (track elements)
-    mean_reprojection_error_px: float | None = None            # per observation
-    mean_reprojection_error_per_point_px: float | None = None  # COLMAP's per-point average
+    metrics: ReconstructionMetrics | None = None   # polarref.metrics' one record, as written by `polarref sfm`
     gt: GtAccuracy | None = None
     plot: MethodPlot | None = None
 
-    def set_metrics(self, m) -> None:
-        """Fill the counts and reprojection errors from ``m`` (a polarref.metrics.ReconstructionMetrics).
+    def set_metrics(self, m: ReconstructionMetrics) -> None:
+        """Embed ``m`` as it reads back from metrics.json (non-finite figures become None)."""
+        self.metrics = records.from_dict(ReconstructionMetrics, records.to_dict(m), label="metrics")
 
-        The one mapping from the metrics record to this file's names (non-finite -> None).
-        """
-        finite = lambda x: float(x) if x is not None and math.isfinite(x) else None  # noqa: E731
-        self.registered_images = int(m.registered_images)
-        self.tie_points = int(m.tie_points)
-        self.reprojected_px = int(m.reprojected_px)
-        self.mean_reprojection_error_px = finite(m.mean_reprojection_error_px)
-        self.mean_reprojection_error_per_point_px = finite(m.mean_reprojection_error_px_per_point)
+    def metric(self, name: str):
+        """The figure ``name`` of :attr:`metrics` (a ReconstructionMetrics field), None without metrics."""
+        if name not in _METRIC_FIELDS:
+            raise AttributeError(f"ReconstructionMetrics has no field {name!r}")
+        return None if self.metrics is None else getattr(self.metrics, name)
 
 
 @dataclass
@@ -266,7 +260,36 @@ def to_dict(obj) -> dict:
     return records.to_dict(obj)
 
 
+# v1 (compare only) spelled the metrics per method under its own names; v2 embeds the one
+# ReconstructionMetrics record under "metrics". v1 did not record the median error or the
+# mean track length (None after reading).
+_V1_METRICS = {"registered_images": "registered_images", "tie_points": "tie_points",
+               "reprojected_px": "reprojected_px", "mean_reprojection_error_px": "mean_reprojection_error_px",
+               "mean_reprojection_error_per_point_px": "mean_reprojection_error_px_per_point"}
+
+
+def _upgrade_v1(data: dict) -> dict:
+    """A v1 metrics.json object in the v2 layout (same values; unknown keys are left for the strict read)."""
+    data = dict(data, schema_version=SCHEMA_VERSION)
+    methods = []
+    for m in data.get("methods", []):
+        if not isinstance(m, dict):
+            methods.append(m)
+            continue
+        m = dict(m)
+        old = {new: m.pop(name, None) for name, new in _V1_METRICS.items()}
+        if any(v is not None for v in old.values()):
+            m["metrics"] = {"num_images": m.get("num_images", 0), **old,
+                            "median_reprojection_error_px": None, "mean_track_length": None}
+        methods.append(m)
+    data["methods"] = methods
+    return data
+
+
 def from_dict(data: dict) -> MetricsFile:
+    """MetricsFile from parsed JSON, strictly; a v1 file is read through :func:`_upgrade_v1`."""
+    if isinstance(data, dict) and data.get("schema_version") == 1 and not isinstance(data.get("schema_version"), bool):
+        data = _upgrade_v1(data)
     return records.from_dict(MetricsFile, data, label="metrics.json", where="metrics")
 
 

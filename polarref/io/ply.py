@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from polarref.atomic import atomic_open
+
 _VERTEX = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
                     ("red", "u1"), ("green", "u1"), ("blue", "u1")])
 
@@ -42,9 +44,7 @@ def write_points_ply(path: str | Path, xyz: np.ndarray, rgb: np.ndarray | None =
                "property uchar red", "property uchar green", "property uchar blue", "end_header"]
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
-    with open(tmp, "wb") as f:
+    with atomic_open(path, "wb") as f:
         f.write(("\n".join(header) + "\n").encode("ascii"))
         f.write(data.tobytes())
-    tmp.replace(path)
     return path

@@ -42,7 +42,7 @@ class StrechaView:
     """
 
     name: str
-    camera: object
+    camera: Camera
     cam_from_world: Rigid3
     distortion: np.ndarray
 

@@ -29,12 +29,16 @@ import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from polarref.errors import PolarrefError
 # the pipeline option builders live with every other pycolmap conversion
 from polarref.model.colmap import global_options, incremental_options, two_view_geometry
+
+if TYPE_CHECKING:
+    import pycolmap
 
 MAPPERS = ("incremental", "global")
 
@@ -68,7 +72,7 @@ class ColmapSfMOptions:
 class ColmapSfMRun:
     """The largest reconstruction of one mapping run, with timings."""
 
-    reconstruction: object | None      # pycolmap.Reconstruction; None when nothing registered
+    reconstruction: pycolmap.Reconstruction | None   # the largest model; None when nothing registered
     stage_runtime_s: dict[str, float] = field(default_factory=dict)
     num_models: int = 0                # reconstructions the mapper returned
     verified_pairs: int = 0            # image pairs with >= 1 verified inlier in the database

@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-BA_NAMES = ("euclidean", "parallax", "polar", "angular", "colmap")
+from polarref.ba.parameterization import SFM_BA_NAMES as BA_NAMES  # noqa: E402  (the one registry)
 
 
 def to_reconstruction(state, image_ids=None, track_ids=None, colors=None) -> Reconstruction:

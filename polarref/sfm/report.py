@@ -2,8 +2,9 @@
 
 :func:`polarref.sfm.pipeline.run_sfm` fills one :class:`SfMReport` stage by stage; the scores of
 the finished model are one :class:`polarref.metrics.ReconstructionMetrics`, embedded, not copied.
-The file keeps its flat layout (the metrics' keys at the top level, keys of stages that did not
-run left out), written by :meth:`SfMReport.to_json`.
+The file (:meth:`SfMReport.to_json`) has the schema of ``polarref compare``'s metrics.json
+for the scores: ``schema_version`` and the metrics record as one object under ``"metrics"``
+(read back with :func:`polarref.metrics.read_metrics`); keys of stages that did not run are left out.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ import numpy as np
 
 from polarref import records
 from polarref.ba.options import BASummary, IterationRecord
-from polarref.metrics import ReconstructionMetrics
+from polarref.metrics import SCHEMA_VERSION, ReconstructionMetrics
 from polarref.provenance import Provenance
 from polarref.scene_folder import SkippedImage
 
@@ -114,12 +115,12 @@ class SfMReport:
 
     def to_json(self) -> dict[str, Any]:
         """The metrics.json object: flat, stages that did not run and empty reasons left out."""
-        out: dict[str, Any] = {}
+        out: dict[str, Any] = {"schema_version": SCHEMA_VERSION}
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             if f.name == "metrics":
                 if value is not None:
-                    out.update(records.to_dict(value))
+                    out["metrics"] = records.to_dict(value)
                 continue
             if f.name == "ba" and value is not None:
                 value = [b.to_json() for b in value]

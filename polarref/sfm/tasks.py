@@ -18,7 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
+from polarref.camera import Camera
 from polarref.sfm import features as F
+from polarref.sfm.matching import MatchConfig
+from polarref.sfm.verification import VerifyConfig
 
 
 @dataclass(frozen=True)
@@ -56,11 +59,11 @@ class MatchTask:
 
     features: str                       # .npz of every image (polarref.sfm.features.save)
     pairs: tuple[tuple[int, int], ...]
-    cameras: tuple                      # polarref.camera.Camera per unique camera
+    cameras: tuple[Camera, ...]         # per unique camera
     camera_of_image: tuple[int, ...]
     focal: float
-    matching: object                    # MatchConfig
-    verification: object                # VerifyConfig
+    matching: MatchConfig
+    verification: VerifyConfig
     out: str                            # .npz of the chunk's putative and verified matches
 
 

@@ -1,0 +1,102 @@
+"""Compiled kernels (numba) for the per-iteration sums of the bundle adjuster.
+
+The numpy path (schur.py, anchor_terms.py, the forms' evaluate) is the reference; these
+kernels compute the same sums in one pass over observations or entry pairs, without the
+gathers that numpy needs to vectorize them: the entry-pair Schur products, the slot Gram
+blocks of U, the W / g blocks, the forms' rays and Jacobian chains. Sums are taken in a
+different order than in numpy, so results agree to rounding (tests: 1e-9 relative).
+``BAOptions.kernels`` picks the path; "auto" uses these when numba imports. Everything runs on
+one thread (no ``parallel=True``): the bench compares against one-thread Ceres.
+
+The kernels live in kernels_jit.py and are reached as attributes of this module
+(``kernels.schur_dense``), so numba is imported only when a solve uses them. Compiled code is
+cached on disk (``cache=True``, numba's ``__pycache__``); the first call in a fresh
+environment compiles (seconds), so the bench calls :func:`warm_up` before timing.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+_STATE: dict = {}
+
+
+def available() -> bool:
+    """Whether the compiled kernels import (numba installed and working); cached."""
+    if "ok" not in _STATE:
+        try:
+            from polarref.ba import kernels_jit  # noqa: F401
+            _STATE["ok"] = True
+        except Exception as exc:  # a broken numba install falls back, it does not crash
+            log.debug("BA kernels unavailable (%s: %s); numpy path", type(exc).__name__, exc)
+            _STATE["ok"] = False
+    return _STATE["ok"]
+
+
+def numba_version() -> str | None:
+    """The installed numba's version (None when the kernels are unavailable)."""
+    if not available():
+        return None
+    import numba
+    return numba.__version__
+
+
+def use_kernels(choice: str) -> bool:
+    """Whether a solve with ``BAOptions.kernels == choice`` runs the compiled kernels."""
+    if choice == "numpy":
+        return False
+    if choice == "numba" and not available():
+        from polarref.errors import PolarrefError
+        raise PolarrefError("BA kernels 'numba' requested but numba does not import "
+                            "(pip install numba, or use kernels='numpy')")
+    return available()
+
+
+def __getattr__(name: str):
+    if name.startswith("_"):
+        raise AttributeError(name)
+    from polarref.ba import kernels_jit
+    try:
+        return getattr(kernels_jit, name)
+    except AttributeError:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+
+
+def warm_up() -> float:
+    """Compile (or load from the disk cache) every kernel on tiny inputs; seconds taken."""
+    if not available():
+        return 0.0
+    from polarref.ba.kernels_jit import (back_substitute_rhs, build_three_slots,
+                                         euclidean_jacobians, euclidean_rays, parallax_jacobians,
+                                         parallax_points, parallax_rays, point_sums, schur_dense,
+                                         slot_gram, slot_w_g)
+    t = time.perf_counter()
+    f, i = np.zeros, np.zeros
+    one = np.zeros(1, np.int64)
+    J6, Jp, r = f((1, 2, 6)), f((1, 2, 3)), f((1, 2))
+    U, W, g = f((1, 6, 6)), f((1, 6, 3)), f((1, 6))
+    z3 = np.zeros((3, 1), np.int64)
+    for cross in (False, True):
+        schur_dense(W, f((1, 3, 3)), f((1, 3)), np.array([0, 1], np.int64), one, one, f((6, 6)),
+                    g, cross, J6, Jp, Jp, z3, np.array([0, 1], np.int64))
+    slot_gram(J6, 0, J6, 0, one, -np.ones(1, np.int64), U)
+    slot_gram(J6, 0, Jp, 3, one, one, U)
+    slot_w_g(J6, 0, Jp, r, one, one, W, g)
+    slot_w_g(Jp, 3, Jp, r, one, one, W, g)
+    point_sums(Jp, r, one, f((1, 3, 3)), f((1, 3)))
+    back_substitute_rhs(W, g, one, one, i((1, 3)))
+    build_three_slots(J6, Jp, Jp, Jp, r, np.zeros((3, 1), np.int64), np.zeros((3, 1), np.int64),
+                      W, g, U)
+    R, x3, x1 = np.eye(3)[None].copy(), f((1, 3)), f(1)
+    euclidean_jacobians(Jp, euclidean_rays(R, x3, x3, one, one), R, one)
+    parallax_points(R, x3, x3, one, one, True)
+    parallax_rays(R, x3, one, one, x3, x1, x3)
+    parallax_jacobians(Jp, x3, R, x3, one, one, x3, x3, x1, x1, x1, x3, f((1, 3, 2)))
+    dt = time.perf_counter() - t
+    log.debug("BA kernels ready in %.2f s", dt)
+    return dt

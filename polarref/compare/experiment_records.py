@@ -1,0 +1,149 @@
+"""Typed results of the claim experiments (:mod:`polarref.compare.experiments`) and of the
+derivation evidence (:func:`polarref.compare.jobs.derivation_evidence`).
+
+The field names are the JSON keys of ``runs/claims/experiments.json`` and ``derivations.json``;
+the files are written with :func:`polarref.records.save`. A section that raised keeps only its
+``error`` (every other field at its default). Figures that are undefined (NaN, or an infinite
+condition number) are ``None`` once recorded, as everywhere in polarref's JSON.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+# ---- C3/C4: timing --------------------------------------------------------------------------
+
+
+@dataclass
+class TimingSeed:
+    """One form on one seed: the first (untimed-repeat) run's accuracy and the median wall time."""
+
+    seed: int
+    iterations: int
+    final_rms_px: float | None
+    rotation_error_deg: float | None          # mean relative-rotation error
+    final_pixel_cost: float | None = None
+    termination: str = ""
+    wall_s: float | None = None               # median over the timed repeats
+
+
+@dataclass
+class TimedRun:
+    wall_s: float
+    seed: int
+
+
+@dataclass
+class TimingForm:
+    per_seed: list[TimingSeed] = field(default_factory=list)
+    runs: list[TimedRun] = field(default_factory=list)        # every timed run
+    trace: list[list[float]] = field(default_factory=list)    # [iteration, wall_s, cost], first seed
+    error: str = ""
+
+
+@dataclass
+class Timing:
+    problem: str = ""
+    trace_problem: str = ""
+    seeds: list[int] = field(default_factory=list)
+    params: dict[str, TimingForm] = field(default_factory=dict)   # form -> its runs
+    error: str = ""
+
+
+# ---- C6/C7: conditioning --------------------------------------------------------------------
+
+
+@dataclass
+class ConditioningRow:
+    """One form at one seed's true solution (:func:`polarref.compare.experiments.conditioning_one`)."""
+
+    cond_JtJ: float | None
+    cond_JtJ_scaled: float | None
+    cond_schur: float | None
+    cond_schur_scaled: float | None
+    mean_abs_point_corr: float | None
+    max_abs_point_corr: float | None
+    point_params: int = 3
+    error: str = ""
+
+
+@dataclass
+class ConditioningForm:
+    per_seed: list[ConditioningRow] = field(default_factory=list)
+    per_seed_rescaled: list[ConditioningRow] = field(default_factory=list)   # lengths x unit_rescale
+    error: str = ""
+
+
+@dataclass
+class Conditioning:
+    problem: str = ""
+    seeds: list[int] = field(default_factory=list)
+    gauge: str = ""
+    unit_rescale: float | None = None
+    params: dict[str, ConditioningForm] = field(default_factory=dict)
+    error: str = ""
+
+
+# ---- C8 / C5: robustness --------------------------------------------------------------------
+
+
+@dataclass
+class RobustRun:
+    """One form (or the start point) on one seed of one level, scored by the success rule."""
+
+    seed: int
+    success: bool
+    rotation_error_deg: float | None
+    bearing_error_deg_median: float | None = None
+    bearing_error_deg_p95: float | None = None
+    flipped_fraction: float | None = None
+    initial_rms_px: float | None = None       # BA runs only
+    final_rms_px: float | None = None
+    iterations: int | None = None
+    inlier_observations: int | None = None    # outlier levels only (C5's counts)
+    tie_points: int | None = None
+
+
+@dataclass
+class FormRuns:
+    runs: list[RobustRun] = field(default_factory=list)
+    errors: list[str] = field(default_factory=list)   # runs that raised
+
+
+@dataclass
+class Robustness:
+    outliers: dict[str, dict[str, FormRuns]] = field(default_factory=dict)      # fraction -> form -> runs
+    low_parallax: dict[str, dict[str, FormRuns]] = field(default_factory=dict)  # baseline/depth -> form -> runs
+    seeds_run: int = 0
+    success_rule: str = ""
+    outlier_problem: str = ""
+    parallax_problem: str = ""
+    error: str = ""
+
+
+@dataclass
+class Experiments:
+    """Everything :func:`polarref.compare.experiments.run_all` measured."""
+
+    seed: int
+    conditioning: Conditioning | None = None
+    timing: Timing | None = None
+    robustness: Robustness | None = None
+    wall_s: dict[str, float] = field(default_factory=dict)   # experiment -> seconds
+
+
+# ---- C1/C2: derivation evidence -------------------------------------------------------------
+
+
+@dataclass
+class DerivationEvidence:
+    """``derivations.paper.all_case_evidence`` as data.
+
+    ``cases`` are the ``derivations.paper.CaseEvidence`` fields per case; runtime code does not
+    import the derivations package (it imports SymPy), so their type is not named here.
+    """
+
+    cases: list[dict[str, Any]]
+    samples_per_case: int
+    seed: int | None = None
