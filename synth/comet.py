@@ -97,17 +97,41 @@ def _texture_cell(cfg: SceneConfig, radius: float) -> tuple[float, float]:
     return rng_mean, cfg.texture_cell_px * footprint
 
 
+def _raster(cfg: SceneConfig, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mapping-phase raster: (azimuth deg, latitude deg, relative range) per view, each (n,).
+
+    Back-and-forth azimuth passes over the lit side, one latitude per pass, so a view overlaps
+    its neighbours in the pass and the views of the passes above and below it.
+    """
+    p, n = cfg.comet, cfg.views
+    per_pass = max(2, int(round(2 * p.arc_half_deg / p.step_deg)) + 1)
+    passes = max(1, math.ceil(n / per_pass))
+    k = np.arange(n)
+    pass_i, j = np.divmod(k, per_pass)
+    s = j / (per_pass - 1)
+    s = np.where(pass_i % 2 == 0, s, 1.0 - s)
+    az = p.sun_azimuth_deg + p.arc_offset_deg + (2.0 * s - 1.0) * p.arc_half_deg
+    frac = pass_i / max(passes - 1, 1)
+    lat = p.latitude_mean_deg + p.latitude_amp_deg * (2.0 * frac - 1.0) + rng.normal(0, 1.0, n)
+    rel = 1.0 + p.range_var * np.sin(2 * np.pi * k / p.range_period_views + 1.0)
+    return az, lat, rel
+
+
 def orbit(cfg: SceneConfig, center: np.ndarray, radius: float, range_mean: float) -> list[Rigid3]:
     """Photographic orbit: azimuth steps, swinging latitude and range, jittered aim and roll."""
     p = cfg.comet
     rng = np.random.default_rng([cfg.seed, 4])
     n = cfg.views
     k = np.arange(n)
-    az = p.sun_azimuth_deg + 30.0 + p.step_deg * (k - (n - 1) / 2.0)
-    lat = (p.latitude_mean_deg + p.latitude_amp_deg * np.sin(2 * np.pi * k / p.latitude_period_views)
-           + rng.normal(0, 1.5, n))
+    if p.orbit == "raster":
+        az, lat, rel = _raster(cfg, rng)
+    else:
+        az = p.sun_azimuth_deg + 30.0 + p.step_deg * (k - (n - 1) / 2.0)
+        lat = (p.latitude_mean_deg + p.latitude_amp_deg * np.sin(2 * np.pi * k / p.latitude_period_views)
+               + rng.normal(0, 1.5, n))
+        rel = 1.0 + p.range_var * np.sin(2 * np.pi * k / (0.77 * p.latitude_period_views) + 1.0)
     lat = np.clip(lat, -75.0, 75.0)
-    rng_k = range_mean * (1.0 + p.range_var * np.sin(2 * np.pi * k / (0.77 * p.latitude_period_views) + 1.0))
+    rng_k = range_mean * rel
     dirs = direction_from_azimuth_elevation(np.radians(az), np.radians(lat))
     targets = center + rng.normal(0, p.aim_jitter * radius, (n, 3))
     rolls = rng.normal(0, p.roll_jitter_deg, n)
@@ -148,7 +172,8 @@ def build(cfg: SceneConfig) -> Geometry:
     poses = orbit(cfg, center, radius, range_mean)
     sun = direction_from_azimuth_elevation(math.radians(p.sun_azimuth_deg), math.radians(p.sun_elevation_deg))
     fill = direction_from_azimuth_elevation(math.radians(p.sun_azimuth_deg + 150.0), math.radians(-10.0))
-    lights = [(-np.asarray(sun), p.sun_irradiance), (-np.asarray(fill), p.fill_irradiance)]
+    # A light of zero irradiance is dropped: each light costs a render pass.
+    lights = [(-np.asarray(d), e) for d, e in ((sun, p.sun_irradiance), (fill, p.fill_irradiance)) if e > 0]
     edge = meshes.mean_edge_length(V, F)
     info = {"shape": source, "subdivision_level": level, "vertices": len(V), "faces": len(F),
             "mean_edge_m": edge, "range_mean_m": range_mean, "sun_direction": np.asarray(sun).tolist()}

@@ -9,6 +9,9 @@ from dataclasses import dataclass, field
 
 SCENES = ("comet", "uav")
 PRESETS = ("small", "default", "large")
+# Twins of the paper's three datasets (Tables 1-3): twin name -> scene kind.
+TWINS = {"rosetta": "comet", "poets-park": "uav", "mappilot": "uav"}
+ROSETTA_MESH = ("comet67p", "67P_geodesynets_raw_9149v_m.obj")  # inside the reference data folder
 
 
 @dataclass(frozen=True)
@@ -30,6 +33,28 @@ class CometParams:
     sun_elevation_deg: float = 25.0
     sun_irradiance: float = 3.0  # radiance scale of the sun (albedo ~0.06-0.55)
     fill_irradiance: float = 0.6  # weak second light from the opposite side, keeps shadows textured
+    # "arc": one pass of azimuth steps; "raster": a mapping phase, back-and-forth azimuth passes
+    # over the lit side (centre sun_azimuth + arc_offset_deg, half-width arc_half_deg), each pass at
+    # the next latitude from latitude_mean - amp to latitude_mean + amp, the range swinging slowly.
+    orbit: str = "arc"
+    arc_half_deg: float = 60.0
+    arc_offset_deg: float = 10.0
+    range_period_views: float = 100.0  # raster only: views per range cycle
+
+
+@dataclass(frozen=True)
+class PriorParams:
+    """Noisy pose priors written beside the exact GT (GPS/INS-like or orbit-determination-like).
+
+    Errors are AR(1) along the image sequence (correlation ``correlation`` between consecutive
+    views), so they drift like a navigation solution instead of jumping from image to image.
+    """
+
+    position_sigma_m: float = 0.0  # horizontal (UAV) or every axis (comet), 1 sigma; 0 = no priors
+    position_sigma_rel: float = 0.0  # comet: added sigma as a fraction of the camera range
+    vertical_sigma_m: float = 0.0  # UAV: vertical sigma (GPS height is worse); 0 = same as horizontal
+    rotation_sigma_deg: float = 0.0  # attitude, 1 sigma per axis
+    correlation: float = 0.9
 
 
 @dataclass(frozen=True)
@@ -47,6 +72,15 @@ class UavParams:
     sun_elevation_deg: float = 50.0
     sun_irradiance: float = 2.5
     fill_irradiance: float = 0.6
+    building_size_m: tuple[float, float] = (8.0, 22.0)  # min/max footprint side
+    block_m: float = 0.0  # > 0: a street grid with this period; buildings only inside the blocks
+    street_width_m: float = 12.0
+    tree_cover: float = 0.0  # fraction of open ground under tree canopy (height-field bumps)
+    tree_height_m: float = 8.0
+    field_contrast: float = 0.0  # > 0: field patches (coarse albedo steps, mixed farmland)
+    oblique_fraction: float = 0.0  # share of the views flown as oblique cross strips (along y)
+    oblique_strip_deg: float = 0.0  # forward tilt of the cross-strip camera
+    max_grid_vertices: int = 1_500_000  # above this the terrain grid coarsens (texture blurs)
 
 
 @dataclass(frozen=True)
@@ -65,6 +99,7 @@ class SceneConfig:
     texture_cell_px: float = 4.0  # finest albedo cell, in image pixels at the mean viewing range
     comet: CometParams = field(default_factory=CometParams)
     uav: UavParams = field(default_factory=UavParams)
+    priors: PriorParams = field(default_factory=PriorParams)
 
     def validate(self) -> None:
         """Raise ValueError naming the first bad field."""
@@ -83,12 +118,21 @@ class SceneConfig:
             raise ValueError("mesh is only supported for the comet scene")
         if self.scene == "uav" and not (0 <= self.uav.forward_overlap < 1 and 0 <= self.uav.side_overlap < 1):
             raise ValueError("uav overlaps must lie in [0, 1)")
+        if self.scene == "uav" and not 0 <= self.uav.oblique_fraction < 1:
+            raise ValueError("uav oblique_fraction must lie in [0, 1)")
+        if self.comet.orbit not in ("arc", "raster"):
+            raise ValueError(f"comet orbit must be 'arc' or 'raster', got {self.comet.orbit!r}")
 
     def relevant(self) -> dict:
         """The fields that affect the output (the other scene's params are dropped)."""
         d = dataclasses.asdict(self)
         d.pop("uav" if self.scene == "comet" else "comet")
         d.pop("preset")
+        if self.mesh:  # the shape decides the pixels, not where the file lies on this machine
+            from pathlib import Path
+
+            path = Path(self.mesh)
+            d["mesh"] = hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else self.mesh
         return d
 
     def digest(self, code_version: str) -> str:
@@ -113,10 +157,67 @@ _PRESETS: dict[tuple[str, str], dict] = {
 }
 
 
+# Twins of the paper's datasets. Sizes and spp are chosen so that the three render in about an
+# hour on 2 cores (~2.5-3 s per view at spp 8 on the loaded machine). spp 8: with the box filter
+# and ~4 px texture cells the sampling noise stays far below the texture contrast (measured on
+# full-size views: spp 8 vs spp 32 differ by 3.9 DN rms on the comet's lit pixels, texture std
+# 45 DN; 2.0 DN on the UAV, std 50 DN). The comet twin's mesh path is filled in by preset()
+# from the reference data folder.
+_PRESETS.update({
+    # Rosetta mapping phase: WAC-like 12 deg FOV (range ~19 km, the nucleus fills the frame), one
+    # Sun (no fill light: shadows are black, as in OSIRIS images), 16 passes of 41 views 3 deg
+    # apart, latitude -25..55 deg, range +-15%. Orbit determination: ~100 m + 0.3% of the range.
+    ("comet", "rosetta"): dict(
+        views=631, width=1024, height=1024, spp=8, fov_deg=12.0,
+        comet=CometParams(orbit="raster", step_deg=3.0, arc_half_deg=60.0, arc_offset_deg=10.0,
+                          latitude_mean_deg=15.0, latitude_amp_deg=40.0, range_var=0.15,
+                          range_period_views=230.0, fill=1.5, aim_jitter=0.03, roll_jitter_deg=8.0,
+                          fill_irradiance=0.0),
+        priors=PriorParams(position_sigma_m=100.0, position_sigma_rel=0.003, rotation_sigma_deg=0.05,
+                           correlation=0.98)),
+    # Poets park flats: an urban block of flats on a street grid with trees, 80/70% overlap,
+    # 30% of the views as oblique (30 deg) cross strips. GPS/INS: 2 m, 4 m vertical, 1 deg.
+    ("uav", "poets-park"): dict(
+        views=857, width=1024, height=768, spp=8, fov_deg=60.0,
+        uav=UavParams(altitude_m=90.0, forward_overlap=0.8, side_overlap=0.7, terrain_relief_m=3.0,
+                      buildings=160, building_height_m=(9.0, 30.0), building_size_m=(10.0, 28.0),
+                      block_m=70.0, street_width_m=14.0, tree_cover=0.25, tree_height_m=9.0,
+                      oblique_fraction=0.3, oblique_strip_deg=30.0, max_grid_vertices=3_000_000),
+        priors=PriorParams(position_sigma_m=2.0, vertical_sigma_m=4.0, rotation_sigma_deg=1.0,
+                           correlation=0.9)),
+    # MapPilot: a nadir lawnmower over mixed terrain (fields, woods, a few buildings, more
+    # relief), 75/65% overlap. GPS/INS as above.
+    ("uav", "mappilot"): dict(
+        views=493, width=1024, height=768, spp=8, fov_deg=60.0,
+        uav=UavParams(altitude_m=100.0, forward_overlap=0.75, side_overlap=0.65, terrain_relief_m=12.0,
+                      buildings=25, building_height_m=(5.0, 12.0), tree_cover=0.3, tree_height_m=12.0,
+                      field_contrast=0.6, max_grid_vertices=3_000_000),
+        priors=PriorParams(position_sigma_m=2.0, vertical_sigma_m=4.0, rotation_sigma_deg=1.0,
+                           correlation=0.9)),
+})
+
+
 def preset(scene: str, name: str = "default", **overrides) -> SceneConfig:
-    """Named preset for ``scene``, with field overrides (unknown keys raise TypeError)."""
+    """Named preset for ``scene``, with field overrides (unknown keys raise TypeError).
+
+    ``name`` may also be a twin of ``scene`` (``rosetta`` for comet; ``poets-park``, ``mappilot``
+    for uav); the rosetta twin needs the 67P shape model in the reference data folder.
+    """
     if scene not in SCENES:
         raise ValueError(f"unknown scene {scene!r} (choose from {', '.join(SCENES)})")
-    if name not in PRESETS:
-        raise ValueError(f"unknown preset {name!r} (choose from {', '.join(PRESETS)})")
-    return SceneConfig(scene=scene, preset=name, **{**_PRESETS[(scene, name)], **overrides})
+    if name not in PRESETS and TWINS.get(name) != scene:
+        twins = [t for t, s in TWINS.items() if s == scene]
+        raise ValueError(f"unknown preset {name!r} for {scene} (choose from {', '.join((*PRESETS, *twins))})")
+    values = {**_PRESETS[(scene, name)], **overrides}
+    if name == "rosetta" and "mesh" not in values:
+        from polarref.data import data_path
+
+        values["mesh"] = str(data_path(*ROSETTA_MESH))
+    return SceneConfig(scene=scene, preset=name, **values)
+
+
+def twin(name: str, **overrides) -> SceneConfig:
+    """The twin preset ``name`` (one of TWINS), with field overrides."""
+    if name not in TWINS:
+        raise ValueError(f"unknown twin {name!r} (choose from {', '.join(TWINS)})")
+    return preset(TWINS[name], name, **overrides)

@@ -153,7 +153,16 @@ def _scene_json(cfg: SceneConfig, digest: str, geo, camera: PinholeCamera, varia
         "lights": [{"direction": np.asarray(d).tolist(), "irradiance": e} for d, e in geo.lights],
         "geometry": {k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in geo.info.items()},
         "views": views,
+        "priors": _priors(cfg, geo),
     }
+
+
+def _priors(cfg: SceneConfig, geo) -> dict | None:
+    # synth/priors.py is not in _CODE_FILES: the priors never decide pixels, and scene.json is
+    # rewritten (priors included) whenever a render resumes.
+    from synth.priors import draw_priors
+
+    return draw_priors(cfg, geo.poses, geo.center)
 
 
 def _mitsuba_scene(mi, geo, camera: PinholeCamera, near: float, far: float, cfg: SceneConfig):

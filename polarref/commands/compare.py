@@ -26,7 +26,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("scene", nargs="?", default=None, metavar="SCENE|DIR",
                         help="comet (default), uav, a rendered scene folder, or an image set with ground "
-                             "truth (images/ + gt/ COLMAP model or Strecha gt_dense_cameras/)")
+                             "truth (images/ + gt/ COLMAP model or Strecha gt_dense_cameras/); or a twin of "
+                             "the paper's datasets, rosetta, poets-park or mappilot (Tables 1-3: resumable "
+                             "stages, paper-table.md; --preset, --budget, --no-claims, --dense do not apply)")
     parser.add_argument("--preset", default="default", choices=("small", "default", "large"),
                         help="synthetic scene size / real-image downscaling (default: default)")
     parser.add_argument("--out", type=Path, default=None,
@@ -44,14 +46,55 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="whole-run time limit in seconds, rendering included (default by preset: "
                              "default 290, others none; 0 = none); later methods get shorter limits")
     parser.add_argument("--no-claims", action="store_true", help="skip the claim experiments")
+    parser.add_argument("--tables", type=Path, default=None, metavar="DIR",
+                        help="twins only: also write DIR/<twin>/paper-table.md/.json and DIR/README.md "
+                             "(e.g. reports/paper-tables; the run folder keeps models and caches)")
     parser.add_argument("--dense", action="store_true",
                         help="also run polarref dense from the GT, ours-euclidean and ours-polar poses "
                              "(after the budgeted run; adds a dense section and figure to the report)")
 
 
+def _run_twin(args: argparse.Namespace) -> int:
+    """A twin of the paper's datasets: resumable stages and the paper-layout table."""
+    from polarref.compare import paper_tables as PT
+    from polarref.compare.twins import DEFAULT_TIMEOUT_S, TwinRun, run_twin
+
+    from polarref.atomic import check_writable_parent
+
+    out = args.out or Path("polarref-out") / args.scene
+    check_writable_parent(out / "paper-table.json")
+    wanted = tuple(m for m in (args.methods or PT.METHODS) if m in PT.METHODS)
+    if not wanted:
+        raise PolarrefError(f"a twin comparison runs {', '.join(PT.METHODS)}; none of them was selected")
+    if args.overwrite and (out / "stages").is_dir():
+        for f in (out / "stages").glob("*.json"):
+            f.unlink()  # every stage runs again; models are replaced by the new runs
+    out.mkdir(parents=True, exist_ok=True)
+    handler = logging.FileHandler(out / "compare.log")
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    logging.getLogger("polarref").addHandler(handler)
+    logging.getLogger("polarref").setLevel(min(logging.getLogger("polarref").getEffectiveLevel(), logging.INFO))
+    try:
+        table = run_twin(TwinRun(args.scene, str(out), seed=args.seed, methods=wanted,
+                                 method_timeout_s=args.method_timeout or DEFAULT_TIMEOUT_S,
+                                 tables_dir=str(args.tables or "")))
+    finally:
+        logging.getLogger("polarref").removeHandler(handler)
+        handler.close()
+    for name, m in table.methods.items():
+        extra = f" ({m.reason})" if m.reason else ""
+        print(f"  {name}: {m.status}{extra}")
+    print(f"paper table: {out / 'paper-table.md'} (log: {out / 'compare.log'})")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     import time
 
+    from synth.config import TWINS
+
+    if args.scene in TWINS:
+        return _run_twin(args)
     from polarref.compare.pipeline import CompareConfig, command_line, run_compare
     from polarref.compare.schema import STATUS_OK
 

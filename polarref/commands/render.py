@@ -15,12 +15,14 @@ HELP = "render a synthetic comet or UAV scene with exact ground-truth cameras, d
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from synth.config import PRESETS, SCENES
+    from synth.config import PRESETS, SCENES, TWINS
 
     parser.add_argument("scene", choices=SCENES, help="which synthetic scene")
     parser.add_argument("--out", required=True, help="output folder (created; resumable)")
-    parser.add_argument("--preset", choices=PRESETS, default="default",
-                        help="small: 12 views 320x240 (tests); default: 28 views 640x480; large: 300 views")
+    parser.add_argument("--preset", choices=(*PRESETS, *TWINS), default="default",
+                        help="small: 12 views 320x240 (tests); default: 28 views 640x480; large: 300 views; "
+                             "twins of the paper's datasets: rosetta (comet, 631 views 1024x1024), "
+                             "poets-park (uav, 857), mappilot (uav, 493)")
     parser.add_argument("--views", type=int_range(2, MAX_VIEWS),
                         help=f"number of images, 2..{MAX_VIEWS} (overrides the preset)")
     parser.add_argument("--width", type=int_range(8, MAX_IMAGE_SIDE), help=f"image width in pixels (8..{MAX_IMAGE_SIDE})")
@@ -49,7 +51,10 @@ def run(args: argparse.Namespace) -> int:
         if args.scene != "comet":
             raise PolarrefError("a mesh is only supported for the comet scene")
         overrides["mesh"] = args.mesh
-    cfg = preset(args.scene, args.preset, seed=args.seed, **overrides)
+    try:
+        cfg = preset(args.scene, args.preset, seed=args.seed, **overrides)
+    except ValueError as exc:  # a twin of the other scene kind
+        raise PolarrefError(str(exc)) from exc
     if args.oblique is not None:
         if args.scene != "uav":
             raise PolarrefError("an oblique tilt is only supported for the uav scene")

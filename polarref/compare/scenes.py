@@ -52,22 +52,32 @@ class PreparedScene:
     mitsuba_variant: str = ""
 
 
-def _synthetic(scene: str, preset: str, seed: int) -> PreparedScene:
+def synthetic_root(scene: str, preset: str, seed: int) -> Path:
+    """Cache folder of a synthetic scene, keyed by its digest (``polarref render --out`` this
+    folder renders exactly what ``polarref compare`` will use)."""
+    from synth.config import preset as scene_preset
+    from synth.render import code_version
+
+    cfg = scene_preset(scene, preset, seed=seed)
+    return cache_root() / "scenes" / f"{scene}-{preset}-seed{seed}-{cfg.digest(code_version())}"
+
+
+def _synthetic(scene: str, preset: str, seed: int, name: str | None = None) -> PreparedScene:
     """Render (or reuse) a synthetic scene in the cache; the folder is keyed by the scene digest."""
     try:
         from synth.config import preset as scene_preset
-        from synth.render import code_version, render_scene
+        from synth.render import render_scene
         from synth.scene import load_scene
     except ImportError as exc:
         raise PolarrefError(f"cannot render the {scene} scene: synth is not available ({exc})") from exc
     cfg = scene_preset(scene, preset, seed=seed)
-    root = cache_root() / "scenes" / f"{scene}-{preset}-seed{seed}-{cfg.digest(code_version())}"
+    root = synthetic_root(scene, preset, seed)
     result = render_scene(scene, root, cfg)
     if result.rendered:
         log.info("rendered %d views of %s into %s in %.1f s", result.rendered, scene, root, result.total_seconds)
     loaded = load_scene(root)
     render_s = result.total_seconds if result.rendered else 0.0
-    return _from_rendered(loaded, f"{scene}-{preset}", scene, preset, seed, render_s)
+    return _from_rendered(loaded, name or f"{scene}-{preset}", scene, preset, seed, render_s)
 
 
 def _from_rendered(loaded, name: str, source: str, preset: str, seed: int, render_s: float) -> PreparedScene:
@@ -145,6 +155,10 @@ def prepare(arg: str | None, preset: str, seed: int) -> PreparedScene:
         raise PolarrefError(f"unknown preset {preset!r} (choose from {', '.join(MAX_WIDTH)})")
     if arg is None or arg in SYNTHETIC:
         return _synthetic(arg or "comet", preset, seed)
+    from synth.config import TWINS
+
+    if arg in TWINS:  # the twin decides views, size and orbit; --preset does not apply
+        return _synthetic(TWINS[arg], arg, seed, name=arg)
     path = Path(arg).expanduser()
     if not path.exists():
         raise PolarrefError(f"unknown scene {arg!r}: not one of {', '.join(SYNTHETIC)} and no such directory")

@@ -111,8 +111,10 @@ def count_verified_pairs(db_path: Path) -> int:
 
 
 def extract_and_match_sift(image_dir: Path, camera, db_path: Path, opts: ColmapSfMOptions = ColmapSfMOptions(),
-                           image_names: Sequence[str] | None = None, overwrite: bool = False) -> dict[str, float]:
-    """pycolmap SIFT, exhaustive matching and verification into a new database.
+                           image_names: Sequence[str] | None = None, overwrite: bool = False,
+                           pairs_file: Path | None = None) -> dict[str, float]:
+    """pycolmap SIFT, exhaustive matching (or the pairs of ``pairs_file``, a COLMAP match list,
+    e.g. from :mod:`polarref.pairing`, via ``match_image_pairs``) and verification into a new database.
 
     Args:
         image_dir: folder of the images.
@@ -142,7 +144,13 @@ def extract_and_match_sift(image_dir: Path, camera, db_path: Path, opts: ColmapS
     t1 = time.perf_counter()
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = opts.num_threads
-    pycolmap.match_exhaustive(str(db_path), matching_options=matching, device=pycolmap.Device.cpu)
+    if pairs_file is None:
+        pycolmap.match_exhaustive(str(db_path), matching_options=matching, device=pycolmap.Device.cpu)
+    else:  # exactly the pairs every other method matches
+        pairing = pycolmap.ImportedPairingOptions()
+        pairing.match_list_path = str(pairs_file)
+        pycolmap.match_image_pairs(str(db_path), matching_options=matching, pairing_options=pairing,
+                                   device=pycolmap.Device.cpu)
     return {"features": t1 - t0, "matching": time.perf_counter() - t1}
 
 

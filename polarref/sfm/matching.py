@@ -26,21 +26,29 @@ class MatchConfig:
     ratio: float = 0.8                 # Lowe's ratio d1/d2 (COLMAP default 0.8)
     max_distance: float = 0.7          # max L2 distance of unit descriptors (COLMAP default 0.7)
     mutual: bool = True                # keep a match only if it is also the best in the other direction
-    pairing: Literal["exhaustive", "sequential", "spatial"] = "exhaustive"
+    pairing: Literal["exhaustive", "sequential", "spatial", "file"] = "exhaustive"
     sequential_overlap: int = 10       # sequential: match each image with the next N (by name order)
     spatial_neighbors: int = 10        # spatial: match each image with its N nearest pose priors
     exhaustive_max_images: int = 200   # refuse exhaustive beyond this (quadratic cost)
+    pairs_file: str = ""               # file: a match list (polarref.pairing; content-addressed name)
 
 
 def select_pairs(num_images: int, config: MatchConfig,
-                 centers: np.ndarray | None = None) -> list[tuple[int, int]]:
+                 centers: np.ndarray | None = None, names: list[str] | None = None) -> list[tuple[int, int]]:
     """Image index pairs (i < j) to match.
 
     Args:
         num_images: N.
         centers: (N, 3) pose-prior camera centres, required for ``spatial``.
+        names: N image names, required for ``file`` (the file names images, not indices).
     """
     n = num_images
+    if config.pairing == "file":
+        from polarref.pairing import read_pairs
+
+        if names is None or len(names) != n:
+            raise PolarrefError("pairing from a file needs the image names")
+        return read_pairs(config.pairs_file, names, skip_unknown=True)  # pairs of skipped images drop out
     if config.pairing == "exhaustive":
         if n > config.exhaustive_max_images:
             raise PolarrefError(f"exhaustive matching of {n} images exceeds exhaustive_max_images="
@@ -58,7 +66,7 @@ def select_pairs(num_images: int, config: MatchConfig,
         k = min(config.spatial_neighbors, n - 1)
         nn = np.argsort(d, axis=1, kind="stable")[:, :k]
         return sorted({(min(i, j), max(i, j)) for i in range(n) for j in nn[i]})
-    raise PolarrefError(f"unknown pairing {config.pairing!r} (exhaustive, sequential, spatial)")
+    raise PolarrefError(f"unknown pairing {config.pairing!r} (exhaustive, sequential, spatial, file)")
 
 
 def match_descriptors(desc1: np.ndarray, desc2: np.ndarray, config: MatchConfig) -> np.ndarray:

@@ -249,7 +249,7 @@ def match_and_verify(feats: list[F.Features], cameras: list, camera_of_image: np
         timings["verification"] = 0.0
         timings["matches_cached"] = True
     else:
-        pairs = select_pairs(len(feats), config.matching, centers)
+        pairs = select_pairs(len(feats), config.matching, centers, names=[f.name for f in feats])
         focal = float(np.mean([R_.mean_focal(c) for c in cameras]))
         executor = execution.current()
         if executor.in_process:
