@@ -141,10 +141,8 @@ def _run_ours(root: Path, settings: BenchSfMSettings) -> dict:
 
 
 def _run_pycolmap(root: Path, settings: BenchSfMSettings, work: Path) -> dict:
-    import numpy as np
-    import pycolmap
-
-    from polarref.peers.colmap_sfm import ColmapSfMOptions, incremental_options, run_mapper
+    from polarref.peers.colmap_sfm import (ColmapSfMOptions, extract_and_match_sift, incremental_options,
+                                           run_mapper, sift_options)
     from polarref.reconstruction import Reconstruction
 
     names, camera, gt = _scene(root)
@@ -153,26 +151,12 @@ def _run_pycolmap(root: Path, settings: BenchSfMSettings, work: Path) -> dict:
     db = work / "database.db"
     pairs_txt = work / "pairs.txt"
     pairs_txt.write_text("".join(f"{names[i]} {names[j]}\n" for i, j in pairs))
-    reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = camera.to_pycolmap().model.name
-    reader.camera_params = ",".join(repr(float(p)) for p in np.asarray(camera.params))  # sets the focal prior
-    extraction = pycolmap.FeatureExtractionOptions()
-    extraction.num_threads = opts.num_threads
-    extraction.max_image_size = opts.max_image_size
-    extraction.sift.max_num_features = opts.max_num_features
-    matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = opts.num_threads
-    pairing = pycolmap.ImportedPairingOptions()
-    pairing.match_list_path = str(pairs_txt)
-    t0 = time.perf_counter()
-    pycolmap.extract_features(str(db), str(root / "images"), image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
-                              reader_options=reader, extraction_options=extraction, device=pycolmap.Device.cpu)
-    t1 = time.perf_counter()
-    pycolmap.match_image_pairs(str(db), matching_options=matching, pairing_options=pairing,
-                               device=pycolmap.Device.cpu)
-    t2 = time.perf_counter()
+    # The same extraction and imported-pair matching as the twin comparison (one code path).
+    t = extract_and_match_sift(root / "images", camera, db, opts, image_names=names, overwrite=True,
+                               pairs_file=pairs_txt)
+    extraction, matching = sift_options(opts)
     run = run_mapper(db, root / "images", work / "sparse", "incremental", opts)
-    stages = {"features": t1 - t0, "matching": t2 - t1, "mapping": run.stage_runtime_s["mapping"]}
+    stages = {"features": t["features"], "matching": t["matching"], "mapping": run.stage_runtime_s["mapping"]}
     if run.reconstruction is None:
         raise PolarrefError("pycolmap incremental mapping registered no images")
     settings_out = {"colmap_sfm_options": dataclasses.asdict(opts),

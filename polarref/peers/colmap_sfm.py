@@ -110,6 +110,19 @@ def count_verified_pairs(db_path: Path) -> int:
         db.close()
 
 
+def sift_options(opts: ColmapSfMOptions):
+    """pycolmap's (FeatureExtractionOptions, FeatureMatchingOptions) for ``opts`` (thread count,
+    image size and feature budget), the ones :func:`extract_and_match_sift` runs with."""
+    pycolmap = _pycolmap()
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = opts.num_threads
+    extraction.max_image_size = opts.max_image_size
+    extraction.sift.max_num_features = opts.max_num_features
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = opts.num_threads
+    return extraction, matching
+
+
 def extract_and_match_sift(image_dir: Path, camera, db_path: Path, opts: ColmapSfMOptions = ColmapSfMOptions(),
                            image_names: Sequence[str] | None = None, overwrite: bool = False,
                            pairs_file: Path | None = None) -> dict[str, float]:
@@ -132,18 +145,13 @@ def extract_and_match_sift(image_dir: Path, camera, db_path: Path, opts: ColmapS
     reader.camera_model = camera.to_pycolmap().model.name
     # Given the parameters, the reader also sets has_prior_focal_length (trap 2 above).
     reader.camera_params = ",".join(repr(float(p)) for p in np.asarray(camera.params))
-    extraction = pycolmap.FeatureExtractionOptions()
-    extraction.num_threads = opts.num_threads
-    extraction.max_image_size = opts.max_image_size
-    extraction.sift.max_num_features = opts.max_num_features
+    extraction, matching = sift_options(opts)
     kwargs = {} if image_names is None else {"image_names": list(image_names)}
     t0 = time.perf_counter()
     pycolmap.extract_features(str(db_path), str(image_dir), camera_mode=pycolmap.CameraMode.SINGLE,
                               reader_options=reader, extraction_options=extraction,
                               device=pycolmap.Device.cpu, **kwargs)
     t1 = time.perf_counter()
-    matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = opts.num_threads
     if pairs_file is None:
         pycolmap.match_exhaustive(str(db_path), matching_options=matching, device=pycolmap.Device.cpu)
     else:  # exactly the pairs every other method matches
