@@ -12,6 +12,7 @@ import pytest
 
 from polarref.camera import Camera
 from polarref.errors import PolarrefError
+from polarref.sfm import feature_cache as FC
 from polarref.sfm import features as F
 from polarref.sfm.pipeline import SfMConfig, ensure_descriptors, load_images_and_features, match_and_verify
 
@@ -73,7 +74,7 @@ def test_descriptors_of_other_images_or_a_vanished_cache_are_refused(cached, tmp
     images, cfg, key, eager = cached
     lazy, _, _ = load_images_and_features(images, cfg, {})
     with pytest.raises(ValueError, match="other images"):
-        F.load_descriptors(next((tmp_path / "cache").glob("features-*.npz")), lazy[:2])
+        FC.load_descriptors(next((tmp_path / "cache").glob("features-*.npz")), lazy[:2])
     for f in (tmp_path / "cache").glob("features-*.npz"):
         f.unlink()
     with pytest.raises(PolarrefError, match="vanished"):

@@ -24,6 +24,7 @@ from polarref.errors import PolarrefError
 from polarref.geometry import Rigid3
 from polarref.reconstruction import Reconstruction
 from polarref.sfm import features as F
+from polarref.sfm import feature_cache as FC
 from polarref.sfm import rays as R_
 from polarref.sfm.bundle import to_reconstruction
 from polarref.sfm.mapper import MapperConfig, run_mapper
@@ -218,7 +219,7 @@ def load_images_and_features(image_dir: Path, config: SfMConfig, timings: dict) 
     if config.use_cache and cache_valid(cache) and cache_valid(skipped_file):
         # descriptors stay on disk until matching needs them (ensure_descriptors): with the
         # matches cached too, a run never reads them (631 views: 1.3 GB off the peak)
-        feats = F.load(cache, descriptors=False)
+        feats = FC.load_without_descriptors(cache)
         skipped = json.loads(skipped_file.read_text())
         timings["features_cached"] = True
     else:
@@ -242,7 +243,7 @@ def ensure_descriptors(feats: list[F.Features], config: SfMConfig, feature_key: 
     cache = _cache_dir(config) / f"features-{feature_key}.npz"
     if not cache_valid(cache):
         raise PolarrefError(f"feature cache {cache} changed or vanished while in use; rerun")
-    F.load_descriptors(cache, feats)
+    FC.load_descriptors(cache, feats)
 
 
 def match_and_verify(feats: list[F.Features], cameras: list, camera_of_image: np.ndarray, config: SfMConfig,

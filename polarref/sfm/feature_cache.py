@@ -1,0 +1,36 @@
+"""Reading the features cache (``features-<key>.npz``, written by :func:`polarref.sfm.features.save`)
+in two steps: keypoints first, descriptors only when matching needs them.
+
+At 631 views of 4096 features the float32 descriptors are 1.3 GB, and a run whose matches are
+cached never reads them. This lives apart from :mod:`polarref.sfm.features` on purpose: the cache
+key hashes that module's source, and how the file is read does not change what it holds.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from polarref.sfm.features import Features
+
+
+def load_without_descriptors(path: Path) -> list[Features]:
+    """The cached features with ``descriptors=None`` (fill them with :func:`load_descriptors`)."""
+    with np.load(path, allow_pickle=False) as z:
+        names, sizes = z["names"], z["sizes"]
+        return [Features(str(n), int(w), int(h), z[f"kp{i}"], None, z[f"sc{i}"], z[f"or{i}"], z[f"co{i}"])
+                for i, (n, (w, h)) in enumerate(zip(names, sizes))]
+
+
+def load_descriptors(path: Path, feats: list[Features]) -> None:
+    """Fill in the (K, 128) float32 descriptors of ``feats`` read from ``path``, in place."""
+    with np.load(path, allow_pickle=False) as z:
+        if [str(n) for n in z["names"]] != [f.name for f in feats]:
+            raise ValueError(f"{path} holds other images than the features to fill in")
+        for i, f in enumerate(feats):
+            if f.descriptors is None:
+                de = z[f"de{i}"].astype(np.float32)
+                if len(de) != len(f.keypoints):
+                    raise ValueError(f"{path}: image {f.name} has {len(de)} descriptors for {len(f.keypoints)} keypoints")
+                f.descriptors = de
