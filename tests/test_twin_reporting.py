@@ -214,6 +214,15 @@ def test_mean_keypoints_from_our_feature_cache_and_a_colmap_database(tmp_path):
     con.commit()
     con.close()
     assert twins.mean_keypoints_db(db) == pytest.approx(3200.0)
+    assert sorted(p.name for p in tmp_path.glob("database.db*")) == ["database.db"]   # nothing left beside it
+    wal = tmp_path / "wal.db"   # a writer in WAL mode still open: its uncommitted-to-file rows count too
+    live = sqlite3.connect(wal)
+    live.execute("PRAGMA journal_mode=WAL")
+    live.execute("CREATE TABLE keypoints (image_id INTEGER PRIMARY KEY, rows INTEGER, cols INTEGER, data BLOB)")
+    live.executemany("INSERT INTO keypoints VALUES (?, ?, 6, NULL)", [(1, 10), (2, 30)])
+    live.commit()
+    assert twins.mean_keypoints_db(wal) == pytest.approx(20.0)
+    live.close()
     assert twins.mean_keypoints_db(tmp_path / "missing.db") is None
     (tmp_path / "empty.db").write_bytes(b"")
     assert twins.mean_keypoints_db(tmp_path / "empty.db") is None    # no keypoints table

@@ -198,7 +198,10 @@ def render_scale(tables: dict[str, PT.TwinTable | None], reports_root: str | os.
              "the same single-run rules (C4: whole-method speed-up Euclidean/polar >= "
              f"x{single_run.SUPPORTED_AT:.2f} supported, < x{single_run.NOT_SUPPORTED_BELOW:.2f} not supported; "
              "C5: more tie points and more reprojected px than the Euclidean baseline by more than the "
-             "scorecard's margin). Timings on a shared, loaded 2-core machine: one run each.", ""]
+             "scorecard's margin). A twin's whole-method time is the sum of its stage processes' wall times "
+             "(the shared feature and matching stage counted for each method, render excluded); a small scene's "
+             "is the method's runtime in its metrics.json. Timings on a shared, loaded 2-core machine: one run "
+             "each.", ""]
     shown = [t for t in PT.PAPER if has_results(tables.get(t))]
     if not shown:
         return lines + ["No twin has results yet: not tested.", ""]

@@ -224,13 +224,18 @@ def mean_keypoints_npz(path: Path) -> float | None:
 
 
 def mean_keypoints_db(db: Path) -> float | None:
-    """Mean keypoints per image in a COLMAP database (its ``keypoints`` table), opened read-only."""
+    """Mean keypoints per image in a COLMAP database (its ``keypoints`` table), opened read-only.
+
+    A cleanly closed database is opened immutable, so no -wal/-shm files appear in the run folder;
+    with a -wal file beside it (a writer still open, or killed) SQLite has to read the log too."""
     import sqlite3
 
-    if not Path(db).is_file():
+    db = Path(db)
+    if not db.is_file():
         return None
+    live = db.with_name(db.name + "-wal").exists()
     try:
-        con = sqlite3.connect(f"file:{Path(db).resolve()}?mode=ro", uri=True)
+        con = sqlite3.connect(f"file:{db.resolve()}?mode=ro{'' if live else '&immutable=1'}", uri=True)
         try:
             row = con.execute("SELECT AVG(rows), COUNT(*) FROM keypoints").fetchone()
         finally:
