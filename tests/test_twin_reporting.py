@@ -200,12 +200,16 @@ def test_mean_keypoints_from_our_feature_cache_and_a_colmap_database(tmp_path):
     assert twins.mean_keypoints_npz(tmp_path / "none.npz") is None
     (tmp_path / "bad.npz").write_bytes(b"not a zip")
     assert twins.mean_keypoints_npz(tmp_path / "bad.npz") is None
-    # Which cache file: the one the stage recorded; for old records the only one in the cache.
-    assert twins._ours_feature_file({"result": {"feature_file": "/r/f.npz"}}, tmp_path).as_posix() == "/r/f.npz"
-    (tmp_path / "bad.npz").unlink()
-    assert twins._ours_feature_file({"result": {}}, tmp_path) == tmp_path / "features-abc.npz"
+    # Which cache file: the one the stage recorded; for old records every one in the cache if they agree.
     save(tmp_path / "features-def.npz", feats[:1])
-    assert twins._ours_feature_file({"result": {}}, tmp_path) is None    # ambiguous: not recorded
+    recorded = {"result": {"feature_file": str(tmp_path / "features-def.npz")}}
+    assert twins.ours_mean_keypoints(recorded, tmp_path) == pytest.approx(10.0)
+    (tmp_path / "features-def.npz").unlink()
+    assert twins.ours_mean_keypoints({"result": {}}, tmp_path) == pytest.approx(21.0)
+    save(tmp_path / "features-ghi.npz", feats[::-1])                 # same counts, other order: agree
+    assert twins.ours_mean_keypoints({"result": {}}, tmp_path) == pytest.approx(21.0)
+    save(tmp_path / "features-def.npz", feats[:1])
+    assert twins.ours_mean_keypoints({"result": {}}, tmp_path) is None    # they disagree: not recorded
 
     db = tmp_path / "database.db"
     con = sqlite3.connect(db)

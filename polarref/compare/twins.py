@@ -245,13 +245,13 @@ def mean_keypoints_db(db: Path) -> float | None:
     return float(row[0]) if row and row[1] else None
 
 
-def _ours_feature_file(feats: dict, cache: Path) -> Path | None:
-    """The cache file the features stage recorded; for older records, the only one in the cache."""
+def ours_mean_keypoints(feats: dict, cache: Path) -> float | None:
+    """Mean keypoints per image of the cache file the features stage recorded; for older records
+    (no file named) every ``features-*.npz`` in the cache, used only when they all agree."""
     recorded = (feats.get("result") or {}).get("feature_file")
-    if recorded:
-        return Path(recorded)
-    found = sorted(cache.glob("features-*.npz"))
-    return found[0] if len(found) == 1 else None
+    files = [Path(recorded)] if recorded else sorted(cache.glob("features-*.npz"))
+    means = {mean_keypoints_npz(f) for f in files}
+    return means.pop() if len(means) == 1 else None
 
 
 def _method_result(name: str, recs: list[dict], scene, gt) -> PT.MethodResult:
@@ -318,8 +318,7 @@ def run_twin(run: TwinRun) -> PT.TwinTable:
         if r.status != "ok":
             continue
         if m.startswith("ours-"):
-            f = _ours_feature_file(recs[m][0], Path(cache))
-            r.mean_keypoints = None if f is None else mean_keypoints_npz(f)
+            r.mean_keypoints = ours_mean_keypoints(recs[m][0], Path(cache))
         else:
             r.mean_keypoints = mean_keypoints_db(out / "pycolmap" / "database.db")
     stage_recs = {rec["stage"]: rec for rs in recs.values() for rec in rs}
