@@ -1,6 +1,7 @@
 """Verdict rules of the claims scorecard, on hand-made measurements with known outcomes."""
 
 import copy
+import dataclasses
 
 import pytest
 from test_report_build import synthetic_metrics
@@ -269,3 +270,32 @@ def test_derivation_evidence_is_a_typed_record_that_round_trips(tmp_path):
     assert c1.verdict == "not supported" and c2.verdict == "supported"   # the printed Eq. 3 fails; claim 7 holds
     with pytest.raises(records.RecordError, match="unknown key"):
         records.coerce(DerivationEvidence, {"cases": [], "samples_per_case": 1, "bogus": 0})
+
+
+@pytest.mark.parametrize("euclid, polar, polar_tp, polar_rp", [
+    (10.0, 7.0, 1010, 5010), (10.0, 8.5, 1001, 5001), (10.0, 10.0, 1000, 5000), (10.0, 9.0, 990, 6000)])
+def test_the_scene_scorecard_and_the_twin_tables_share_one_single_run_rule(euclid, polar, polar_tp, polar_rp):
+    """The same measurements give the same C4/C5 verdict on a small scene and on a twin."""
+    from polarref.compare import paper_tables as PT
+
+    res = claims.scene_claims(_metrics(euclid, polar, polar_tp=polar_tp, polar_rp=polar_rp))
+
+    def twin_side(name, runtime, tp, rp):
+        return PT.MethodResult(name, "ok", "", 12, 12, 0.3, runtime / 60, tp, rp)
+
+    twin = PT.TwinTable("rosetta", 12, 30, {PT.BASELINE: twin_side(PT.BASELINE, euclid, 1000, 5000),
+                                            PT.OURS: twin_side(PT.OURS, polar, polar_tp, polar_rp)})
+    v = PT.verdicts(twin)
+    assert v["C4"].verdict == _verdict(res, "C4").verdict
+    assert v["C5"].verdict == _verdict(res, "C5").verdict
+    assert {v["C4"].verdict, v["C5"].verdict} <= {"supported", "not supported", "inconclusive"}
+
+
+def test_c4_without_the_same_pipeline_baseline_is_not_tested():
+    m = _metrics(10.0, 7.0)
+    m.methods[2] = dataclasses.replace(m.methods[0], name="pycolmap-incremental-sift")   # another baseline ran
+    m.methods[0].status = "failed"   # ours-euclidean, the rule's baseline, did not
+    figs = {f.key: f.value for f in _verdict(claims.scene_claims(m), "C4").figures}
+    assert figs["ratio_b0"] == pytest.approx(10.0 / 7.0)   # still reported beside it
+    assert _verdict(claims.scene_claims(m), "C4").verdict == "not tested"
+    assert _verdict(claims.scene_claims(m), "C5").verdict == "not tested"

@@ -3,6 +3,7 @@ method (never 0), C4/C5 on one run, and the README beside the paper's printed Ta
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import pytest
@@ -35,10 +36,14 @@ def test_paper_layout_with_a_missing_method_shows_not_run(tmp_path):
     assert inc[0] == "not run" and "not run" in inc[2:7] and "0" not in inc[2:7]
     glob = rows["pycolmap global (its SIFT)"]
     assert glob[0].startswith("failed (mapping: no model)") and glob[3] == "failed"
-    # C4 from the BA time, C5 with the scorecard margin (0.1% of 100,000 = 100 < 500).
+    # C4 by the scorecard's whole-method rule: x1.25 lies between x1.10 and x1.26 (the BA alone is x2.00,
+    # reported beside it); C5 with the scorecard margin (0.1% of 100,000 = 100 < 500, of 500,000 = 500 < 2,000).
     v = PT.verdicts(t)
-    assert v["C4"].startswith("supported (BA time polar/Euclidean x0.50")
-    assert v["C5"].startswith("supported (+500")
+    assert v["C4"].verdict == "inconclusive"
+    assert v["C4"].values["speedup"] == pytest.approx(1.25) and v["C4"].values["ba_speedup"] == pytest.approx(2.0)
+    assert "speed-up Euclidean/polar x1.25" in str(v["C4"]) and "BA time Euclidean/polar x2.00" in str(v["C4"])
+    assert str(v["C5"]).startswith("supported (+500 tie points (margin 100), +2,000 reprojected px (margin 500)")
+    assert f"C4 (faster): {v['C4']}" in md
     back = PT.TwinTable.from_dict(json.loads((tmp_path / "rosetta" / "paper-table.json").read_text()))
     assert back.methods[PT.OURS].tie_points == 100_500 and back.methods["pycolmap-global-sift"].status == "failed"
 
@@ -49,8 +54,10 @@ def test_difference_column_is_not_tested_without_both_sides_and_detects_a_real_c
     assert PT.difference("accuracy_px", base, worse) == "+0.050 px"
     assert PT.difference("tie_points", base, None) == "not tested"
     v = PT.verdicts(_table(**{PT.BASELINE: base, PT.OURS: worse}))
-    assert v["C4"].startswith("not supported") and v["C5"].startswith("not supported (-50")
-    assert PT.verdicts(_table(**{PT.BASELINE: base})) == {"C4": "not tested", "C5": "not tested"}
+    assert v["C4"].verdict == "not supported" and v["C4"].values["speedup"] == pytest.approx(50 / 60)
+    assert str(v["C5"]).startswith("not supported (-50 tie points")
+    assert {k: str(x) for k, x in PT.verdicts(_table(**{PT.BASELINE: base})).items()} == {
+        "C4": "not tested", "C5": "not tested"}
 
 
 def test_readme_puts_the_papers_tables_beside_the_twins(tmp_path):
@@ -63,6 +70,85 @@ def test_readme_puts_the_papers_tables_beside_the_twins(tmp_path):
     table3 = text.split("## Table 3")[1]
     assert "| Efficiency (min) | 164.1 | 125.4 | not run | not run | not tested |" in table3
     assert "C4 on the twin: not tested" in table3
+
+
+def test_the_baseline_against_itself_fails_both_success_rules():
+    base = _ok(PT.BASELINE, 0.400, 50.0, 100_000, 500_000, 600.0)
+    v = PT.verdicts(_table(**{PT.BASELINE: base, PT.OURS: dataclasses.replace(base, name=PT.OURS)}))
+    assert v["C4"].verdict == "not supported" and v["C4"].values["speedup"] == pytest.approx(1.0)
+    assert v["C5"].verdict == "not supported" and v["C5"].values == {"tie_points": 0, "reprojected_px": 0}
+
+
+def test_a_constructed_faster_polar_run_with_more_tie_points_passes_both():
+    base = _ok(PT.BASELINE, 0.400, 60.0, 100_000, 500_000, 900.0)
+    ours = _ok(PT.OURS, 0.401, 40.0, 100_300, 501_200, 300.0)   # x1.50 overall, x3.00 in BA
+    v = PT.verdicts(_table(**{PT.BASELINE: base, PT.OURS: ours}))
+    assert v["C4"].verdict == "supported"
+    assert 1.49 < v["C4"].values["speedup"] < 1.51 and 2.99 < v["C4"].values["ba_speedup"] < 3.01
+    assert v["C5"].verdict == "supported" and v["C5"].values == {"tie_points": 300, "reprojected_px": 1200}
+
+
+@pytest.mark.parametrize("polar_min, verdict", [
+    (60 / 1.27, "supported"),        # x1.27 >= 1.4 x 0.9 = 1.26
+    (60 / 1.25, "inconclusive"),     # just below 1.26
+    (60 / 1.11, "inconclusive"),     # just above 1.10
+    (60 / 1.09, "not supported"),    # below 1 + 10 % slack
+    (90.0, "not supported"),         # slower
+])
+def test_c4_thresholds_on_a_twin_are_the_scorecards(polar_min, verdict):
+    base = _ok(PT.BASELINE, 0.4, 60.0, 100, 500, 600.0)
+    v = PT.verdicts(_table(**{PT.BASELINE: base, PT.OURS: _ok(PT.OURS, 0.4, polar_min, 100, 500, 600.0)}))
+    assert v["C4"].verdict == verdict
+    assert v["C4"].values["speedup"] == pytest.approx(60.0 / polar_min)
+
+
+@pytest.mark.parametrize("ties, obs, verdict", [
+    (100_101, 500_501, "supported"),       # both above max(1, 0.1 %) = 100 / 500
+    (100_100, 500_501, "not supported"),   # tie points exactly at the margin: not more
+    (100_101, 500_500, "not supported"),   # reprojected px at the margin
+    (100_500, 499_000, "not supported"),   # more tie points, fewer observations: both are needed
+    (None, 500_600, "not tested"),         # a missing count is never 0
+])
+def test_c5_needs_both_counts_above_the_scorecards_margin(ties, obs, verdict):
+    base = _ok(PT.BASELINE, 0.4, 60.0, 100_000, 500_000, 600.0)
+    v = PT.verdicts(_table(**{PT.BASELINE: base, PT.OURS: _ok(PT.OURS, 0.4, 60.0, ties, obs, 600.0)}))
+    assert v["C5"].verdict == verdict
+
+
+def test_missing_values_are_not_tested():
+    base = _ok(PT.BASELINE, 0.4, 60.0, 100_000, 500_000, 600.0)
+    no_time = dataclasses.replace(_ok(PT.OURS, 0.4, 40.0, 100_500, 502_000, 300.0), efficiency_min=None)
+    v = PT.verdicts(_table(**{PT.BASELINE: base, PT.OURS: no_time}))
+    assert v["C4"].verdict == "not tested" and v["C4"].figures == "" and v["C5"].verdict == "supported"
+    failed = PT.MethodResult(PT.OURS, "timeout", "ours-polar: over 14400 s", 631)
+    assert {k: x.verdict for k, x in PT.verdicts(_table(**{PT.BASELINE: base, PT.OURS: failed})).items()} == {
+        "C4": "not tested", "C5": "not tested"}
+    assert {k: x.verdict for k, x in PT.verdicts(None).items()} == {"C4": "not tested", "C5": "not tested"}
+
+
+def test_no_second_copy_of_the_scorecards_thresholds():
+    from polarref.compare import single_run, thresholds
+
+    for name in ("TIE_MARGIN_REL", "ACCURACY_MARGIN_ABS", "ACCURACY_MARGIN_REL", "SPEEDUP_CLAIM"):
+        assert not hasattr(PT, name)
+    assert single_run.SUPPORTED_AT == pytest.approx(thresholds.SPEEDUP_CLAIM * (1 - thresholds.TIMING_SLACK))
+
+
+def test_stage_provenance_is_listed_and_old_records_say_not_recorded(tmp_path):
+    t = _table(**{PT.BASELINE: _ok(PT.BASELINE, 0.4, 50.0, 100_000, 500_000, 600.0)})
+    t.provenance = {"commit": "f" * 40, "stages": {
+        "ours-features": {"git_commit": "", "git_dirty": None, "finished_utc": "2026-12-01T20:00:00Z"},
+        "ours-euclidean": {"git_commit": "0123456789abcdef" + "0" * 24, "git_dirty": True}}}
+    PT.write_table(tmp_path / "rosetta", t)
+    md = (tmp_path / "rosetta" / "paper-table.md").read_text()
+    assert "ours-euclidean 0123456789 (dirty); ours-features not recorded." in md
+    back = PT.TwinTable.from_dict(json.loads((tmp_path / "rosetta" / "paper-table.json").read_text()))
+    assert back.provenance["stages"]["ours-features"]["finished_utc"] == "2026-12-01T20:00:00Z"
+    # A table written before mean_keypoints existed still loads (the field defaults to unknown).
+    old = json.loads((tmp_path / "rosetta" / "paper-table.json").read_text())
+    del old["methods"][PT.BASELINE]["mean_keypoints"]
+    assert PT.TwinTable.from_dict(old).methods[PT.BASELINE].mean_keypoints is None
+    assert PT.stage_commit({"git_commit": "a" * 40, "git_dirty": False}) == "a" * 10
 
 
 @pytest.mark.slow
@@ -88,5 +174,13 @@ def test_twin_comparison_runs_every_method_and_resumes(tmp_path):
     again = run_twin(run)
     assert {p.name: p.stat().st_mtime for p in (tmp_path / "out" / "stages").glob("*.json")} == stamps
     assert again.methods[PT.OURS].tie_points == table.methods[PT.OURS].tie_points
+    # Every stage record names the code that ran it; the table lists them, and the keypoints per image.
+    records = [f for f in (tmp_path / "out" / "stages").glob("*.json") if not f.name.endswith(".result.json")]
+    assert len(records) == 6
+    for f in records:   # (the <stage>.result.json beside them are the runner's job results)
+        assert len(json.loads(f.read_text())["git_commit"]) == 40, f
+    assert set(table.provenance["stages"]) == {"ours-features", "pycolmap-features", *PT.METHODS}
+    for name in PT.METHODS:
+        assert 100 < table.methods[name].mean_keypoints <= 4096, name   # both extract at most 4096
     readme = (tmp_path / "tables" / "README.md").read_text().split("## Table 3")[1]
     assert f"| #Tie point | 670,355 | 671,331 | {table.methods[PT.BASELINE].tie_points:,} |" in readme

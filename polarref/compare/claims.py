@@ -11,7 +11,8 @@ Verdict rules are written here once (thresholds in ``thresholds.py``) so a reade
     max(``EQUIVALENT_PX``, ``EQUIVALENT_REL``) in mean reprojection error and
     max(``ROT_EQUIV_DEG``, ``ROT_EQUIV_REL``) in GT rotation error;
   - single run, faster: runtime ratio baseline/polar >= ``SPEEDUP_CLAIM`` x (1 - ``TIMING_SLACK``)
-    supported, < 1 + ``TIMING_SLACK`` not supported, else inconclusive.
+    supported, < 1 + ``TIMING_SLACK`` not supported, else inconclusive (rule in
+    :mod:`polarref.compare.single_run`, shared with the twins' paper tables).
 * more tie points (C5): decided by the controlled experiment when it ran (TOST, rules in
   :mod:`polarref.compare.claims_experiments`); single run: "supported" when the polar run has
   more tie points AND more reprojected pixels than the Euclidean baseline by more than
@@ -29,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from polarref.compare import claims_experiments as cx
+from polarref.compare import single_run
 from polarref.compare.runner import run_isolated
 from polarref.compare.claims_experiments import fig as _fig
 from polarref.compare.claims_experiments import not_tested as _not_tested
@@ -147,19 +149,12 @@ def _scene_only(metrics: MetricsFile) -> list[ClaimResult]:
     # C4 -------------------------------------------------------------------------------
     eu = _ok(metrics, "ours-euclidean")
     figs4 = [_fig("t_polar", f"{cand.label}: runtime", cand.runtime_s, "s")]
-    ratios = []
     for k, b in enumerate(bases):
         figs4.append(_fig(f"t_b{k}", f"{b.label}: runtime", b.runtime_s, "s"))
-        ratio = (b.runtime_s / cand.runtime_s) if cand.runtime_s and b.runtime_s else None
+        ratio = single_run.ratio(b.runtime_s, cand.runtime_s)
         figs4.append(_fig(f"ratio_b{k}", f"speed-up vs {b.label} (baseline / polar)", ratio, "x"))
-        ratios.append(ratio)
-    primary = ratios[0] if eu is not None else None
-    verdict4 = "inconclusive"
-    if primary is not None:
-        if primary >= SPEEDUP_CLAIM * (1 - TIMING_SLACK):
-            verdict4 = "supported"
-        elif primary < 1 + TIMING_SLACK:
-            verdict4 = "not supported"
+    # The same-pipeline baseline decides (rule shared with the twins' tables: single_run).
+    verdict4 = single_run.speedup_verdict(eu.runtime_s, cand.runtime_s)[0] if eu is not None else "not tested"
     keys = " and ".join(f"{{ratio_b{k}}} vs {b.label}" for k, b in enumerate(bases))
     r4 = (f"Speed-up of ours-polar ({{t_polar}}): {keys}. The verdict uses the same-pipeline ratio "
           f"(first): supported if >= {SPEEDUP_CLAIM} x (1 - {TIMING_SLACK:.0%}), not supported if < "
@@ -168,20 +163,16 @@ def _scene_only(metrics: MetricsFile) -> list[ClaimResult]:
     # C5 -------------------------------------------------------------------------------
     figs5 = [_fig("tp_polar", f"{cand.label}: #tie points", cand.metric("tie_points"), "count"),
              _fig("rp_polar", f"{cand.label}: #reprojected px", cand.metric("reprojected_px"), "count")]
-    more = None
     for k, b in enumerate(bases):
         figs5 += [_fig(f"tp_b{k}", f"{b.label}: #tie points", b.metric("tie_points"), "count"),
                   _fig(f"rp_b{k}", f"{b.label}: #reprojected px", b.metric("reprojected_px"), "count")]
-        counts = (cand.metric("tie_points"), b.metric("tie_points"),
-                  cand.metric("reprojected_px"), b.metric("reprojected_px"))
-        if k == 0 and eu is not None and None not in counts:   # a missing count is not tested, never 0
-            more = all(c - e > max(1.0, cx.TIE_MARGIN_REL * e) for c, e in ((counts[0], counts[1]), (counts[2], counts[3])))
+    verdict5 = "not tested" if eu is None else single_run.more_counts_verdict(   # a missing count: not tested
+        cand.metric("tie_points"), eu.metric("tie_points"), cand.metric("reprojected_px"), eu.metric("reprojected_px"))
     r5 = ("ours-polar: {tp_polar} tie points / {rp_polar} reprojected px; "
           + "; ".join(f"{b.label}: {{tp_b{k}}} / {{rp_b{k}}}" for k, b in enumerate(bases))
           + ". Single-run rule: more when ours-polar exceeds the same-pipeline baseline (same features and matches, "
           f"only the BA differs) by more than max(1, {cx.TIE_MARGIN_REL:.1%}) in both counts; one run, so no interval.")
-    res5 = ClaimResult(*c5, figs5, f"1 run per method on {scene}",
-                       "not tested" if more is None else ("supported" if more else "not supported"), r5)
+    res5 = ClaimResult(*c5, figs5, f"1 run per method on {scene}", verdict5, r5)
     return [res3, res4, res5]
 
 

@@ -15,6 +15,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from polarref.atomic import atomic_write
+from polarref.compare import single_run
+from polarref.compare.thresholds import EQUIVALENT_PX, EQUIVALENT_REL
 
 TABLE_FORMAT = "polarref-paper-table/1"
 BASELINE, OURS = "ours-euclidean", "ours-polar"
@@ -23,10 +25,7 @@ LABELS = {BASELINE: "Euclidean BA (OpenMVG column)", OURS: "polar BA (ours)",
           "pycolmap-incremental-sift": "pycolmap incremental (its SIFT)",
           "pycolmap-global-sift": "pycolmap global (its SIFT)"}
 NOT_RUN = "not run"
-# Equal accuracy margin, the scorecard's C3 margin on the final RMS (claims_experiments.py).
-ACCURACY_MARGIN_ABS, ACCURACY_MARGIN_REL = 0.005, 0.02
-# More tie points (C5): the scorecard's margin, max(0.1%, 1 count).
-TIE_MARGIN_REL = 0.001
+NOT_TESTED = "not tested"
 
 # The paper's Tables 1-3 as printed (OpenMVG vs its method).
 PAPER = {
@@ -59,6 +58,7 @@ class MethodResult:
     center_error_rel: float | None = None     # GT, mean centre error / scene size
     stages_s: dict = field(default_factory=dict)
     peak_rss_mb: float | None = None          # largest resident set of the method's processes
+    mean_keypoints: float | None = None       # features per image the method started from (None: unknown)
 
 
 @dataclass
@@ -107,32 +107,53 @@ def difference(row: str, base: MethodResult | None, ours: MethodResult | None) -
     a, b = getattr(base, row), getattr(ours, row)
     if a is None or b is None:
         return "not tested"
-    if row == "accuracy_px":
-        margin = max(ACCURACY_MARGIN_ABS, ACCURACY_MARGIN_REL * a)
+    if row == "accuracy_px":  # the report's paper-format "Equivalent" (thresholds.EQUIVALENT_*)
+        margin = max(EQUIVALENT_PX, EQUIVALENT_REL * max(abs(a), abs(b)))
         return "equivalent" if abs(b - a) <= margin else f"{b - a:+.3f} px"
     if row == "efficiency_min":
         return f"{b - a:+.1f} min (x{a / b:.2f})" if b > 0 else "not tested"
     return f"{int(b) - int(a):+,}"
 
 
-def verdicts(table: TwinTable) -> dict[str, str]:
-    """C4 (polar BA faster) and C5 (more tie points) on this twin: one run, so a direction with the
-    scorecard's margin, not a test over seeds; "not tested" when either side is missing."""
-    base, ours = table.methods.get(BASELINE), table.methods.get(OURS)
-    out = {}
+@dataclass(frozen=True)
+class TwinVerdict:
+    """One claim on one twin: the verdict word and the figures it rests on."""
+
+    verdict: str                      # one of schema.VERDICTS
+    figures: str = ""                 # "" when not tested
+    values: dict = field(default_factory=dict)   # the figures as numbers (None: not measured)
+
+    def __str__(self) -> str:
+        return f"{self.verdict} ({self.figures})" if self.figures else self.verdict
+
+
+def _x(v: float | None) -> str:
+    return "not measured" if v is None else f"x{v:.2f}"
+
+
+def verdicts(table: TwinTable | None) -> dict[str, TwinVerdict]:
+    """C4 (faster) and C5 (more tie points) on this twin with the scorecard's single-run rules
+    (:mod:`polarref.compare.single_run`): polar vs the Euclidean baseline of the same pipeline, one
+    run, so a direction with the scorecard's margins, not a test over seeds; "not tested" when
+    either side (or a value) is missing."""
+    base = table.methods.get(BASELINE) if table else None
+    ours = table.methods.get(OURS) if table else None
     if not (base and ours and base.status == ours.status == "ok"):
-        return {"C4": "not tested", "C5": "not tested"}
-    ba_a, ba_b = base.stages_s.get("bundle adjustment"), ours.stages_s.get("bundle adjustment")
-    if ba_a and ba_b:
-        out["C4"] = (f"{'supported' if ba_b < ba_a else 'not supported'} (BA time polar/Euclidean "
-                     f"x{ba_b / ba_a:.2f}, whole method x{ours.efficiency_min / base.efficiency_min:.2f}; one run)")
-    else:
-        out["C4"] = "not tested"
-    ta, tb = base.tie_points, ours.tie_points
-    margin = max(TIE_MARGIN_REL * ta, 1)
-    word = "supported" if tb - ta > margin else "not supported"
-    out["C5"] = f"{word} ({tb - ta:+,} tie points, margin {margin:,.0f}; one run)"
-    return out
+        return {"C4": TwinVerdict(NOT_TESTED), "C5": TwinVerdict(NOT_TESTED)}
+    word4, speedup = single_run.speedup_verdict(base.efficiency_min, ours.efficiency_min)
+    ba = single_run.ratio(base.stages_s.get("bundle adjustment"), ours.stages_s.get("bundle adjustment"))
+    fig4 = "" if speedup is None else (
+        f"whole-method speed-up Euclidean/polar {_x(speedup)}: supported at >= x{single_run.SUPPORTED_AT:.2f}, "
+        f"not supported below x{single_run.NOT_SUPPORTED_BELOW:.2f}; BA time Euclidean/polar {_x(ba)}; one run")
+    c4 = TwinVerdict(word4, fig4, {"speedup": speedup, "ba_speedup": ba})
+    ta, tb, ra, rb = base.tie_points, ours.tie_points, base.reprojected_px, ours.reprojected_px
+    word5 = single_run.more_counts_verdict(tb, ta, rb, ra)
+    fig5 = "" if word5 == NOT_TESTED else (
+        f"{tb - ta:+,} tie points (margin {single_run.tie_margin(ta):,.0f}), {rb - ra:+,} reprojected px "
+        f"(margin {single_run.tie_margin(ra):,.0f}); one run")
+    c5 = TwinVerdict(word5, fig5, {"tie_points": None if word5 == NOT_TESTED else tb - ta,
+                                   "reprojected_px": None if word5 == NOT_TESTED else rb - ra})
+    return {"C4": c4, "C5": c5}
 
 
 def render_table(table: TwinTable) -> str:
@@ -153,8 +174,8 @@ def render_table(table: TwinTable) -> str:
               "observations; efficiency: wall time of the whole method, render excluded; GT errors after a "
               "Sim3 alignment):", "",
               "| method | status | registered | accuracy (px) | efficiency (min) | tie points | reprojected px "
-              "| rotation error (deg) | centre error (% of scene) | peak memory (MB) |",
-              "|---|---|---|---|---|---|---|---|---|---|"]
+              "| rotation error (deg) | centre error (% of scene) | peak memory (MB) | keypoints / image |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for name in METHODS:
         r = m.get(name) or MethodResult(name)
         ok = r.status == "ok"
@@ -162,20 +183,36 @@ def render_table(table: TwinTable) -> str:
         rot = f"{r.rotation_error_deg:.4f}" if ok and r.rotation_error_deg is not None else "-"
         cen = f"{100 * r.center_error_rel:.4f}" if ok and r.center_error_rel is not None else "-"
         mem = f"{r.peak_rss_mb:,.0f}" if r.peak_rss_mb is not None else "-"
+        kp = f"{r.mean_keypoints:,.0f}" if r.mean_keypoints is not None else "not recorded"
         status = r.status + (f" ({r.reason})" if r.reason else "")
         lines.append(f"| {LABELS[name]} | {status} | {reg} | {_cell(r, 'accuracy_px')} | {_cell(r, 'efficiency_min')} "
-                     f"| {_cell(r, 'tie_points')} | {_cell(r, 'reprojected_px')} | {rot} | {cen} | {mem} |")
+                     f"| {_cell(r, 'tie_points')} | {_cell(r, 'reprojected_px')} | {rot} | {cen} | {mem} | {kp} |")
     lines += ["", "Stage runtimes (s):", ""]
     for name in METHODS:
         r = m.get(name)
         if r and r.stages_s:
             lines.append(f"- {LABELS[name]}: " + ", ".join(f"{k} {v:.1f}" for k, v in r.stages_s.items()))
     v = verdicts(table)
-    lines += ["", f"Scorecard on this twin: C4 (polar BA faster): {v['C4']}; C5 (more tie points): {v['C5']}.", ""]
+    lines += ["", f"Scorecard on this twin (single-run rules, polar vs Euclidean BA): C4 (faster): {v['C4']}; "
+              f"C5 (more tie points and reprojected px): {v['C5']}.", ""]
     if table.provenance:
         lines += ["Provenance: " + ", ".join(f"{k} {v}" for k, v in sorted(table.provenance.items())
                                             if not isinstance(v, dict)), ""]
+    stages = table.provenance.get("stages") or {}
+    if stages:
+        lines += ["Code per stage (git commit of the run that finished it): "
+                  + "; ".join(f"{k} {stage_commit(v)}" for k, v in sorted(stages.items())) + ".", ""]
     return "\n".join(lines)
+
+
+def stage_commit(rec: dict) -> str:
+    """``abc1234567`` / ``... (dirty)`` from a stage record (or its provenance entry); "not recorded"
+    for records written before stages kept their commit."""
+    commit = rec.get("git_commit") or ""
+    if not commit:
+        return "not recorded"
+    dirty = rec.get("git_dirty")
+    return commit[:10] + (" (dirty)" if dirty else " (dirty: unknown)" if dirty is None else "")
 
 
 def write_table(out_dir: str | os.PathLike, table: TwinTable) -> None:
@@ -189,8 +226,9 @@ def _paper_cell(v, row: str) -> str:
     return f"{v:g}" if row in ("accuracy_px", "efficiency_min") else _fmt(row, v)  # as printed
 
 
-def render_readme(tables: dict[str, TwinTable | None]) -> str:
-    """The paper's three tables beside ours (a twin without results: every cell "not run")."""
+def render_readme(tables: dict[str, TwinTable | None], reports_root: str | os.PathLike | None = None) -> str:
+    """The paper's three tables beside ours (a twin without results: every cell "not run"), then
+    what changed with scale against the committed small-scene reports under ``reports_root``."""
     lines = ["# Tables 1-3 of the paper beside their twins", "",
              "Generated by `python -m polarref.compare.paper_tables reports/paper-tables` from each "
              "`<twin>/paper-table.json`; do not edit by hand. Paper: OpenMVG vs its method on the real "
@@ -206,8 +244,11 @@ def render_readme(tables: dict[str, TwinTable | None]) -> str:
             lines.append(f"| {ROW_LABELS[row]} | {_paper_cell(p['openmvg'][k], row)} | {_paper_cell(p['ours'][k], row)} "
                          f"| {_cell(m.get(BASELINE), row)} | {_cell(m.get(OURS), row)} "
                          f"| {difference(row, m.get(BASELINE), m.get(OURS))} |")
-        v = verdicts(t) if t else {"C4": "not tested", "C5": "not tested"}
+        v = verdicts(t)
         lines += ["", f"C4 on the twin: {v['C4']}. C5 on the twin: {v['C5']}.", ""]
+    from polarref.compare.paper_scale import render_scale
+
+    lines += render_scale(tables, reports_root)
     return "\n".join(lines)
 
 
@@ -220,10 +261,13 @@ def load_tables(root: str | os.PathLike) -> dict[str, TwinTable | None]:
     return out
 
 
-def write_readme(root: str | os.PathLike) -> Path:
+def write_readme(root: str | os.PathLike, reports_root: str | os.PathLike | None = None) -> Path:
+    """``root/README.md``; the small-scene reports are read from ``reports_root`` (default: the
+    folder above ``root``, i.e. ``reports/`` for ``reports/paper-tables``)."""
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
-    return atomic_write(root / "README.md", render_readme(load_tables(root)) + "\n")
+    text = render_readme(load_tables(root), root.resolve().parent if reports_root is None else reports_root)
+    return atomic_write(root / "README.md", text + "\n")
 
 
 if __name__ == "__main__":  # python -m polarref.compare.paper_tables reports/paper-tables

@@ -34,3 +34,8 @@ SUCCESS_BEARING_DEG = 1.0        # 95th percentile of the bearing error below th
 # errors equivalent when they differ by at most this many px or this fraction, whichever is larger.
 EQUIVALENT_PX = 0.01
 EQUIVALENT_REL = 0.02
+
+# ---- twins of the paper's datasets (issue 13's done-when; paper_scale.py) -----------------------
+TWIN_REGISTERED_MIN = 0.99       # ours registers at least this fraction of a twin's views
+TWIN_ROSETTA_MIN_TIES = 100_000  # ours' tie points on the rosetta twin
+TWIN_RUNTIME_TARGET_MIN = 60.0   # whole method, render excluded, on the 2-core machine

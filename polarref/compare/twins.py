@@ -60,6 +60,7 @@ class TwinJobResult:
     model_dir: str = ""                 # methods: the COLMAP text model
     verified_pairs: int | None = None   # shared stages
     skipped_images: list[str] = dataclasses.field(default_factory=list)
+    feature_file: str = ""              # ours-features: the feature cache (.npz) the methods read
 
 
 def _peak_mb() -> float:
@@ -92,7 +93,8 @@ def job_ours_features(image_dir: str, camera: dict, pairs_file: str, cache_dir: 
     matches = match_and_verify(feats, [_camera(camera)], np.zeros(len(feats), np.int64), config, key, timings)
     return TwinJobResult({k: float(timings[k]) for k in ("features", "matching", "verification") if k in timings},
                          _peak_mb(), verified_pairs=len(matches.geometries),
-                         skipped_images=[str(x["name"]) for x in skipped])
+                         skipped_images=[str(x["name"]) for x in skipped],
+                         feature_file=str(Path(cache_dir) / f"features-{key}.npz"))
 
 
 def job_ours_sfm(image_dir: str, camera: dict, ba: str, work_dir: str, pairs_file: str, cache_dir: str) -> TwinJobResult:
@@ -158,11 +160,14 @@ class _Stages:
 
         log.info("stage %s: started (log %s)", name, self.dir / f"{name}.log")
         from polarref import records
+        from polarref.provenance import git_state
 
+        commit, dirty = git_state()  # the code that runs the stage (its process imports this checkout)
         outcome = run_isolated(JOBS[func], kwargs, self.timeout_s, self.dir, name)
         result = records.to_dict(outcome.result) if outcome.result is not None else {}
         rec = {"stage": name, "status": outcome.status, "reason": outcome.reason, "wall_s": outcome.wall_s,
-               "result": result, "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
+               "result": result, "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+               "git_commit": commit, "git_dirty": dirty}
         atomic_write(self.dir / f"{name}.json", json.dumps(rec, indent=1, default=str) + "\n")
         log.info("stage %s: %s in %.0f s%s", name, outcome.status, outcome.wall_s,
                  f" ({outcome.reason})" if outcome.reason else "")
@@ -195,6 +200,58 @@ def _pairs(run: TwinRun, scene, out: Path) -> tuple[Path, int]:
                                         "config": dataclasses.asdict(config)}, indent=1) + "\n")
     log.info("pairs: %d for %d images (%s) -> %s", len(pair_set.pairs), len(pair_set.names), config.method, path)
     return path, len(pair_set.pairs)
+
+
+def mean_keypoints_npz(path: Path) -> float | None:
+    """Mean keypoints per image of our feature cache, from the ``kp<i>`` array headers alone (the
+    file holds every descriptor; nothing is loaded). None when the file is absent or unreadable."""
+    import zipfile
+
+    import numpy as np
+
+    try:
+        with zipfile.ZipFile(path) as z:
+            counts = []
+            for member in (n for n in z.namelist() if n.startswith("kp") and n.endswith(".npy")):
+                with z.open(member) as fh:
+                    version = np.lib.format.read_magic(fh)
+                    shape = (np.lib.format.read_array_header_1_0(fh) if version == (1, 0)
+                             else np.lib.format.read_array_header_2_0(fh))[0]
+                counts.append(shape[0])
+    except (OSError, ValueError, zipfile.BadZipFile, KeyError):
+        return None
+    return float(np.mean(counts)) if counts else None
+
+
+def mean_keypoints_db(db: Path) -> float | None:
+    """Mean keypoints per image in a COLMAP database (its ``keypoints`` table), opened read-only.
+
+    A cleanly closed database is opened immutable, so no -wal/-shm files appear in the run folder;
+    with a -wal file beside it (a writer still open, or killed) SQLite has to read the log too."""
+    import sqlite3
+
+    db = Path(db)
+    if not db.is_file():
+        return None
+    live = db.with_name(db.name + "-wal").exists()
+    try:
+        con = sqlite3.connect(f"file:{db.resolve()}?mode=ro{'' if live else '&immutable=1'}", uri=True)
+        try:
+            row = con.execute("SELECT AVG(rows), COUNT(*) FROM keypoints").fetchone()
+        finally:
+            con.close()
+    except sqlite3.Error:
+        return None
+    return float(row[0]) if row and row[1] else None
+
+
+def ours_mean_keypoints(feats: dict, cache: Path) -> float | None:
+    """Mean keypoints per image of the cache file the features stage recorded; for older records
+    (no file named) every ``features-*.npz`` in the cache, used only when they all agree."""
+    recorded = (feats.get("result") or {}).get("feature_file")
+    files = [Path(recorded)] if recorded else sorted(cache.glob("features-*.npz"))
+    means = {mean_keypoints_npz(f) for f in files}
+    return means.pop() if len(means) == 1 else None
 
 
 def _method_result(name: str, recs: list[dict], scene, gt) -> PT.MethodResult:
@@ -257,10 +314,20 @@ def run_twin(run: TwinRun) -> PT.TwinTable:
                                             work_dir=str(out / m), mapper=m.split("-")[1], seed=run.seed))]
     methods = {m: _method_result(m, recs[m], scene, scene.gt) if m in recs else PT.MethodResult(m)
                for m in PT.METHODS}
+    for m, r in methods.items():
+        if r.status != "ok":
+            continue
+        if m.startswith("ours-"):
+            r.mean_keypoints = ours_mean_keypoints(recs[m][0], Path(cache))
+        else:
+            r.mean_keypoints = mean_keypoints_db(out / "pycolmap" / "database.db")
+    stage_recs = {rec["stage"]: rec for rs in recs.values() for rec in rs}
     env = collect()
     provenance = {"commit": env.get("git_commit"), "dirty": env.get("git_dirty"), "machine": env.get("machine"),
                   "seed": run.seed, "pairs_file": pairs_file.name, "wall_s_this_call": round(time.perf_counter() - t0, 1),
-                  "pycolmap_max_num_features": PYCOLMAP_FEATURES, "environment": env}
+                  "pycolmap_max_num_features": PYCOLMAP_FEATURES, "environment": env,
+                  "stages": {k: {"git_commit": v.get("git_commit", ""), "git_dirty": v.get("git_dirty"),
+                                 "finished_utc": v.get("finished_utc", "")} for k, v in sorted(stage_recs.items())}}
     table = PT.TwinTable(run.twin, len(scene.image_names), n_pairs, methods, provenance)
     PT.write_table(out, table)
     if run.tables_dir:  # the small committed copy (the run folder holds models, databases, caches)
