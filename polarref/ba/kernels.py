@@ -72,9 +72,10 @@ def warm_up() -> float:
     if not available():
         return 0.0
     from polarref.ba.kernels_jit import (angular_rows, back_substitute_rhs, build_anchored,
-                                         euclidean_jacobians, euclidean_rays, parallax_jacobians,
-                                         parallax_points, parallax_rays, point_sums, polar_rows,
-                                         schur_dense, slot_gram, slot_w_g)
+                                         build_observer, euclidean_jacobians, euclidean_rays,
+                                         parallax_jacobians, parallax_points, parallax_rays,
+                                         point_sums, polar_rows, schur_dense, slot_gram,
+                                         slot_w_g)
     t = time.perf_counter()
     f, i = np.zeros, np.zeros
     one = np.zeros(1, np.int64)
@@ -89,10 +90,11 @@ def warm_up() -> float:
     slot_gram(J6, 0, Jp, 3, one, one, U)
     slot_w_g(J6, 0, Jp, r, one, one, W, g)
     slot_w_g(Jp, 3, Jp, r, one, one, W, g)
+    build_observer(J6, Jp, r, one, one, one, W, g, U)
     point_sums(Jp, r, one, f((1, 3, 3)), f((1, 3)))
     back_substitute_rhs(W, g, one, one, i((1, 3)))
-    build_anchored(J6, r, x3, Jp, r, z3, z3, np.array([0, 1], np.int64), W, g, U,
-                   f((1, 6, 3)), f((1, 6, 3)), f((1, 3, 3)))
+    build_anchored(J6, r, x3, Jp, r, z3, z3, np.array([0, 1], np.int64), W, g, U, W, W,
+                   f((1, 3, 3)), True)
     R, x1 = np.eye(3)[None].copy(), f(1)
     euclidean_jacobians(Jp, euclidean_rays(R, x3, x3, one, one), R, one)
     parallax_points(R, x3, x3, one, one, True)
@@ -100,7 +102,7 @@ def warm_up() -> float:
     for dense in (True, False):
         parallax_jacobians(Jp, x3, R, x3, one, one, x3, x3, x1, x1, x1, x3, f((1, 3, 2)), dense)
     for jac in (True, False):
-        polar_rows(x3, r, f((1 if jac else 0, 2, 3)), x1, x1, jac)
+        polar_rows(x3, x1, x1, x3, f((1 if jac else 0, 3, 3)), jac)
         angular_rows(x3, r, f((1, 2, 2)), x1, np.ones(1, bool), jac)
     dt = time.perf_counter() - t
     log.debug("BA kernels ready in %.2f s", dt)
