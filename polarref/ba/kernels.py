@@ -102,7 +102,7 @@ def warm_up() -> float:
     for dense in (True, False):
         parallax_jacobians(Jp, x3, R, x3, one, one, x3, x3, x1, x1, x1, x3, f((1, 3, 2)), dense)
     for jac in (True, False):
-        polar_rows(x3, x1, x1, x3, f((1 if jac else 0, 3, 3)), jac)
+        polar_rows(x3, r, f((1 if jac else 0, 2, 3)), x1, x1, jac)
         angular_rows(x3, r, f((1, 2, 2)), x1, np.ones(1, bool), jac)
     dt = time.perf_counter() - t
     log.debug("BA kernels ready in %.2f s", dt)

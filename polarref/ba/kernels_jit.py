@@ -476,14 +476,24 @@ def _theta_row(x, y, z, jac, out, m, w):
 
 
 @_njit
-def polar_rows(Xc, theta_obs, w_theta, res, J, jac):
-    """The weighted view-angle row of the polar residuals (polar.py): ``res[:, 2] = (theta -
-    theta_obs) w_theta`` (res (M, 3)) and with jac its ``res_D_Xc`` into ``J[:, 2]`` (J (M, 3,
-    3)); the pixel rows 0:2 are the caller's."""
-    Jt = J[:, 2]
-    for m in range(len(Xc)):
+def polar_rows(Xc, res_uv, Juv, theta_obs, w_theta, jac):
+    """Polar residuals (M, 3): pixel rows ``res_uv`` (M, 2) and the weighted view-angle row
+    ``(theta - theta_obs) w_theta`` (polar.py), with jac their ``res_D_Xc`` (M, 3, 3) from the
+    pixel rows' Juv (M, 2, 3)."""
+    M = len(Xc)
+    res = np.empty((M, 3))
+    J = np.empty((M if jac else 0, 3, 3))
+    Jt = np.empty((M if jac else 0, 3))
+    for m in range(M):
+        res[m, 0], res[m, 1] = res_uv[m, 0], res_uv[m, 1]
         th = _theta_row(Xc[m, 0], Xc[m, 1], Xc[m, 2], jac, Jt, m, w_theta[m])
         res[m, 2] = (th - theta_obs[m]) * w_theta[m]
+        if jac:
+            for i in range(3):
+                J[m, 0, i] = Juv[m, 0, i]
+                J[m, 1, i] = Juv[m, 1, i]
+                J[m, 2, i] = Jt[m, i]
+    return res, J
 
 
 @_njit

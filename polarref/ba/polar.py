@@ -33,14 +33,16 @@ class Polar(Parallax):
         self.w_theta = 1.0 / s_theta
 
     def residual_rows(self, Xc, jac):
-        if self.fast:  # pixel rows projected in place, the view-angle row compiled
+        if self.fast:  # the view-angle row and the stacking compiled (kernels.py)
             from polarref.ba import kernels
-            M = len(Xc)
-            res, J = np.empty((M, 3)), np.empty((M if jac else 0, 3, 3))
-            self.proj(Xc, jac, out=(res[:, :2], J[:, :2]))
-            res[:, :2] -= self.p.obs_uv
-            kernels.polar_rows(np.ascontiguousarray(Xc), self.theta_obs, self.w_theta, res, J,
-                               jac)
+            if not jac:
+                res_uv, Juv = self.proj(Xc, jac=False) - self.p.obs_uv, np.zeros((0, 2, 3))
+            else:
+                uv, Juv = self.proj(Xc)
+                res_uv = uv - self.p.obs_uv
+            res, J = kernels.polar_rows(np.ascontiguousarray(Xc), np.ascontiguousarray(res_uv),
+                                        np.ascontiguousarray(Juv), self.theta_obs,
+                                        self.w_theta, jac)
             return res, (J if jac else None)
         res = np.empty((len(Xc), 3))
         theta, Jt = theta_rows(Xc, jac)

@@ -42,15 +42,13 @@ def camera_groups(cameras, obs_cam: np.ndarray) -> list[tuple[object, np.ndarray
     return [(cameras[int(c)], order[a:b]) for c, a, b in zip(cams, starts, ends) if c >= 0]
 
 
-def project(Xc: np.ndarray, K: np.ndarray, jac: bool = True, out=None):
+def project(Xc: np.ndarray, K: np.ndarray, jac: bool = True):
     """Project camera-frame points.
 
     Args:
         Xc: (M, 3) camera-frame points.
         K: (M, 6) per-observation fx, fy, cx, cy, k1, k2.
         jac: also return ``uv_D_Xc``.
-        out: optional (uv (M, 2), uv_D_Xc (M, 2, 3)) arrays (views) to write into, e.g. the
-            pixel rows of a form with more residual rows (polar.py), saving a copy.
 
     Returns:
         uv (M, 2) and, if jac, uv_D_Xc (M, 2, 3).
@@ -61,7 +59,7 @@ def project(Xc: np.ndarray, K: np.ndarray, jac: bool = True, out=None):
     x, y = X * iz, Y * iz
     r2 = x * x + y * y
     dist = 1.0 + r2 * (k1 + k2 * r2)
-    uv = np.empty((len(Xc), 2)) if out is None else out[0]
+    uv = np.empty((len(Xc), 2))
     uv[:, 0] = fx * x * dist + cx
     uv[:, 1] = fy * y * dist + cy
     if not jac:
@@ -69,7 +67,7 @@ def project(Xc: np.ndarray, K: np.ndarray, jac: bool = True, out=None):
     a = 2.0 * (k1 + 2.0 * k2 * r2)  # d dist / d r2, doubled
     # d(xd, yd)/d(x, y) = dist I + a (x, y)(x, y)^T, then d(x, y)/dXc = [I/Z, -(x, y)/Z]
     dxx, dxy, dyy = dist + a * x * x, a * x * y, dist + a * y * y
-    J = np.empty((len(Xc), 2, 3)) if out is None else out[1]
+    J = np.empty((len(Xc), 2, 3))
     J[:, 0, 0] = fx * dxx * iz
     J[:, 0, 1] = fx * dxy * iz
     J[:, 0, 2] = -(J[:, 0, 0] * x + J[:, 0, 1] * y)
@@ -91,12 +89,11 @@ class Projector:
         else:
             self.groups = camera_groups(cameras, obs_cam)
 
-    def __call__(self, Xc: np.ndarray, jac: bool = True, out=None):
-        """uv (M, 2) and, with jac, uv_D_Xc (M, 2, 3); into ``out`` if given (see project)."""
+    def __call__(self, Xc: np.ndarray, jac: bool = True):
         if self.fast:
-            return project(Xc, self.K, jac, out)
-        uv = np.empty((len(Xc), 2)) if out is None else out[0]
-        J = np.empty((len(Xc), 2, 3)) if out is None or not jac else out[1]
+            return project(Xc, self.K, jac)
+        uv = np.empty((len(Xc), 2))
+        J = np.empty((len(Xc), 2, 3))
         for cam, idx in self.groups:
             uv[idx], J[idx] = cam.project_with_jacobian(Xc[idx])
         return (uv, J) if jac else uv
