@@ -71,8 +71,9 @@ def warm_up() -> float:
     """Compile (or load from the disk cache) every kernel on tiny inputs; seconds taken."""
     if not available():
         return 0.0
-    from polarref.ba.kernels_jit import (angular_rows, back_substitute_rhs, build_anchored,
-                                         build_observer, euclidean_jacobians, euclidean_rays,
+    from polarref.ba.kernels_jit import (add_cross, angular_rows, back_substitute_rhs,
+                                         build_anchored, build_observer, euclidean_jacobians,
+                                         euclidean_rays,
                                          parallax_jacobians, parallax_points, parallax_rays,
                                          point_sums, polar_rows, schur_dense, slot_gram,
                                          slot_w_g)
@@ -91,6 +92,8 @@ def warm_up() -> float:
     slot_w_g(J6, 0, Jp, r, one, one, W, g)
     slot_w_g(Jp, 3, Jp, r, one, one, W, g)
     build_observer(J6, Jp, r, one, one, one, W, g, U)
+    add_cross(f((6, 6)), W, W, f((1, 3, 3)), np.array([0, 1], np.int64), one, one, z3,
+              np.array([0, 1], np.int64))
     point_sums(Jp, r, one, f((1, 3, 3)), f((1, 3)))
     back_substitute_rhs(W, g, one, one, i((1, 3)))
     build_anchored(J6, r, x3, Jp, r, z3, z3, np.array([0, 1], np.int64), W, g, U, W, W,

@@ -78,6 +78,34 @@ def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, Xm, Xa, Xma,
 
 
 @_njit
+def add_cross(S, Xm, Xa, Xma, bounds, entry_pt, entry_cam, ent, obs_bounds):
+    """The three-slot cross-camera blocks of :func:`build_anchored` into the upper triangle
+    of S (6 Nv, 6 Nv), for the dense-visibility path whose Schur products come from one
+    ``dsyrk`` (schur.py); arguments as :func:`schur_dense`. Every entry of a point is the
+    observer entry of one of its observations (the anchors observe the point too)."""
+    for g in range(len(bounds) - 1):
+        e0, e1 = bounds[g], bounds[g + 1]
+        p = entry_pt[e0]
+        em, ea = ent[1, obs_bounds[p]], ent[2, obs_bounds[p]]
+        for a in range(e0, e1):  # entries sorted by camera: a < em <=> cam(a) < cam(em)
+            ra = 6 * entry_cam[a]
+            for X, ee in ((Xm, em), (Xa, ea)):
+                if ee < 0 or ee == a:
+                    continue
+                rx = 6 * entry_cam[ee]
+                if a < ee:
+                    _add_block(S, X, a, ra, rx + 3, 6, False)
+                else:
+                    _add_block(S, X, a, rx + 3, ra, 6, True)
+        if em >= 0 and ea >= 0 and em != ea:
+            rm, rx = 6 * entry_cam[em] + 3, 6 * entry_cam[ea] + 3
+            if em < ea:
+                _add_block(S, Xma, p, rm, rx, 3, False)
+            else:
+                _add_block(S, Xma, p, rx, rm, 3, True)
+
+
+@_njit
 def _add_block(S, X, e, r0, c0, n, transposed):
     """``S[r0:, c0:] += X[e]`` (n x 3), or its transpose (3 x n)."""
     if transposed:

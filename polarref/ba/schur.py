@@ -159,8 +159,8 @@ class SchurStructure:
         # touches that block of S anyway); U keeps only the diagonal camera blocks. The build
         # then takes the anchors' Jacobians factored ([J_obs, AnchorJacobian], anchor_terms.py)
         # and computes those blocks once per build (kernels.build_anchored), not per LM step.
-        self.fused = (fast and self.slot_cols == [(0, 6), (3, 6), (3, 6)] and not self.sparse_S
-                      and not self.use_gemm)
+        # With the dsyrk (dense visibility) they are added to S after it (kernels.add_cross).
+        self.fused = fast and self.slot_cols == [(0, 6), (3, 6), (3, 6)] and not self.sparse_S
         if fast:
             obs_e = slot_entry[0][slot_entry[0] >= 0]
             # no entry observes its point twice: build_anchored writes its cross blocks once
@@ -412,11 +412,7 @@ class SchurStructure:
                                     self.entry_cam, S, b, self.fused, *X, self.slot_entry,
                                     self.obs_bounds)
             if self.fused:
-                mask_v = getattr(self, "mask_v", None)  # from apply_mask: the held gauge columns
-                if mask_v is not None:
-                    held = np.flatnonzero(mask_v.reshape(-1) == 0)
-                    S[held, :] = 0.0
-                    S[:, held] = 0.0
+                self._zero_held(S)
             S[np.diag_indices_from(S)] += diag_c.reshape(-1)
             return S, b.reshape(-1), Li
         Z = np.matmul(W, Li[self.entry_pt].transpose(0, 2, 1)) if E else np.zeros((0, 6, 3))
@@ -435,6 +431,11 @@ class SchurStructure:
             Sf = S.T
             scipy.linalg.blas.dsyrk(-1.0, Zd.reshape(6 * Nv, -1).T, beta=1.0, c=Sf, trans=1,
                                     lower=1, overwrite_c=1)
+            if self.fused:
+                from polarref.ba import kernels
+                kernels.add_cross(S, *self.cross_blocks, self.entry_bounds, self.entry_pt,
+                                  self.entry_cam, self.slot_entry, self.obs_bounds)
+                self._zero_held(S)
         elif E:
             blocks = self._pair_blocks(Z)
             S4 = S.reshape(Nv, 6, Nv, 6)
@@ -443,6 +444,15 @@ class SchurStructure:
             S4[self.seg_cb[off], :, self.seg_ca[off], :] -= blocks[off].transpose(0, 2, 1)
         S[np.diag_indices_from(S)] += diag_c.reshape(-1)
         return S, b.reshape(-1), Li
+
+    def _zero_held(self, S: np.ndarray) -> None:
+        """Fused path: the held gauge columns (apply_mask's mask_v) of the cross blocks added
+        straight into S (U and W are masked in apply_mask)."""
+        mask_v = getattr(self, "mask_v", None)
+        if mask_v is not None:
+            held = np.flatnonzero(mask_v.reshape(-1) == 0)
+            S[held, :] = 0.0
+            S[:, held] = 0.0
 
     def _pair_blocks(self, Z: np.ndarray) -> np.ndarray:
         """Z Z^T blocks (segments, 6, 6) of the camera pairs (seg_ca <= seg_cb)."""
