@@ -111,11 +111,13 @@ class SchurStructure:
         cam_var: (N,) True for cameras with at least one free parameter.
         num_points: P.
         dense_max_cameras: above this many variable cameras S is sparse (sparse LU).
+        fast: compiled kernels. anchored: a three-slot layout's anchors can come factored
+            (``[J_obs, AnchorJacobian]``), which the fused kernel build needs.
     """
 
     def __init__(self, slot_cams: np.ndarray, slot_cols, obs_pt: np.ndarray,
                  cam_var: np.ndarray, num_points: int, dense_max_cameras: int = 700,
-                 fast: bool = False):
+                 fast: bool = False, anchored: bool = True):
         S, M = slot_cams.shape
         N, P = len(cam_var), num_points
         self.S, self.M, self.N, self.P = S, M, N, P
@@ -160,7 +162,8 @@ class SchurStructure:
         # then takes the anchors' Jacobians factored ([J_obs, AnchorJacobian], anchor_terms.py)
         # and computes those blocks once per build (kernels.build_anchored), not per LM step.
         # With the dsyrk (dense visibility) they are added to S after it (kernels.add_cross).
-        self.fused = fast and self.slot_cols == [(0, 6), (3, 6), (3, 6)] and not self.sparse_S
+        self.fused = (fast and anchored and self.slot_cols == [(0, 6), (3, 6), (3, 6)]
+                      and not self.sparse_S)
         if fast:
             obs_e = slot_entry[0][slot_entry[0] >= 0]
             # no entry observes its point twice: build_anchored writes its cross blocks once
