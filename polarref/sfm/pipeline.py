@@ -216,7 +216,9 @@ def load_images_and_features(image_dir: Path, config: SfMConfig, timings: dict) 
     cache = _cache_dir(config) / f"features-{key}.npz"
     skipped_file = cache.with_suffix(".skipped.json")
     if config.use_cache and cache_valid(cache) and cache_valid(skipped_file):
-        feats = F.load(cache)
+        # descriptors stay on disk until matching needs them (ensure_descriptors): with the
+        # matches cached too, a run never reads them (631 views: 1.3 GB off the peak)
+        feats = F.load(cache, descriptors=False)
         skipped = json.loads(skipped_file.read_text())
         timings["features_cached"] = True
     else:
@@ -231,6 +233,16 @@ def load_images_and_features(image_dir: Path, config: SfMConfig, timings: dict) 
         log.warning("skipped image %s: %s", s["name"], s["reason"])
     timings["features"] = time.perf_counter() - t0
     return feats, skipped, key
+
+
+def ensure_descriptors(feats: list[F.Features], config: SfMConfig, feature_key: str) -> None:
+    """Load the descriptors that :func:`load_images_and_features` left on disk (in place)."""
+    if all(f.descriptors is not None for f in feats):
+        return
+    cache = _cache_dir(config) / f"features-{feature_key}.npz"
+    if not cache_valid(cache):
+        raise PolarrefError(f"feature cache {cache} changed or vanished while in use; rerun")
+    F.load_descriptors(cache, feats)
 
 
 def match_and_verify(feats: list[F.Features], cameras: list, camera_of_image: np.ndarray, config: SfMConfig,
@@ -249,6 +261,7 @@ def match_and_verify(feats: list[F.Features], cameras: list, camera_of_image: np
         timings["verification"] = 0.0
         timings["matches_cached"] = True
     else:
+        ensure_descriptors(feats, config, feature_key)
         pairs = select_pairs(len(feats), config.matching, centers, names=[f.name for f in feats])
         focal = float(np.mean([R_.mean_focal(c) for c in cameras]))
         executor = execution.current()
@@ -416,6 +429,8 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         t0 = time.perf_counter()
         state = MapState([f.name for f in feats], list(cameras), cam_idx, [f.keypoints for f in feats],
                          tracks, config.triangulation)
+        if config.mapper.guided.enabled:
+            ensure_descriptors(feats, config, fkey)
         descriptors = [f.descriptors for f in feats] if config.mapper.guided.enabled else None
         if descriptors is None:
             # only guided matching reads them after matching: released before the mapper's BA

@@ -1,0 +1,80 @@
+"""Cached features load without their descriptors; matching loads them only when it runs.
+
+Issue 14's memory target: at 631 views of 4096 features the float32 descriptors are 1.3 GB, and
+a run whose matches are cached never reads them.
+"""
+
+import dataclasses
+
+import cv2
+import numpy as np
+import pytest
+
+from polarref.camera import Camera
+from polarref.errors import PolarrefError
+from polarref.sfm import features as F
+from polarref.sfm.pipeline import SfMConfig, ensure_descriptors, load_images_and_features, match_and_verify
+
+
+def _images(folder, n=3, seed=0):
+    rng = np.random.default_rng(seed)
+    base = cv2.GaussianBlur((rng.uniform(0, 255, (260, 340))).astype(np.uint8), (0, 0), 2.0)
+    folder.mkdir()
+    for k in range(n):  # shifted crops of one texture: plenty of true matches between any two
+        crop = base[10 + 4 * k:250 + 4 * k - 8, 12 + 6 * k:332 + 6 * k - 12]
+        cv2.imwrite(str(folder / f"im{k}.png"), np.repeat(crop[:, :, None], 3, 2))
+    return folder
+
+
+@pytest.fixture
+def cached(tmp_path):
+    images = _images(tmp_path / "images")
+    cfg = SfMConfig(features=F.FeatureConfig(max_num_features=300, contrast_threshold=0.01),
+                    cache_dir=str(tmp_path / "cache"))
+    timings: dict = {}
+    eager, _, key = load_images_and_features(images, cfg, timings)
+    assert timings["features_cached"] is False
+    return images, cfg, key, eager
+
+
+def test_cached_features_load_without_descriptors_and_fill_in_exactly(cached):
+    images, cfg, key, eager = cached
+    timings: dict = {}
+    lazy, _, key2 = load_images_and_features(images, cfg, timings)
+    assert timings["features_cached"] is True and key2 == key
+    assert all(f.descriptors is None for f in lazy)
+    for a, b in zip(eager, lazy):
+        np.testing.assert_array_equal(a.keypoints, b.keypoints)
+    ensure_descriptors(lazy, cfg, key)
+    for a, b in zip(eager, lazy):
+        assert b.descriptors.dtype == np.float32 and b.descriptors.shape == (len(b.keypoints), 128)
+        np.testing.assert_array_equal(a.descriptors, b.descriptors)  # the cache's float16 is exact
+
+
+def test_matching_from_lazy_features_equals_eager(cached):
+    images, cfg, key, eager = cached
+    cam = Camera("PINHOLE", eager[0].width, eager[0].height, [300.0, 300.0, eager[0].width / 2, eager[0].height / 2])
+    idx = np.zeros(len(eager), np.int64)
+    ref = match_and_verify(eager, [cam], idx, dataclasses.replace(cfg, use_cache=False), key, {})
+    lazy, _, _ = load_images_and_features(images, cfg, {})
+    got = match_and_verify(lazy, [cam], idx, cfg, key, {})  # no matches cache yet: loads descriptors
+    assert all(f.descriptors is not None for f in lazy)
+    assert set(ref.putative) == set(got.putative) and len(ref.putative) == 3
+    assert sum(len(m) for m in ref.putative.values()) > 50
+    for p in ref.putative:
+        np.testing.assert_array_equal(ref.putative[p], got.putative[p])
+    again, _, _ = load_images_and_features(images, cfg, {})
+    timings: dict = {}
+    match_and_verify(again, [cam], idx, cfg, key, timings)  # matches cached: descriptors never read
+    assert timings["matches_cached"] is True and all(f.descriptors is None for f in again)
+
+
+def test_descriptors_of_other_images_or_a_vanished_cache_are_refused(cached, tmp_path):
+    images, cfg, key, eager = cached
+    lazy, _, _ = load_images_and_features(images, cfg, {})
+    with pytest.raises(ValueError, match="other images"):
+        F.load_descriptors(next((tmp_path / "cache").glob("features-*.npz")), lazy[:2])
+    for f in (tmp_path / "cache").glob("features-*.npz"):
+        f.unlink()
+    with pytest.raises(PolarrefError, match="vanished"):
+        ensure_descriptors(lazy, cfg, key)
