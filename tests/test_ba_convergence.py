@@ -103,7 +103,8 @@ def _dense_step(p, prm, mu):
 
 
 @pytest.mark.parametrize("param", PARAMS)
-@pytest.mark.parametrize("mode", ["syrk", "pairs", "sparse", "kernels", "kernels-sparse"])
+@pytest.mark.parametrize("mode", ["syrk", "pairs", "sparse", "kernels", "kernels-sparse",
+                                  "kernels-syrk"])
 def test_schur_step_equals_dense_normal_equations(param, mode, monkeypatch):
     init, _ = synthetic_reconstruction(6, 40, seed=3, noise_px=0.5, rot_deg=0.3,
                                        point_sigma=0.05, center_sigma=0.05)
@@ -115,15 +116,17 @@ def test_schur_step_equals_dense_normal_equations(param, mode, monkeypatch):
     fast = mode.startswith("kernels")  # compiled kernels (ba/kernels.py)
     if fast:
         pytest.importorskip("numba")
-    if mode != "syrk":  # make the camera-pair GEMM / entry-pair kernel path the cheaper one
+    syrk = mode in ("syrk", "kernels-syrk")
+    if not syrk:  # make the camera-pair GEMM / entry-pair kernel path the cheaper one
         monkeypatch.setattr(schur_mod, "_PAIR_S", 0.0)
         monkeypatch.setattr(schur_mod, "_SEGMENT_S", 0.0)
         monkeypatch.setattr(schur_mod, "_PAIR_KERNEL_S", 0.0)
     sparse = mode in ("sparse", "kernels-sparse")
     st = SchurStructure(prm.slot_cams, prm.slot_cols, p.obs_pt, p.cam_mask.any(1),
                         p.num_points, dense_max_cameras=1 if sparse else 700, fast=fast)
-    assert st.use_gemm == (mode == "syrk") and st.sparse_S == sparse
-    # factored anchors: numpy path and the kernels' fused build; dense: kernels-sparse
+    assert st.use_gemm == syrk and st.sparse_S == sparse
+    # factored anchors: numpy path and the kernels' fused build (entry pairs or dsyrk + the
+    # cross blocks added after it); dense anchors: kernels-sparse
     r, Jp, Jc = prm.evaluate(p.R, p.C, prm.init_points(), True, factored=not fast or st.fused)
     builder = st if param == "euclidean" or fast else AnchorTerms(st, p.obs_pt, *prm.anchor_cams)
     mask_v = p.cam_mask[st.var_cams].astype(float)

@@ -71,10 +71,12 @@ def warm_up() -> float:
     """Compile (or load from the disk cache) every kernel on tiny inputs; seconds taken."""
     if not available():
         return 0.0
-    from polarref.ba.kernels_jit import (angular_rows, back_substitute_rhs, build_anchored,
-                                         euclidean_jacobians, euclidean_rays, parallax_jacobians,
-                                         parallax_points, parallax_rays, point_sums, polar_rows,
-                                         schur_dense, slot_gram, slot_w_g)
+    from polarref.ba.kernels_jit import (add_cross, angular_rows, back_substitute_rhs,
+                                         build_anchored, build_observer, euclidean_jacobians,
+                                         euclidean_rays,
+                                         parallax_jacobians, parallax_points, parallax_rays,
+                                         point_sums, polar_rows, schur_dense, slot_gram,
+                                         slot_w_g)
     t = time.perf_counter()
     f, i = np.zeros, np.zeros
     one = np.zeros(1, np.int64)
@@ -89,10 +91,13 @@ def warm_up() -> float:
     slot_gram(J6, 0, Jp, 3, one, one, U)
     slot_w_g(J6, 0, Jp, r, one, one, W, g)
     slot_w_g(Jp, 3, Jp, r, one, one, W, g)
+    build_observer(J6, Jp, r, one, one, one, W, g, U)
+    add_cross(f((6, 6)), W, W, f((1, 3, 3)), np.array([0, 1], np.int64), one, one, z3,
+              np.array([0, 1], np.int64))
     point_sums(Jp, r, one, f((1, 3, 3)), f((1, 3)))
     back_substitute_rhs(W, g, one, one, i((1, 3)))
-    build_anchored(J6, r, x3, Jp, r, z3, z3, np.array([0, 1], np.int64), W, g, U,
-                   f((1, 6, 3)), f((1, 6, 3)), f((1, 3, 3)))
+    build_anchored(J6, r, x3, Jp, r, z3, z3, np.array([0, 1], np.int64), W, g, U, W, W,
+                   f((1, 3, 3)), True)
     R, x1 = np.eye(3)[None].copy(), f(1)
     euclidean_jacobians(Jp, euclidean_rays(R, x3, x3, one, one), R, one)
     parallax_points(R, x3, x3, one, one, True)

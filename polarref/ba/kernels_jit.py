@@ -13,7 +13,8 @@ def _njit(fn):
 
 
 @_njit
-def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, Xm, Xa, Xma, vc, obs_bounds):
+def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, Xm, Xa, Xma, ent,
+                obs_bounds):
     """Point elimination into the dense reduced system, per point p with entries a <= b:
     ``S[6 ca:, 6 cb:] -= Z_a Z_b^T`` (6x6) and ``b[ca] += Z_a q_p``, ``Z = W L^-T``.
 
@@ -23,10 +24,11 @@ def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, Xm, Xa, Xma,
     b (Nv, 6), updated in place.
 
     With ``cross`` (three-slot forms, see schur.py ``fused``) the camera blocks that couple two
-    different cameras of one observation, precomputed by :func:`build_anchored` (observer x
-    main centre Xm and observer x associate centre Xa (M, 6, 3), main x associate centre
-    Xma (P, 3, 3); vc (3, M) the slots' variable cameras, obs_bounds (P + 1,) each point's
-    observations), are added to the upper triangle of S with the point's Schur products.
+    different cameras of one observation, precomputed per entry by :func:`build_anchored`
+    (observer entry x main centre Xm, observer entry x associate centre Xa (E, 6, 3), main x
+    associate centre Xma (P, 3, 3); ent (3, M) the slots' entries, obs_bounds (P + 1,) each
+    point's observations), are added to the point's 6x6 blocks of S in the same pass as its
+    Schur products (the block is in cache then; a second pass over S cost ~40 %).
     """
     nmax = 0
     for g in range(len(bounds) - 1):
@@ -35,6 +37,9 @@ def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, Xm, Xa, Xma,
     for g in range(len(bounds) - 1):
         e0, e1 = bounds[g], bounds[g + 1]
         p = entry_pt[e0]
+        em = ea = -1
+        if cross:
+            em, ea = ent[1, obs_bounds[p]], ent[2, obs_bounds[p]]
         for a in range(e0, e1):
             za = Z[a - e0]
             ca = entry_cam[a]
@@ -55,32 +60,62 @@ def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, Xm, Xa, Xma,
                     z0, z1, z2 = za[i, 0], za[i, 1], za[i, 2]
                     for j in range(6):
                         S[ra + i, rb + j] -= z0 * zb[j, 0] + z1 * zb[j, 1] + z2 * zb[j, 2]
-        if cross:
-            c1 = c2 = -1
-            for m in range(obs_bounds[p], obs_bounds[p + 1]):
-                c0, c1, c2 = vc[0, m], vc[1, m], vc[2, m]
-                if c0 >= 0 and c1 >= 0 and c0 != c1:
-                    _add_cross(S, Xm, m, 0, 6, c0, c1)
-                if c0 >= 0 and c2 >= 0 and c0 != c2:
-                    _add_cross(S, Xa, m, 0, 6, c0, c2)
-            if c1 >= 0 and c2 >= 0 and c1 != c2:
-                _add_cross(S, Xma, p, 3, 3, c1, c2)
+                if bb == a or (em < 0 and ea < 0):
+                    continue
+                # observer x anchor centre: rows of the observer, columns 3:6 of the anchor
+                if bb == em:
+                    _add_block(S, Xm, a, ra, rb + 3, 6, False)
+                elif a == em:
+                    _add_block(S, Xm, bb, ra + 3, rb, 6, True)
+                if bb == ea:
+                    _add_block(S, Xa, a, ra, rb + 3, 6, False)
+                elif a == ea:
+                    _add_block(S, Xa, bb, ra + 3, rb, 6, True)
+                if a == em and bb == ea:
+                    _add_block(S, Xma, p, ra + 3, rb + 3, 3, False)
+                elif a == ea and bb == em:
+                    _add_block(S, Xma, p, ra + 3, rb + 3, 3, True)
 
 
 @_njit
-def _add_cross(S, X, m, oa, na, ca, cb):
-    """Block ``X[m]`` (rows oa:oa+na of camera ca, columns 3:6 of camera cb) into the upper
-    triangle of S (ca < cb; else transposed)."""
-    if ca < cb:
-        r0, c0 = 6 * ca + oa, 6 * cb + 3
-        for i in range(na):
+def add_cross(S, Xm, Xa, Xma, bounds, entry_pt, entry_cam, ent, obs_bounds):
+    """The three-slot cross-camera blocks of :func:`build_anchored` into the upper triangle
+    of S (6 Nv, 6 Nv), for the dense-visibility path whose Schur products come from one
+    ``dsyrk`` (schur.py); arguments as :func:`schur_dense`. Every entry of a point is the
+    observer entry of one of its observations (the anchors observe the point too)."""
+    for g in range(len(bounds) - 1):
+        e0, e1 = bounds[g], bounds[g + 1]
+        p = entry_pt[e0]
+        em, ea = ent[1, obs_bounds[p]], ent[2, obs_bounds[p]]
+        for a in range(e0, e1):  # entries sorted by camera: a < em <=> cam(a) < cam(em)
+            ra = 6 * entry_cam[a]
+            for X, ee in ((Xm, em), (Xa, ea)):
+                if ee < 0 or ee == a:
+                    continue
+                rx = 6 * entry_cam[ee]
+                if a < ee:
+                    _add_block(S, X, a, ra, rx + 3, 6, False)
+                else:
+                    _add_block(S, X, a, rx + 3, ra, 6, True)
+        if em >= 0 and ea >= 0 and em != ea:
+            rm, rx = 6 * entry_cam[em] + 3, 6 * entry_cam[ea] + 3
+            if em < ea:
+                _add_block(S, Xma, p, rm, rx, 3, False)
+            else:
+                _add_block(S, Xma, p, rx, rm, 3, True)
+
+
+@_njit
+def _add_block(S, X, e, r0, c0, n, transposed):
+    """``S[r0:, c0:] += X[e]`` (n x 3), or its transpose (3 x n)."""
+    if transposed:
+        for i in range(n):
             for j in range(3):
-                S[r0 + i, c0 + j] += X[m, i, j]
+                S[r0 + j, c0 + i] += X[e, i, j]
     else:
-        r0, c0 = 6 * cb + 3, 6 * ca + oa
-        for i in range(na):
+        for i in range(n):
             for j in range(3):
-                S[r0 + j, c0 + i] += X[m, i, j]
+                S[r0 + i, c0 + j] += X[e, i, j]
 
 
 @_njit
@@ -126,22 +161,55 @@ def slot_w_g(J, c0, Jp, res, w_idx, g_idx, W, g):
 
 
 @_njit
-def build_anchored(J0, Ad, h, Jp, res, vc, ent, obs_bounds, W, g, U, Xm, Xa, Xma):
+def build_observer(J, Jp, res, g_idx, w_idx, u_idx, W, g, U):
+    """One camera slot of 6 columns (Euclidean): ``g[g_idx[m]] += J^T res``, ``W[w_idx[m]] +=
+    J^T Jp``, ``U[u_idx[m]] += J^T J`` in one pass over observations (the same row-by-row
+    accumulation as :func:`build_anchored`). J (M, k, 6), Jp (M, k, 3), res (M, k); -1 = skip."""
+    M, k, _ = J.shape
+    acc = np.empty((6, 10))  # J^T [J | res | Jp] of one observation
+    for m in range(M):
+        c, e, u = g_idx[m], w_idx[m], u_idx[m]
+        if c < 0:
+            continue
+        acc[:] = 0.0
+        for r in range(k):
+            rr = res[m, r]
+            for i in range(6):
+                x = J[m, r, i]
+                for j in range(6):
+                    acc[i, j] += x * J[m, r, j]
+                acc[i, 6] += x * rr
+                for j in range(3):
+                    acc[i, 7 + j] += x * Jp[m, r, j]
+        for i in range(6):
+            g[c, i] += acc[i, 6]
+            if e >= 0:
+                for j in range(3):
+                    W[e, i, j] += acc[i, 7 + j]
+            if u >= 0:
+                for j in range(6):
+                    U[u, i, j] += acc[i, j]
+
+
+@_njit
+def build_anchored(J0, Ad, h, Jp, res, vc, ent, obs_bounds, W, g, U, Xm, Xa, Xma, assign):
     """W, g and the diagonal camera blocks of U for parallax landmarks with the anchors'
     Jacobians factored (anchor_terms.py: ``J_a = (A d) h^T``, ``J_m = -J_obs[:, 3:6] - J_a``),
-    and the blocks coupling two different cameras of one observation for :func:`schur_dense`.
+    and the main x associate centre blocks for :func:`schur_dense`.
 
     J0 (M, k, 6) observer Jacobians; Ad (M, k); h (P, 3) = dh/de; Jp (M, k, 3); res (M, k);
     vc, ent (3, M) variable camera / entry of the (observer, main, associate) slots, -1 =
     fixed; obs_bounds (P + 1,). U (Nv, 6, 6) indexed by variable camera. Out: Xm, Xa
-    (M, 6, 3) observer x main / associate centre, Xma (P, 3, 3) main x associate centre
-    (blocks whose two cameras coincide go into U instead). As anchor_terms.py, the anchor
-    blocks are sums over the point's observations of the observer's own products (its centre
-    columns) and of the k-vector ``A d``: no (M, k, 3) anchor Jacobian is formed.
+    (E, 6, 3) observer x main / associate centre per observer entry, Xma (P, 3, 3) main x
+    associate centre (blocks whose two cameras coincide go into U instead), for
+    :func:`schur_dense`; with ``assign`` (every entry is the observer of at most one
+    observation) Xm, Xa are written, not accumulated (no zeroing; the entries of an anchor's
+    own observation stay unset and are never read). As anchor_terms.py, the
+    anchor blocks are sums over the point's observations of the observer's own products (its
+    centre columns) and of the k-vector ``A d``: no (M, k, 3) anchor Jacobian is formed.
     """
     k = J0.shape[1]
-    G = np.empty((6, 6))
-    t = np.empty(6)
+    acc = np.empty((6, 11))  # J0^T [J0 | A d | res | Jp] of one observation
     Q, Sw = np.empty((3, 3)), np.empty((3, 3))
     T3, Sg, sp = np.empty(3), np.empty(3), np.empty(3)
     for p in range(len(obs_bounds) - 1):
@@ -157,57 +225,50 @@ def build_anchored(J0, Ad, h, Jp, res, vc, ent, obs_bounds, W, g, U, Xm, Xa, Xma
         sr = saa = 0.0
         for m in range(m0, m1):
             c0, e0 = vc[0, m], ent[0, m]
-            for i in range(6):
-                for j in range(i, 6):
-                    s = 0.0
-                    for r in range(k):
-                        s += J0[m, r, i] * J0[m, r, j]
-                    G[i, j] = s
-                    G[j, i] = s
-                s = 0.0
-                for r in range(k):
-                    s += J0[m, r, i] * Ad[m, r]
-                t[i] = s
-            for i in range(6):  # g and W: observer slot; their centre rows feed the anchors
-                s = 0.0
-                for r in range(k):
-                    s += J0[m, r, i] * res[m, r]
-                if c0 >= 0:
-                    g[c0, i] += s
-                if i >= 3:
-                    Sg[i - 3] += s
+            acc[:] = 0.0
+            for r in range(k):  # row by row: fixed-length inner loops (unrolled, vectorized)
+                ad, rr = Ad[m, r], res[m, r]
+                sr += ad * rr
+                saa += ad * ad
                 for j in range(3):
-                    s = 0.0
-                    for r in range(k):
-                        s += J0[m, r, i] * Jp[m, r, j]
-                    if c0 >= 0 and e0 >= 0:
-                        W[e0, i, j] += s
-                    if i >= 3:
-                        Sw[i - 3, j] += s
-            for r in range(k):
-                sr += Ad[m, r] * res[m, r]
-                saa += Ad[m, r] * Ad[m, r]
+                    sp[j] += ad * Jp[m, r, j]
+                for i in range(6):
+                    x = J0[m, r, i]
+                    for j in range(6):
+                        acc[i, j] += x * J0[m, r, j]
+                    acc[i, 6] += x * ad
+                    acc[i, 7] += x * rr
+                    for j in range(3):
+                        acc[i, 8 + j] += x * Jp[m, r, j]
+            for i in range(3):  # the observer's centre rows feed the anchors
+                Sg[i] += acc[3 + i, 7]
+                T3[i] += acc[3 + i, 6]
                 for j in range(3):
-                    sp[j] += Ad[m, r] * Jp[m, r, j]
-            for i in range(3):
-                T3[i] += t[3 + i]
-                for j in range(3):
-                    Q[i, j] += G[3 + i, 3 + j]
+                    Sw[i, j] += acc[3 + i, 8 + j]
+                    Q[i, j] += acc[3 + i, 3 + j]
             if c0 < 0:
                 continue
-            for i in range(6):
+            for i in range(6):  # observer slot: g, W, U
+                g[c0, i] += acc[i, 7]
+                if e0 >= 0:
+                    for j in range(3):
+                        W[e0, i, j] += acc[i, 8 + j]
                 for j in range(6):
-                    U[c0, i, j] += G[i, j]
+                    U[c0, i, j] += acc[i, j]
+            for i in range(6):
                 for j in range(3):  # J0^T J_a = t h^T; J0^T J_m = -(J0^T J0)[:, 3:6] - t h^T
-                    xa = t[i] * h[p, j]
-                    Xa[m, i, j] = xa
-                    Xm[m, i, j] = -G[i, 3 + j] - xa
-            for X, ca in ((Xm, vm), (Xa, va)):
-                if ca == c0:
-                    for i in range(6):
-                        for j in range(3):
-                            U[c0, i, 3 + j] += X[m, i, j]
-                            U[c0, 3 + j, i] += X[m, i, j]
+                    xa = acc[i, 6] * h[p, j]
+                    xm = -acc[i, 3 + j] - xa
+                    if c0 == vm:  # the observer is its point's anchor: a diagonal block
+                        U[c0, i, 3 + j] += xm
+                        U[c0, 3 + j, i] += xm
+                    elif e0 >= 0:
+                        Xm[e0, i, j] = xm if assign else Xm[e0, i, j] + xm
+                    if c0 == va:
+                        U[c0, i, 3 + j] += xa
+                        U[c0, 3 + j, i] += xa
+                    elif e0 >= 0:
+                        Xa[e0, i, j] = xa if assign else Xa[e0, i, j] + xa
         # anchors: g, W, U centre blocks from the point's sums (anchor_terms.py)
         for i in range(3):
             ga = h[p, i] * sr
@@ -384,31 +445,43 @@ def parallax_jacobians(Jx, Xc, R, C, obs_cam, obs_pt, Cm, d, sw, cw, dh_dw, dh_d
     Jm = np.empty((Md, k, 3))
     Ja = np.empty((Md, k, 3))
     Ad = np.empty((M, k))
-    A = np.empty(3)
-    dvw = np.empty(3)
-    for m in range(M):
+    for m in range(M):  # per-point and per-camera terms in scalars (registers), not arrays
         i, p = obs_cam[m], obs_pt[m]
-        for j in range(3):
-            dvw[j] = dh_dw[p] * d[p, j] + cw[p] * (Cm[p, j] - C[i, j])
+        d0, d1, d2 = d[p, 0], d[p, 1], d[p, 2]
+        hw, cwp, swp = dh_dw[p], cw[p], sw[p]
+        w0 = hw * d0 + cwp * (Cm[p, 0] - C[i, 0])  # dv/dw
+        w1 = hw * d1 + cwp * (Cm[p, 1] - C[i, 1])
+        w2 = hw * d2 + cwp * (Cm[p, 2] - C[i, 2])
+        b00, b01 = dv_dab[p, 0, 0], dv_dab[p, 0, 1]
+        b10, b11 = dv_dab[p, 1, 0], dv_dab[p, 1, 1]
+        b20, b21 = dv_dab[p, 2, 0], dv_dab[p, 2, 1]
+        r00, r01, r02 = R[i, 0, 0], R[i, 0, 1], R[i, 0, 2]
+        r10, r11, r12 = R[i, 1, 0], R[i, 1, 1], R[i, 1, 2]
+        r20, r21, r22 = R[i, 2, 0], R[i, 2, 1], R[i, 2, 2]
         x, y, z = Xc[m, 0], Xc[m, 1], Xc[m, 2]
         for r in range(k):
             a0, a1, a2 = Jx[m, r, 0], Jx[m, r, 1], Jx[m, r, 2]
-            for j in range(3):
-                A[j] = a0 * R[i, 0, j] + a1 * R[i, 1, j] + a2 * R[i, 2, j]
-            Jp[m, r, 0] = A[0] * dv_dab[p, 0, 0] + A[1] * dv_dab[p, 1, 0] + A[2] * dv_dab[p, 2, 0]
-            Jp[m, r, 1] = A[0] * dv_dab[p, 0, 1] + A[1] * dv_dab[p, 1, 1] + A[2] * dv_dab[p, 2, 1]
-            Jp[m, r, 2] = A[0] * dvw[0] + A[1] * dvw[1] + A[2] * dvw[2]
+            A0 = a0 * r00 + a1 * r10 + a2 * r20  # A = Jx R_i
+            A1 = a0 * r01 + a1 * r11 + a2 * r21
+            A2 = a0 * r02 + a1 * r12 + a2 * r22
+            Jp[m, r, 0] = A0 * b00 + A1 * b10 + A2 * b20
+            Jp[m, r, 1] = A0 * b01 + A1 * b11 + A2 * b21
+            Jp[m, r, 2] = A0 * w0 + A1 * w1 + A2 * w2
             Jo[m, r, 0] = y * a2 - z * a1
             Jo[m, r, 1] = z * a0 - x * a2
             Jo[m, r, 2] = x * a1 - y * a0
-            ad = A[0] * d[p, 0] + A[1] * d[p, 1] + A[2] * d[p, 2]
+            Jo[m, r, 3] = -swp * A0
+            Jo[m, r, 4] = -swp * A1
+            Jo[m, r, 5] = -swp * A2
+            ad = A0 * d0 + A1 * d1 + A2 * d2
             Ad[m, r] = ad
-            for j in range(3):
-                Jo[m, r, 3 + j] = -sw[p] * A[j]
-            if dense:
+    if dense:
+        for m in range(M):
+            p = obs_pt[m]
+            for r in range(k):
                 for j in range(3):
-                    Ja[m, r, j] = ad * dh_de[p, j]
-                    Jm[m, r, j] = sw[p] * A[j] - Ja[m, r, j]
+                    Ja[m, r, j] = Ad[m, r] * dh_de[p, j]
+                    Jm[m, r, j] = -Jo[m, r, 3 + j] - Ja[m, r, j]
     return Jp, Jo, Jm, Ja, Ad
 
 
@@ -459,32 +532,36 @@ def angular_rows(Xc, obs_ang, whiten, w_theta, use, jac):
     M = len(Xc)
     res = np.empty((M, 2))
     J = np.empty((M if jac else 0, 2, 3))
-    Jt = np.empty((M if jac else 0, 3))
+    Jt = np.empty((1, 3))  # theta_D_Xc of the current observation
     for m in range(M):
         x, y, z = Xc[m, 0], Xc[m, 1], Xc[m, 2]
-        th = _theta_row(x, y, z, jac, Jt, m, 1.0)
+        th = _theta_row(x, y, z, jac, Jt, 0, 1.0)
         dt = th - obs_ang[m, 0]
         if not use[m]:
             res[m, 0] = dt * w_theta[m]
             res[m, 1] = 0.0
             if jac:
                 for i in range(3):
-                    J[m, 0, i] = Jt[m, i] * w_theta[m]
+                    J[m, 0, i] = Jt[0, i] * w_theta[m]
                     J[m, 1, i] = 0.0
             continue
         sg = -1.0 if z < 0 else 1.0
         xs, ys = x * sg, y * sg
         phi = np.arctan2(ys, xs)
         a = phi - obs_ang[m, 1]
-        df = np.pi - np.mod(np.pi - a, 2.0 * np.pi)
-        W = whiten[m]
-        res[m, 0] = W[0, 0] * dt + W[0, 1] * df
-        res[m, 1] = W[1, 0] * dt + W[1, 1] * df
+        # wrap to (-pi, pi] (angular_obs.wrap); the modulo only where a is outside
+        df = a if -np.pi < a <= np.pi else np.pi - np.mod(np.pi - a, 2.0 * np.pi)
+        w00, w01, w10, w11 = whiten[m, 0, 0], whiten[m, 0, 1], whiten[m, 1, 0], whiten[m, 1, 1]
+        res[m, 0] = w00 * dt + w01 * df
+        res[m, 1] = w10 * dt + w11 * df
         if jac:
             rho2 = max(xs * xs + ys * ys, 1e-300)
             f0, f1 = -ys / rho2 * sg, xs / rho2 * sg  # phi_D_Xc (third component 0)
-            for r in range(2):
-                J[m, r, 0] = W[r, 0] * Jt[m, 0] + W[r, 1] * f0
-                J[m, r, 1] = W[r, 0] * Jt[m, 1] + W[r, 1] * f1
-                J[m, r, 2] = W[r, 0] * Jt[m, 2] + W[r, 1] * 0.0
+            t0, t1, t2 = Jt[0, 0], Jt[0, 1], Jt[0, 2]
+            J[m, 0, 0] = w00 * t0 + w01 * f0
+            J[m, 0, 1] = w00 * t1 + w01 * f1
+            J[m, 0, 2] = w00 * t2
+            J[m, 1, 0] = w10 * t0 + w11 * f0
+            J[m, 1, 1] = w10 * t1 + w11 * f1
+            J[m, 1, 2] = w10 * t2
     return res, J

@@ -111,11 +111,13 @@ class SchurStructure:
         cam_var: (N,) True for cameras with at least one free parameter.
         num_points: P.
         dense_max_cameras: above this many variable cameras S is sparse (sparse LU).
+        fast: compiled kernels. anchored: a three-slot layout's anchors can come factored
+            (``[J_obs, AnchorJacobian]``), which the fused kernel build needs.
     """
 
     def __init__(self, slot_cams: np.ndarray, slot_cols, obs_pt: np.ndarray,
                  cam_var: np.ndarray, num_points: int, dense_max_cameras: int = 700,
-                 fast: bool = False):
+                 fast: bool = False, anchored: bool = True):
         S, M = slot_cams.shape
         N, P = len(cam_var), num_points
         self.S, self.M, self.N, self.P = S, M, N, P
@@ -159,9 +161,13 @@ class SchurStructure:
         # touches that block of S anyway); U keeps only the diagonal camera blocks. The build
         # then takes the anchors' Jacobians factored ([J_obs, AnchorJacobian], anchor_terms.py)
         # and computes those blocks once per build (kernels.build_anchored), not per LM step.
-        self.fused = (fast and self.slot_cols == [(0, 6), (3, 6), (3, 6)] and not self.sparse_S
-                      and not self.use_gemm)
+        # With the dsyrk (dense visibility) they are added to S after it (kernels.add_cross).
+        self.fused = (fast and anchored and self.slot_cols == [(0, 6), (3, 6), (3, 6)]
+                      and not self.sparse_S)
         if fast:
+            obs_e = slot_entry[0][slot_entry[0] >= 0]
+            # no entry observes its point twice: build_anchored writes its cross blocks once
+            self.observer_unique = len(np.unique(obs_e)) == len(obs_e)
             self._build_u_fast(vc)
             self.entry_bounds = np.r_[self.entry_pt_starts, E].astype(np.int64)
             self.obs_bounds = np.r_[self.pt_starts, M].astype(np.int64)
@@ -324,12 +330,25 @@ class SchurStructure:
             if len(Jc) != 2:
                 raise ValueError("fused three-slot build needs [J_obs, AnchorJacobian]")
             anc = Jc[1]
-            cross = (np.empty((self.M, 6, 3)), np.empty((self.M, 6, 3)), np.empty((self.P, 3, 3)))
+            # the previous build's cross blocks are dead once a new build starts: reuse their
+            # memory (fresh 2 x (E, 6, 3) pages cost ~0.5 ms of page faults per build)
+            cross = getattr(self, "cross_blocks", None)
+            if cross is None:
+                cross = (np.empty((self.E, 6, 3)), np.empty((self.E, 6, 3)),
+                         np.empty((self.P, 3, 3)))
+            if not self.observer_unique:
+                cross[0][:] = 0.0
+                cross[1][:] = 0.0
             kernels.build_anchored(_c(Jc[0]), _c(anc.Ad), _c(anc.h), Jp, r, self.slot_vc,
-                                   self.slot_entry, self.obs_bounds, W, g_c, U, *cross)
+                                   self.slot_entry, self.obs_bounds, W, g_c, U, *cross,
+                                   self.observer_unique)
             self.cross_blocks = cross
             return g_c, W, U
         Jc = [_c(J) for J in Jc]
+        if self.slot_cols == [(0, 6)]:  # one observer slot (Euclidean): one pass
+            kernels.build_observer(Jc[0], Jp, r, self.slot_vc[0], self.slot_entry[0],
+                                   self.u_pairs[0][2], W, g_c, U)
+            return g_c, W, U
         for s, J in enumerate(Jc):
             kernels.slot_w_g(J, self.slot_cols[s][0], Jp, r, self.slot_entry[s],
                              self.slot_vc[s], W, g_c)
@@ -393,14 +412,10 @@ class SchurStructure:
             if E:
                 X = self.cross_blocks if self.fused else _NO_CROSS
                 kernels.schur_dense(_c(W), Li, q, self.entry_bounds, self.entry_pt,
-                                    self.entry_cam, S, b, self.fused, *X, self.slot_vc,
+                                    self.entry_cam, S, b, self.fused, *X, self.slot_entry,
                                     self.obs_bounds)
             if self.fused:
-                mask_v = getattr(self, "mask_v", None)  # from apply_mask: the held gauge columns
-                if mask_v is not None:
-                    held = np.flatnonzero(mask_v.reshape(-1) == 0)
-                    S[held, :] = 0.0
-                    S[:, held] = 0.0
+                self._zero_held(S)
             S[np.diag_indices_from(S)] += diag_c.reshape(-1)
             return S, b.reshape(-1), Li
         Z = np.matmul(W, Li[self.entry_pt].transpose(0, 2, 1)) if E else np.zeros((0, 6, 3))
@@ -419,6 +434,11 @@ class SchurStructure:
             Sf = S.T
             scipy.linalg.blas.dsyrk(-1.0, Zd.reshape(6 * Nv, -1).T, beta=1.0, c=Sf, trans=1,
                                     lower=1, overwrite_c=1)
+            if self.fused:
+                from polarref.ba import kernels
+                kernels.add_cross(S, *self.cross_blocks, self.entry_bounds, self.entry_pt,
+                                  self.entry_cam, self.slot_entry, self.obs_bounds)
+                self._zero_held(S)
         elif E:
             blocks = self._pair_blocks(Z)
             S4 = S.reshape(Nv, 6, Nv, 6)
@@ -427,6 +447,15 @@ class SchurStructure:
             S4[self.seg_cb[off], :, self.seg_ca[off], :] -= blocks[off].transpose(0, 2, 1)
         S[np.diag_indices_from(S)] += diag_c.reshape(-1)
         return S, b.reshape(-1), Li
+
+    def _zero_held(self, S: np.ndarray) -> None:
+        """Fused path: the held gauge columns (apply_mask's mask_v) of the cross blocks added
+        straight into S (U and W are masked in apply_mask)."""
+        mask_v = getattr(self, "mask_v", None)
+        if mask_v is not None:
+            held = np.flatnonzero(mask_v.reshape(-1) == 0)
+            S[held, :] = 0.0
+            S[:, held] = 0.0
 
     def _pair_blocks(self, Z: np.ndarray) -> np.ndarray:
         """Z Z^T blocks (segments, 6, 6) of the camera pairs (seg_ca <= seg_cb)."""

@@ -178,13 +178,13 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
              "structure": 0.0, "update": 0.0}
     tic = time.perf_counter()
     cam_var = problem.cam_mask.any(1)
-    st = SchurStructure(param.slot_cams, param.slot_cols, problem.obs_pt, cam_var,
-                        problem.num_points, options.dense_max_cameras,
-                        fast=use_kernels(options.kernels))
-    builder = st
     # anchors' Jacobians factored (anchor_terms.py): numpy path, and the kernels' fused
     # three-slot build; the kernels' generic slot path (sparse S) takes them dense
     anchored = isinstance(param, AnchoredJacobians) and param.anchor_cams is not None
+    st = SchurStructure(param.slot_cams, param.slot_cols, problem.obs_pt, cam_var,
+                        problem.num_points, options.dense_max_cameras,
+                        fast=use_kernels(options.kernels), anchored=anchored)
+    builder = st
     if anchored and not st.fast:
         from polarref.ba.anchor_terms import AnchorTerms
         builder = AnchorTerms(st, problem.obs_pt, *param.anchor_cams)
