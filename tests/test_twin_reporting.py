@@ -14,6 +14,7 @@ from test_report_build import _method, synthetic_metrics
 
 from polarref.compare import paper_scale as PS
 from polarref.compare import paper_tables as PT
+from polarref.sfm.feature_cache import mean_keypoints
 from polarref.compare import twins
 from polarref.compare.index import build_index
 
@@ -196,10 +197,10 @@ def test_mean_keypoints_from_our_feature_cache_and_a_colmap_database(tmp_path):
     feats = [Features(f"{i}.png", 64, 48, np.zeros((n, 2)), np.zeros((n, 128), np.float32), np.ones(n),
                       np.zeros(n), np.zeros((n, 3), np.uint8)) for i, n in enumerate(counts)]
     save(tmp_path / "features-abc.npz", feats)
-    assert twins.mean_keypoints_npz(tmp_path / "features-abc.npz") == pytest.approx(21.0)
-    assert twins.mean_keypoints_npz(tmp_path / "none.npz") is None
+    assert mean_keypoints(tmp_path / "features-abc.npz") == pytest.approx(21.0)
+    assert mean_keypoints(tmp_path / "none.npz") is None
     (tmp_path / "bad.npz").write_bytes(b"not a zip")
-    assert twins.mean_keypoints_npz(tmp_path / "bad.npz") is None
+    assert mean_keypoints(tmp_path / "bad.npz") is None
     # Which cache file: the one the stage recorded; for old records every one in the cache if they agree.
     save(tmp_path / "features-def.npz", feats[:1])
     recorded = {"result": {"feature_file": str(tmp_path / "features-def.npz")}}

@@ -206,27 +206,6 @@ def _pairs(run: TwinRun, scene, out: Path) -> tuple[Path, int]:
     return path, len(pair_set.pairs)
 
 
-def mean_keypoints_npz(path: Path) -> float | None:
-    """Mean keypoints per image of our feature cache, from the ``kp<i>`` array headers alone (the
-    file holds every descriptor; nothing is loaded). None when the file is absent or unreadable."""
-    import zipfile
-
-    import numpy as np
-
-    try:
-        with zipfile.ZipFile(path) as z:
-            counts = []
-            for member in (n for n in z.namelist() if n.startswith("kp") and n.endswith(".npy")):
-                with z.open(member) as fh:
-                    version = np.lib.format.read_magic(fh)
-                    shape = (np.lib.format.read_array_header_1_0(fh) if version == (1, 0)
-                             else np.lib.format.read_array_header_2_0(fh))[0]
-                counts.append(shape[0])
-    except (OSError, ValueError, zipfile.BadZipFile, KeyError):
-        return None
-    return float(np.mean(counts)) if counts else None
-
-
 def mean_keypoints_db(db: Path) -> float | None:
     """Mean keypoints per image in a COLMAP database (its ``keypoints`` table), opened read-only.
 
@@ -254,7 +233,9 @@ def ours_mean_keypoints(feats: dict, cache: Path) -> float | None:
     (no file named) every ``features-*.npz`` in the cache, used only when they all agree."""
     recorded = (feats.get("result") or {}).get("feature_file")
     files = [Path(recorded)] if recorded else sorted(cache.glob("features-*.npz"))
-    means = {mean_keypoints_npz(f) for f in files}
+    from polarref.sfm.feature_cache import mean_keypoints
+
+    means = {mean_keypoints(f) for f in files}
     return means.pop() if len(means) == 1 else None
 
 
@@ -318,13 +299,15 @@ def run_twin(run: TwinRun) -> PT.TwinTable:
                                             work_dir=str(out / m), mapper=m.split("-")[1], seed=run.seed))]
     methods = {m: _method_result(m, recs[m], scene, scene.gt) if m in recs else PT.MethodResult(m)
                for m in PT.METHODS}
+    keypoints: dict[str, float | None] = {}  # per source (ours' cache, pycolmap's database): read once
     for m, r in methods.items():
         if r.status != "ok":
             continue
-        if m.startswith("ours-"):
-            r.mean_keypoints = ours_mean_keypoints(recs[m][0], Path(cache))
-        else:
-            r.mean_keypoints = mean_keypoints_db(out / "pycolmap" / "database.db")
+        source = "ours" if m.startswith("ours-") else "pycolmap"
+        if source not in keypoints:
+            keypoints[source] = (ours_mean_keypoints(recs[m][0], Path(cache)) if source == "ours"
+                                 else mean_keypoints_db(out / "pycolmap" / "database.db"))
+        r.mean_keypoints = keypoints[source]
     stage_recs = {rec["stage"]: rec for rs in recs.values() for rec in rs}
     env = collect()
     provenance = {"commit": env.get("git_commit"), "dirty": env.get("git_dirty"), "machine": env.get("machine"),

@@ -8,6 +8,7 @@ key hashes that module's source, and how the file is read does not change what i
 
 from __future__ import annotations
 
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -34,3 +35,20 @@ def load_descriptors(path: Path, feats: list[Features]) -> None:
                 if len(de) != len(f.keypoints):
                     raise ValueError(f"{path}: image {f.name} has {len(de)} descriptors for {len(f.keypoints)} keypoints")
                 f.descriptors = de
+
+
+def mean_keypoints(path: Path) -> float | None:
+    """Mean keypoints per image of a features cache, from the ``kp<i>`` array headers alone (nothing
+    is loaded). None when the file is absent or unreadable."""
+    try:
+        with zipfile.ZipFile(path) as z:
+            counts = []
+            for member in (n for n in z.namelist() if n.startswith("kp") and n.endswith(".npy")):
+                with z.open(member) as fh:
+                    version = np.lib.format.read_magic(fh)
+                    shape = (np.lib.format.read_array_header_1_0(fh) if version == (1, 0)
+                             else np.lib.format.read_array_header_2_0(fh))[0]
+                counts.append(shape[0])
+    except (OSError, ValueError, zipfile.BadZipFile, KeyError):
+        return None
+    return float(np.mean(counts)) if counts else None
