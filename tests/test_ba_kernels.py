@@ -77,9 +77,11 @@ def test_kernel_jacobians_equal_numpy(problems, param):
     for J1, J0 in zip([Jp1, *Jc1], [Jp0, *Jc0], strict=True):
         np.testing.assert_allclose(J1, J0, rtol=0, atol=1e-12 * np.abs(J0).max())
     if param != "euclidean":  # the factored anchors (the solver's form on the fused path)
-        _, Jp1, (Jo1, anc1) = fast.evaluate(p.R, p.C, pts, True, factored=True)
+        # (polar: one kernel for the rows and the chain, kernels.polar_jacobians)
+        r1, Jp1, (Jo1, anc1) = fast.evaluate(p.R, p.C, pts, True, factored=True)
         _, _, (Jo0, anc0) = ref.evaluate(p.R, p.C, pts, True, factored=True)
-        for J1, J0 in ((Jp1, Jp0), (Jo1, Jo0), (anc1.Ad, anc0.Ad), (anc1.h, anc0.h)):
+        assert r1.shape == r0.shape and Jp1.shape == Jp0.shape
+        for J1, J0 in ((r1, r0), (Jp1, Jp0), (Jo1, Jo0), (anc1.Ad, anc0.Ad), (anc1.h, anc0.h)):
             np.testing.assert_allclose(J1, J0, rtol=0, atol=1e-12 * np.abs(J0).max())
     np.testing.assert_allclose(fast.pixel_residuals(p.R, p.C, pts),
                                ref.pixel_residuals(p.R, p.C, pts), rtol=0, atol=1e-9)

@@ -603,3 +603,55 @@ def angular_rows(Xc, obs_ang, whiten, w_theta, use, jac):
             J[m, 1, 1] = w10 * t1 + w11 * f1
             J[m, 1, 2] = w10 * t2
     return res, J
+
+
+@_njit
+def polar_jacobians(Juv, res_uv, theta_obs, w_theta, Xc, R, C, obs_cam, obs_pt, Cm, d, sw,
+                    cw, dh_dw, dv_dab):
+    """Polar residuals (M, 3) and the factored chain of :func:`parallax_jacobians` (Jp
+    (M, 3, 3), res_D_obs (M, 3, 6), A d (M, 3)) in one pass: the weighted view-angle row of
+    :func:`polar_rows` is computed per observation and chained at once, so the stacked
+    (M, 3, 3) ``res_D_Xc`` and the residual copy are not formed. Juv (M, 2, 3) and res_uv
+    (M, 2) are the pixel rows' (projection.py); the other arguments as in those kernels."""
+    M = len(Xc)
+    res = np.empty((M, 3))
+    Jp = np.empty((M, 3, 3))
+    Jo = np.empty((M, 3, 6))
+    Ad = np.empty((M, 3))
+    Jt = np.empty((1, 3))
+    for m in range(M):
+        i, p = obs_cam[m], obs_pt[m]
+        x, y, z = Xc[m, 0], Xc[m, 1], Xc[m, 2]
+        th = _theta_row(x, y, z, True, Jt, 0, w_theta[m])
+        res[m, 0], res[m, 1] = res_uv[m, 0], res_uv[m, 1]
+        res[m, 2] = (th - theta_obs[m]) * w_theta[m]
+        d0, d1, d2 = d[p, 0], d[p, 1], d[p, 2]
+        hw, cwp, swp = dh_dw[p], cw[p], sw[p]
+        w0 = hw * d0 + cwp * (Cm[p, 0] - C[i, 0])  # dv/dw
+        w1 = hw * d1 + cwp * (Cm[p, 1] - C[i, 1])
+        w2 = hw * d2 + cwp * (Cm[p, 2] - C[i, 2])
+        b00, b01 = dv_dab[p, 0, 0], dv_dab[p, 0, 1]
+        b10, b11 = dv_dab[p, 1, 0], dv_dab[p, 1, 1]
+        b20, b21 = dv_dab[p, 2, 0], dv_dab[p, 2, 1]
+        r00, r01, r02 = R[i, 0, 0], R[i, 0, 1], R[i, 0, 2]
+        r10, r11, r12 = R[i, 1, 0], R[i, 1, 1], R[i, 1, 2]
+        r20, r21, r22 = R[i, 2, 0], R[i, 2, 1], R[i, 2, 2]
+        for r in range(3):
+            if r < 2:
+                a0, a1, a2 = Juv[m, r, 0], Juv[m, r, 1], Juv[m, r, 2]
+            else:
+                a0, a1, a2 = Jt[0, 0], Jt[0, 1], Jt[0, 2]
+            A0 = a0 * r00 + a1 * r10 + a2 * r20  # A = Jx R_i
+            A1 = a0 * r01 + a1 * r11 + a2 * r21
+            A2 = a0 * r02 + a1 * r12 + a2 * r22
+            Jp[m, r, 0] = A0 * b00 + A1 * b10 + A2 * b20
+            Jp[m, r, 1] = A0 * b01 + A1 * b11 + A2 * b21
+            Jp[m, r, 2] = A0 * w0 + A1 * w1 + A2 * w2
+            Jo[m, r, 0] = y * a2 - z * a1
+            Jo[m, r, 1] = z * a0 - x * a2
+            Jo[m, r, 2] = x * a1 - y * a0
+            Jo[m, r, 3] = -swp * A0
+            Jo[m, r, 4] = -swp * A1
+            Jo[m, r, 5] = -swp * A2
+            Ad[m, r] = A0 * d0 + A1 * d1 + A2 * d2
+    return res, Jp, Jo, Ad
