@@ -77,7 +77,6 @@ def test_kernel_jacobians_equal_numpy(problems, param):
     for J1, J0 in zip([Jp1, *Jc1], [Jp0, *Jc0], strict=True):
         np.testing.assert_allclose(J1, J0, rtol=0, atol=1e-12 * np.abs(J0).max())
     if param != "euclidean":  # the factored anchors (the solver's form on the fused path)
-        # (polar: one kernel for the rows and the chain, kernels.polar_jacobians)
         r1, Jp1, (Jo1, anc1) = fast.evaluate(p.R, p.C, pts, True, factored=True)
         _, _, (Jo0, anc0) = ref.evaluate(p.R, p.C, pts, True, factored=True)
         assert r1.shape == r0.shape and Jp1.shape == Jp0.shape
@@ -123,10 +122,10 @@ def test_fused_build_accumulating_cross_blocks(problems, param, monkeypatch):
     assert abs(got.final_cost - ref.final_cost) <= 1e-9 * ref.final_cost
 
 
-def test_angular_fused_chain_with_axis_chart_rows_equals_numpy(problems):
-    """The fused angular kernel (rows and chain in one pass) takes the axis-chart rows of the
-    phi-gated observations from numpy: with a phi gate tight enough to gate about a third of
-    the observations, residuals and factored Jacobians still equal the numpy path's (1e-12)."""
+def test_angular_kernel_rows_with_axis_chart_rows_equal_numpy(problems):
+    """The compiled angular rows leave the axis-chart rows of the phi-gated observations to
+    numpy: with a phi gate tight enough to gate about a third of the observations, residuals
+    and factored Jacobians still equal the numpy path's (1e-12)."""
     p = problems["sparse"]
     opts = dict(param="angular", max_sigma_phi=0.005)  # gates 448 of 1,200 observations
     ref = make_param(p, BAOptions(**opts, kernels="numpy"))

@@ -58,10 +58,6 @@ class Angular(Parallax):
             self.chart_idx = idx[good]
             self.chart_obs = e_obs[good]
             self.chart_whiten = np.linalg.inv(B[good])  # (n, 2, 2)
-        # kernel path: observation -> its row of the chart arrays (-1: the (theta, phi) rows)
-        self.no_chart = -np.ones(len(ang), np.int64)
-        self.chart_pos = self.no_chart.copy()
-        self.chart_pos[self.chart_idx] = np.arange(len(self.chart_idx))
         self.set_stage(theta_only=False)
 
     def set_stage(self, theta_only: bool) -> None:
@@ -93,24 +89,6 @@ class Angular(Parallax):
         if self.use_chart:
             J[ci] = np.matmul(self.chart_whiten, Je)
         return res, J
-
-    def _fused_chain(self, R, C, Xc, Cm, d, sw, cw, dh_dw, dv_dab):
-        """Kernel path, factored anchors: the (theta, phi) rows computed and chained in one
-        pass (kernels.angular_jacobians); the few axis-chart rows first, in numpy."""
-        from polarref.ba import kernels
-        p = self.p
-        if self.use_chart:
-            e, Je = axis_chart_rows(Xc[self.chart_idx], True)
-            cres = np.matmul(self.chart_whiten, (e - self.chart_obs)[:, :, None])[:, :, 0]
-            cJ = np.matmul(self.chart_whiten, Je)
-            pos = self.chart_pos
-        else:
-            cres, cJ, pos = np.zeros((0, 2)), np.zeros((0, 2, 3)), self.no_chart
-        return kernels.angular_jacobians(np.ascontiguousarray(Xc), self.obs_ang, self.whiten,
-                                         self.w_theta, self.use_phi, pos,
-                                         np.ascontiguousarray(cres), np.ascontiguousarray(cJ),
-                                         R, C, p.obs_cam, p.obs_pt, Cm, d, sw, cw, dh_dw,
-                                         dv_dab)
 
     def _residual_rows_kernels(self, Xc, jac):
         """:meth:`residual_rows` with the (theta, phi) rows compiled (kernels.py); the few

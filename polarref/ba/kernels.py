@@ -71,13 +71,11 @@ def warm_up() -> float:
     """Compile (or load from the disk cache) every kernel on tiny inputs; seconds taken."""
     if not available():
         return 0.0
-    from polarref.ba.kernels_jit import (add_cross, angular_jacobians, angular_rows,
-                                         back_substitute_rhs,
+    from polarref.ba.kernels_jit import (add_cross, angular_rows, back_substitute_rhs,
                                          build_anchored, build_observer, euclidean_jacobians,
                                          euclidean_rays,
                                          parallax_jacobians, parallax_points, parallax_rays,
-                                         point_sums, polar_jacobians, polar_rows, schur_dense,
-                                         slot_gram,
+                                         point_sums, polar_rows, schur_dense, slot_gram,
                                          slot_w_g)
     t = time.perf_counter()
     f, i = np.zeros, np.zeros
@@ -107,10 +105,6 @@ def warm_up() -> float:
     parallax_rays(R, x3, one, one, x3, x1, x3)
     for dense in (True, False):
         parallax_jacobians(Jp, x3, R, x3, one, one, x3, x3, x1, x1, x1, x3, f((1, 3, 2)), dense)
-    polar_jacobians(f((1, 2, 3)), f((1, 2)), x1, x1, x3, R, x3, one, one, x3, x3, x1, x1, x1,
-                    f((1, 3, 2)))
-    angular_jacobians(x3, r, f((1, 2, 2)), x1, np.ones(1, bool), -one, r, f((1, 2, 3)), R, x3,
-                      one, one, x3, x3, x1, x1, x1, f((1, 3, 2)))
     for jac in (True, False):
         polar_rows(x3, r, f((1 if jac else 0, 2, 3)), x1, x1, jac)
         angular_rows(x3, r, f((1, 2, 2)), x1, np.ones(1, bool), jac)

@@ -572,147 +572,34 @@ def angular_rows(Xc, obs_ang, whiten, w_theta, use, jac):
     J = np.empty((M if jac else 0, 2, 3))
     Jt = np.empty((1, 3))  # theta_D_Xc of the current observation
     for m in range(M):
-        _angular_obs(Xc, obs_ang, whiten, w_theta, use, jac, m, Jt, res, J, m)
-    return res, J
-
-
-@_njit
-def _angular_obs(Xc, obs_ang, whiten, w_theta, use, jac, m, Jt, res, J, jm):
-    """:func:`angular_rows` of observation m into res[m] and, with jac, J[jm] (2, 3)."""
-    x, y, z = Xc[m, 0], Xc[m, 1], Xc[m, 2]
-    th = _theta_row(x, y, z, jac, Jt, 0, 1.0)
-    dt = th - obs_ang[m, 0]
-    if not use[m]:
-        res[m, 0] = dt * w_theta[m]
-        res[m, 1] = 0.0
+        x, y, z = Xc[m, 0], Xc[m, 1], Xc[m, 2]
+        th = _theta_row(x, y, z, jac, Jt, 0, 1.0)
+        dt = th - obs_ang[m, 0]
+        if not use[m]:
+            res[m, 0] = dt * w_theta[m]
+            res[m, 1] = 0.0
+            if jac:
+                for i in range(3):
+                    J[m, 0, i] = Jt[0, i] * w_theta[m]
+                    J[m, 1, i] = 0.0
+            continue
+        sg = -1.0 if z < 0 else 1.0
+        xs, ys = x * sg, y * sg
+        phi = np.arctan2(ys, xs)
+        a = phi - obs_ang[m, 1]
+        # wrap to (-pi, pi] (angular_obs.wrap); the modulo only where a is outside
+        df = a if -np.pi < a <= np.pi else np.pi - np.mod(np.pi - a, 2.0 * np.pi)
+        w00, w01, w10, w11 = whiten[m, 0, 0], whiten[m, 0, 1], whiten[m, 1, 0], whiten[m, 1, 1]
+        res[m, 0] = w00 * dt + w01 * df
+        res[m, 1] = w10 * dt + w11 * df
         if jac:
-            for i in range(3):
-                J[jm, 0, i] = Jt[0, i] * w_theta[m]
-                J[jm, 1, i] = 0.0
-        return
-    sg = -1.0 if z < 0 else 1.0
-    xs, ys = x * sg, y * sg
-    phi = np.arctan2(ys, xs)
-    a = phi - obs_ang[m, 1]
-    # wrap to (-pi, pi] (angular_obs.wrap); the modulo only where a is outside
-    df = a if -np.pi < a <= np.pi else np.pi - np.mod(np.pi - a, 2.0 * np.pi)
-    w00, w01, w10, w11 = whiten[m, 0, 0], whiten[m, 0, 1], whiten[m, 1, 0], whiten[m, 1, 1]
-    res[m, 0] = w00 * dt + w01 * df
-    res[m, 1] = w10 * dt + w11 * df
-    if jac:
-        rho2 = max(xs * xs + ys * ys, 1e-300)
-        f0, f1 = -ys / rho2 * sg, xs / rho2 * sg  # phi_D_Xc (third component 0)
-        t0, t1, t2 = Jt[0, 0], Jt[0, 1], Jt[0, 2]
-        J[jm, 0, 0] = w00 * t0 + w01 * f0
-        J[jm, 0, 1] = w00 * t1 + w01 * f1
-        J[jm, 0, 2] = w00 * t2
-        J[jm, 1, 0] = w10 * t0 + w11 * f0
-        J[jm, 1, 1] = w10 * t1 + w11 * f1
-        J[jm, 1, 2] = w10 * t2
-
-
-@_njit
-def angular_jacobians(Xc, obs_ang, whiten, w_theta, use, chart_pos, chart_res, chart_J, R, C,
-                      obs_cam, obs_pt, Cm, d, sw, cw, dh_dw, dv_dab):
-    """Angular residuals (M, 2) and the factored chain of :func:`parallax_jacobians` (Jp
-    (M, 2, 3), res_D_obs (M, 2, 6), A d (M, 2)) in one pass: each observation's rows of
-    :func:`angular_rows`, or its axis-chart rows (chart_pos[m] >= 0: chart_res (n, 2),
-    chart_J (n, 2, 3), computed in numpy, angular.py), are chained at once, so the (M, 2, 3)
-    ``res_D_Xc`` is not formed."""
-    M = len(Xc)
-    res = np.empty((M, 2))
-    Jp = np.empty((M, 2, 3))
-    Jo = np.empty((M, 2, 6))
-    Ad = np.empty((M, 2))
-    Jt = np.empty((1, 3))
-    Jr = np.empty((1, 2, 3))
-    for m in range(M):
-        i, p = obs_cam[m], obs_pt[m]
-        c = chart_pos[m]
-        if c >= 0:
-            res[m, 0], res[m, 1] = chart_res[c, 0], chart_res[c, 1]
-            for r in range(2):
-                for j in range(3):
-                    Jr[0, r, j] = chart_J[c, r, j]
-        else:
-            _angular_obs(Xc, obs_ang, whiten, w_theta, use, True, m, Jt, res, Jr, 0)
-        x, y, z = Xc[m, 0], Xc[m, 1], Xc[m, 2]
-        d0, d1, d2 = d[p, 0], d[p, 1], d[p, 2]
-        hw, cwp, swp = dh_dw[p], cw[p], sw[p]
-        w0 = hw * d0 + cwp * (Cm[p, 0] - C[i, 0])  # dv/dw
-        w1 = hw * d1 + cwp * (Cm[p, 1] - C[i, 1])
-        w2 = hw * d2 + cwp * (Cm[p, 2] - C[i, 2])
-        b00, b01 = dv_dab[p, 0, 0], dv_dab[p, 0, 1]
-        b10, b11 = dv_dab[p, 1, 0], dv_dab[p, 1, 1]
-        b20, b21 = dv_dab[p, 2, 0], dv_dab[p, 2, 1]
-        r00, r01, r02 = R[i, 0, 0], R[i, 0, 1], R[i, 0, 2]
-        r10, r11, r12 = R[i, 1, 0], R[i, 1, 1], R[i, 1, 2]
-        r20, r21, r22 = R[i, 2, 0], R[i, 2, 1], R[i, 2, 2]
-        for r in range(2):
-            a0, a1, a2 = Jr[0, r, 0], Jr[0, r, 1], Jr[0, r, 2]
-            A0 = a0 * r00 + a1 * r10 + a2 * r20  # A = Jx R_i
-            A1 = a0 * r01 + a1 * r11 + a2 * r21
-            A2 = a0 * r02 + a1 * r12 + a2 * r22
-            Jp[m, r, 0] = A0 * b00 + A1 * b10 + A2 * b20
-            Jp[m, r, 1] = A0 * b01 + A1 * b11 + A2 * b21
-            Jp[m, r, 2] = A0 * w0 + A1 * w1 + A2 * w2
-            Jo[m, r, 0] = y * a2 - z * a1
-            Jo[m, r, 1] = z * a0 - x * a2
-            Jo[m, r, 2] = x * a1 - y * a0
-            Jo[m, r, 3] = -swp * A0
-            Jo[m, r, 4] = -swp * A1
-            Jo[m, r, 5] = -swp * A2
-            Ad[m, r] = A0 * d0 + A1 * d1 + A2 * d2
-    return res, Jp, Jo, Ad
-
-
-@_njit
-def polar_jacobians(Juv, res_uv, theta_obs, w_theta, Xc, R, C, obs_cam, obs_pt, Cm, d, sw,
-                    cw, dh_dw, dv_dab):
-    """Polar residuals (M, 3) and the factored chain of :func:`parallax_jacobians` (Jp
-    (M, 3, 3), res_D_obs (M, 3, 6), A d (M, 3)) in one pass: the weighted view-angle row of
-    :func:`polar_rows` is computed per observation and chained at once, so the stacked
-    (M, 3, 3) ``res_D_Xc`` and the residual copy are not formed. Juv (M, 2, 3) and res_uv
-    (M, 2) are the pixel rows' (projection.py); the other arguments as in those kernels."""
-    M = len(Xc)
-    res = np.empty((M, 3))
-    Jp = np.empty((M, 3, 3))
-    Jo = np.empty((M, 3, 6))
-    Ad = np.empty((M, 3))
-    Jt = np.empty((1, 3))
-    for m in range(M):
-        i, p = obs_cam[m], obs_pt[m]
-        x, y, z = Xc[m, 0], Xc[m, 1], Xc[m, 2]
-        th = _theta_row(x, y, z, True, Jt, 0, w_theta[m])
-        res[m, 0], res[m, 1] = res_uv[m, 0], res_uv[m, 1]
-        res[m, 2] = (th - theta_obs[m]) * w_theta[m]
-        d0, d1, d2 = d[p, 0], d[p, 1], d[p, 2]
-        hw, cwp, swp = dh_dw[p], cw[p], sw[p]
-        w0 = hw * d0 + cwp * (Cm[p, 0] - C[i, 0])  # dv/dw
-        w1 = hw * d1 + cwp * (Cm[p, 1] - C[i, 1])
-        w2 = hw * d2 + cwp * (Cm[p, 2] - C[i, 2])
-        b00, b01 = dv_dab[p, 0, 0], dv_dab[p, 0, 1]
-        b10, b11 = dv_dab[p, 1, 0], dv_dab[p, 1, 1]
-        b20, b21 = dv_dab[p, 2, 0], dv_dab[p, 2, 1]
-        r00, r01, r02 = R[i, 0, 0], R[i, 0, 1], R[i, 0, 2]
-        r10, r11, r12 = R[i, 1, 0], R[i, 1, 1], R[i, 1, 2]
-        r20, r21, r22 = R[i, 2, 0], R[i, 2, 1], R[i, 2, 2]
-        for r in range(3):
-            if r < 2:
-                a0, a1, a2 = Juv[m, r, 0], Juv[m, r, 1], Juv[m, r, 2]
-            else:
-                a0, a1, a2 = Jt[0, 0], Jt[0, 1], Jt[0, 2]
-            A0 = a0 * r00 + a1 * r10 + a2 * r20  # A = Jx R_i
-            A1 = a0 * r01 + a1 * r11 + a2 * r21
-            A2 = a0 * r02 + a1 * r12 + a2 * r22
-            Jp[m, r, 0] = A0 * b00 + A1 * b10 + A2 * b20
-            Jp[m, r, 1] = A0 * b01 + A1 * b11 + A2 * b21
-            Jp[m, r, 2] = A0 * w0 + A1 * w1 + A2 * w2
-            Jo[m, r, 0] = y * a2 - z * a1
-            Jo[m, r, 1] = z * a0 - x * a2
-            Jo[m, r, 2] = x * a1 - y * a0
-            Jo[m, r, 3] = -swp * A0
-            Jo[m, r, 4] = -swp * A1
-            Jo[m, r, 5] = -swp * A2
-            Ad[m, r] = A0 * d0 + A1 * d1 + A2 * d2
-    return res, Jp, Jo, Ad
+            rho2 = max(xs * xs + ys * ys, 1e-300)
+            f0, f1 = -ys / rho2 * sg, xs / rho2 * sg  # phi_D_Xc (third component 0)
+            t0, t1, t2 = Jt[0, 0], Jt[0, 1], Jt[0, 2]
+            J[m, 0, 0] = w00 * t0 + w01 * f0
+            J[m, 0, 1] = w00 * t1 + w01 * f1
+            J[m, 0, 2] = w00 * t2
+            J[m, 1, 0] = w10 * t0 + w11 * f0
+            J[m, 1, 1] = w10 * t1 + w11 * f1
+            J[m, 1, 2] = w10 * t2
+    return res, J

@@ -211,11 +211,6 @@ class Parallax:
         Cm, d, sw, cw, hd, dh_dw, dh_de, dv_dab = kernels.parallax_points(
             self.frame, pts, C, self.main, self.assoc, True)
         Xc = kernels.parallax_rays(R, C, p.obs_cam, p.obs_pt, Cm, sw, hd)
-        if factored:
-            fused = self._fused_chain(R, C, Xc, Cm, d, sw, cw, dh_dw, dv_dab)
-            if fused is not None:
-                res, Jp, J_obs, Ad = fused
-                return res, Jp, [J_obs, AnchorJacobian(Ad, dh_de)]
         res, Jx = self.residual_rows(Xc, True)
         Jp, J_obs, J_m, J_a, Ad = kernels.parallax_jacobians(
             np.ascontiguousarray(Jx), Xc, R, C, p.obs_cam, p.obs_pt, Cm, d, sw, cw,
@@ -223,11 +218,6 @@ class Parallax:
         if factored:
             return res, Jp, [J_obs, AnchorJacobian(Ad, dh_de)]
         return res, Jp, [J_obs, J_m, J_a]
-
-    def _fused_chain(self, R, C, Xc, Cm, d, sw, cw, dh_dw, dv_dab):
-        """A form whose residual rows and factored chain one kernel computes together returns
-        (res, Jp, res_D_obs, A d) here (polar.py); None: rows, then parallax_jacobians."""
-        return None
 
     def num_behind_camera(self, R, C, pts) -> int:
         """Observations whose point has depth <= 0 in the observing camera. ``v_i`` is

@@ -32,17 +32,6 @@ class Polar(Parallax):
         self.theta_obs = np.ascontiguousarray(ang[:, 0])  # (the kernels' compiled layout)
         self.w_theta = 1.0 / s_theta
 
-    def _fused_chain(self, R, C, Xc, Cm, d, sw, cw, dh_dw, dv_dab):
-        """Kernel path, factored anchors: the view-angle row computed and chained in the
-        same pass as the pixel rows (kernels.polar_jacobians; no stacked (M, 3, 3) res_D_Xc)."""
-        from polarref.ba import kernels
-        p = self.p
-        uv, Juv = self.proj(Xc)
-        return kernels.polar_jacobians(np.ascontiguousarray(Juv),
-                                       np.ascontiguousarray(uv - p.obs_uv), self.theta_obs,
-                                       self.w_theta, Xc, R, C, p.obs_cam, p.obs_pt, Cm, d, sw,
-                                       cw, dh_dw, dv_dab)
-
     def residual_rows(self, Xc, jac):
         if self.fast:  # the view-angle row and the stacking compiled (kernels.py)
             from polarref.ba import kernels
