@@ -8,6 +8,10 @@ process's resident set just before it (``ru_maxrss`` minus ``/proc/self/statm``)
 result's checksum so two code versions can be compared for identical results.
 
     python scripts/ba_memory_proxy.py polar --cameras 631 --points 99325 --track 12.3
+
+With ``--model DIR`` (a COLMAP model folder, e.g. a finished twin's ours-polar/sfm/model, read
+only) the problem is that model's full BA instead, ``--fixed-image`` held fixed as the
+mapper's gauge: the real geometry and observations of the twin's last global BA.
 """
 
 from __future__ import annotations
@@ -36,13 +40,23 @@ def main(argv=None) -> int:
     ap.add_argument("--track", type=float, default=12.3)
     ap.add_argument("--iterations", type=int, default=3)
     ap.add_argument("--kernels", default="auto")
+    ap.add_argument("--model", default=None, help="COLMAP model folder: its full BA instead of a ring")
+    ap.add_argument("--fixed-image", type=int, default=None, help="with --model: image id held fixed")
     a = ap.parse_args(argv)
     from polarref.ba import BAOptions, prepare, solve
     from polarref.ba import kernels
     from polarref.ba.synthetic import ring_problem
 
     kernels.warm_up()
-    p = ring_problem(a.cameras, a.points, a.track)
+    if a.model:
+        from polarref.ba.adapter import problem_from_reconstruction
+        from polarref.model.reconstruction import Reconstruction
+
+        rec = Reconstruction.read(a.model)
+        p = problem_from_reconstruction(rec, fixed_image_ids=[a.fixed_image] if a.fixed_image else None)
+        del rec
+    else:
+        p = ring_problem(a.cameras, a.points, a.track)
     prepare(p)
     gc.collect()
     before = rss_mb()

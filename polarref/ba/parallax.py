@@ -212,10 +212,14 @@ class Parallax:
 
     def _evaluate_kernels(self, R, C, pts, factored: bool):
         """:meth:`evaluate` through the compiled kernels."""
+        return self._evaluate_obs_kernels(R, C, self.point_terms_for_rows(R, C, pts), factored)
+
+    def _evaluate_obs_kernels(self, R, C, terms, factored: bool):
+        """The per-observation part of :meth:`_evaluate_kernels` (all of ``self.p``'s
+        observations; a :meth:`rows_view` has a run of them) from the per-point terms."""
         from polarref.ba import kernels
         p = self.p
-        Cm, d, sw, cw, hd, dh_dw, dh_de, dv_dab = kernels.parallax_points(
-            self.frame, pts, C, self.main, self.assoc, True)
+        Cm, d, sw, cw, hd, dh_dw, dh_de, dv_dab = terms
         Xc = kernels.parallax_rays(R, C, p.obs_cam, p.obs_pt, Cm, sw, hd)
         res, Jx = self.residual_rows(Xc, True)
         Jp, J_obs, J_m, J_a, Ad = kernels.parallax_jacobians(
@@ -235,9 +239,12 @@ class Parallax:
         return kernels.parallax_points(self.frame, pts, C, self.main, self.assoc, True)
 
     def rows_view(self, m0: int, m1: int) -> "Parallax":
-        """A shallow copy whose residual_rows sees only observations m0:m1."""
+        """A shallow copy that sees only observations m0:m1 (their indices, pixels,
+        intrinsics and ``row_arrays``; the per-point arrays stay whole)."""
         v = copy.copy(self)
-        v.p = SimpleNamespace(obs_uv=self.p.obs_uv[m0:m1])
+        p = self.p
+        v.p = SimpleNamespace(obs_cam=p.obs_cam[m0:m1], obs_pt=p.obs_pt[m0:m1],
+                              obs_uv=p.obs_uv[m0:m1])
         v.proj = self.proj.rows(m0, m1)
         for name in self.row_arrays:
             setattr(v, name, getattr(self, name)[m0:m1])
@@ -247,14 +254,7 @@ class Parallax:
         """:meth:`evaluate` (kernels, factored) of observations m0:m1 with the per-point
         ``terms`` of :meth:`point_terms_for_rows`: (res, res_D_point, [res_D_obs,
         AnchorJacobian]) with m1 - m0 rows (AnchorJacobian.h still per point, all P)."""
-        from polarref.ba import kernels
-        Cm, d, sw, cw, hd, dh_dw, dh_de, dv_dab = terms
-        oc, op = self.p.obs_cam[m0:m1], self.p.obs_pt[m0:m1]
-        Xc = kernels.parallax_rays(R, C, oc, op, Cm, sw, hd)
-        res, Jx = self.rows_view(m0, m1).residual_rows(Xc, True)
-        Jp, J_obs, _, _, Ad = kernels.parallax_jacobians(
-            np.ascontiguousarray(Jx), Xc, R, C, oc, op, Cm, d, sw, cw, dh_dw, dh_de, dv_dab, False)
-        return res, Jp, [J_obs, AnchorJacobian(Ad, dh_de)]
+        return self.rows_view(m0, m1)._evaluate_obs_kernels(R, C, terms, True)
 
     def num_behind_camera(self, R, C, pts) -> int:
         """Observations whose point has depth <= 0 in the observing camera. ``v_i`` is
