@@ -59,6 +59,7 @@ class MethodResult:
     stages_s: dict = field(default_factory=dict)
     peak_rss_mb: float | None = None          # largest resident set of the method's processes
     mean_keypoints: float | None = None       # features per image the method started from (None: unknown)
+    segments: int = 1                         # processes the mapping took (> 1: resumed from snapshots)
 
 
 @dataclass
@@ -185,6 +186,8 @@ def render_table(table: TwinTable) -> str:
         mem = f"{r.peak_rss_mb:,.0f}" if r.peak_rss_mb is not None else "-"
         kp = f"{r.mean_keypoints:,.0f}" if r.mean_keypoints is not None else "not recorded"
         status = r.status + (f" ({r.reason})" if r.reason else "")
+        if ok and r.segments > 1:
+            status += f" (resumed: {r.segments} segments)"
         lines.append(f"| {LABELS[name]} | {status} | {reg} | {_cell(r, 'accuracy_px')} | {_cell(r, 'efficiency_min')} "
                      f"| {_cell(r, 'tie_points')} | {_cell(r, 'reprojected_px')} | {rot} | {cen} | {mem} | {kp} |")
     lines += ["", "Stage runtimes (s):", ""]

@@ -28,6 +28,9 @@ log = logging.getLogger(__name__)
 
 PYCOLMAP_FEATURES = 4096  # the same feature budget as ours (polarref.sfm default), recorded per run
 DEFAULT_TIMEOUT_S = 4 * 3600.0
+# pycolmap incremental writes a snapshot every this many registered frames, so a run that outlives
+# a session resumes (rosetta: > 2 h of mapping on one core); a snapshot of 600 views takes ~1-2 s
+PYCOLMAP_SNAPSHOT_EVERY = 20
 FEATURES_CACHED = "features (loaded from an earlier run's cache)"
 
 
@@ -62,6 +65,10 @@ class TwinJobResult:
     verified_pairs: int | None = None   # shared stages
     skipped_images: list[str] = dataclasses.field(default_factory=list)
     feature_file: str = ""              # ours-features: the feature cache (.npz) the methods read
+    # resumable stages: the runtime summed over the segments (the process's wall time is only the
+    # last segment's) and how many segments (processes) the result took
+    counted_wall_s: float | None = None
+    segments: int = 1
 
 
 def _peak_mb() -> float:
@@ -129,11 +136,28 @@ def job_pycolmap_db(image_dir: str, image_names: list[str], camera: dict, db_pat
                          verified_pairs=count_verified_pairs(Path(db_path)))
 
 
-def job_pycolmap_map(db_path: str, image_dir: str, work_dir: str, mapper: str, seed: int) -> TwinJobResult:
+def job_pycolmap_map(db_path: str, image_dir: str, work_dir: str, mapper: str, seed: int,
+                     snapshot_every: int = 0) -> TwinJobResult:
+    """pycolmap mapping of a copy of ``db_path``; incremental with ``snapshot_every`` > 0 resumes
+    an interrupted run from its last snapshot (:mod:`polarref.peers.colmap_resume`)."""
     from polarref.compare.jobs import pycolmap_map
 
-    out = pycolmap_map(db_path, image_dir, work_dir, mapper, seed, num_threads=1)
-    return TwinJobResult(dict(out.stage_runtime_s), _peak_mb(), model_dir=out.model_dir)
+    if mapper != "incremental" or snapshot_every <= 0:
+        out = pycolmap_map(db_path, image_dir, work_dir, mapper, seed, num_threads=1)
+        return TwinJobResult(dict(out.stage_runtime_s), _peak_mb(), model_dir=out.model_dir)
+    from polarref.peers.colmap_resume import map_incremental_resumable
+    from polarref.peers.colmap_sfm import ColmapSfMOptions
+
+    run, ledger = map_incremental_resumable(Path(db_path), Path(image_dir), Path(work_dir),
+                                            ColmapSfMOptions(seed=seed, num_threads=1), snapshot_every)
+    rec = run.reconstruction
+    if rec is None or rec.num_reg_images() == 0:
+        raise RuntimeError(f"pycolmap incremental mapping registered no images ({run.num_models} models)")
+    model = Path(work_dir) / "model"
+    model.mkdir(parents=True, exist_ok=True)
+    rec.write_text(str(model))
+    return TwinJobResult(dict(run.stage_runtime_s), _peak_mb(), model_dir=str(model),
+                         counted_wall_s=ledger.counted_s, segments=len(ledger.segments))
 
 
 JOBS = {f.__name__: f for f in (job_ours_features, job_ours_sfm, job_pycolmap_db, job_pycolmap_map)}
@@ -249,7 +273,9 @@ def _method_result(name: str, recs: list[dict], scene, gt) -> PT.MethodResult:
     for r in recs:
         for k, v in r["result"].get("stage_runtime_s", {}).items():
             stages[k] = stages.get(k, 0.0) + float(v)
-    wall = sum(float(r["wall_s"]) for r in recs)  # process wall times: spawn and import included
+    # process wall times (spawn and import included); a resumed stage counts its segments instead
+    wall = sum(float(r["result"].get("counted_wall_s") or r["wall_s"]) for r in recs)
+    segments = max(int(r["result"].get("segments") or 1) for r in recs)
     peak = max((float(r["result"].get("peak_rss_mb") or 0.0) for r in recs), default=None)
     from polarref.compare.scoring import score
     from polarref.reconstruction import Reconstruction
@@ -260,7 +286,7 @@ def _method_result(name: str, recs: list[dict], scene, gt) -> PT.MethodResult:
     return PT.MethodResult(
         name, "ok", "", n, int(m.registered_images), float(m.mean_reprojection_error_px), wall / 60.0,
         int(m.tie_points), int(m.reprojected_px), None if g is None else g.rotation_error_deg_mean,
-        None if g is None else g.center_error_rel_mean, stages, peak)
+        None if g is None else g.center_error_rel_mean, stages, peak, segments=segments)
 
 
 def run_twin(run: TwinRun) -> PT.TwinTable:
@@ -296,7 +322,8 @@ def run_twin(run: TwinRun) -> PT.TwinTable:
         for m in (m for m in wanted if m.startswith("pycolmap-")):
             recs[m] = [db] if db["status"] != "ok" else [db, st.run(
                 m, "job_pycolmap_map", dict(db_path=str(out / "pycolmap" / "database.db"), image_dir=img,
-                                            work_dir=str(out / m), mapper=m.split("-")[1], seed=run.seed))]
+                                            work_dir=str(out / m), mapper=m.split("-")[1], seed=run.seed,
+                                            snapshot_every=PYCOLMAP_SNAPSHOT_EVERY))]
     methods = {m: _method_result(m, recs[m], scene, scene.gt) if m in recs else PT.MethodResult(m)
                for m in PT.METHODS}
     keypoints: dict[str, float | None] = {}  # per source (ours' cache, pycolmap's database): read once

@@ -251,6 +251,8 @@ def import_features(db_path: Path, cameras, image_names: Sequence[str], keypoint
 def copy_database(src: Path, dst: Path) -> Path:
     """A private copy for one mapper (mapping writes to the database)."""
     dst.parent.mkdir(parents=True, exist_ok=True)
+    for side in (dst.with_name(dst.name + "-wal"), dst.with_name(dst.name + "-shm")):
+        side.unlink(missing_ok=True)  # SQLite would replay an older run's journal into the new copy
     shutil.copyfile(src, dst)
     return dst
 
