@@ -1,12 +1,14 @@
 """Normal equations of the parallax forms built chunk by chunk (issue 14: memory at 631 views).
 
-The eager solver holds the per-observation Jacobians of the current estimate and of the trial
-step at once: for the polar form on the rosetta twin's final global BA (1.22 M observations)
-that is 2 x ~320 MB (residuals (M, 3), ``res_D_point`` (M, 3, 3), ``res_D_obs`` (M, 3, 6),
-``A d`` (M, 3)) beside W, the cross-camera blocks and S. On large problems the solver instead
-evaluates only the residuals at a trial step (its cost decides acceptance) and, once a step
-is accepted, builds V, g and the fused three-slot blocks (kernels.build_anchored) from runs of
-whole points of ``CHUNK_OBS`` observations, so no (M, ...) Jacobian array exists.
+The eager solver evaluates the per-observation Jacobians at every trial step, while the
+normal equations of the current estimate are still held (a rejected step reuses them): for the
+polar form on the rosetta twin's final global BA (1.22 M observations) that is ~320 MB
+(residuals (M, 3), ``res_D_point`` (M, 3, 3), ``res_D_obs`` (M, 3, 6), ``A d`` (M, 3)) plus the
+chain rule's temporaries beside W and the cross-camera blocks (~530 MB), and the build needs the
+whole set at once. On large problems the solver instead evaluates only the residuals at a
+trial step (its cost decides acceptance) and, once a step is accepted, builds V, g and the
+fused three-slot blocks (kernels.build_anchored) from runs of whole points of ``CHUNK_OBS``
+observations, so no (M, ...) Jacobian array exists.
 
 The results are bit-identical to the eager build: every per-observation value is computed by
 the same code on the same inputs (a slice of the observations), and the kernels accumulate in
