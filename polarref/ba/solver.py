@@ -202,6 +202,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     tic = time.perf_counter()
     factored = anchored and (not st.fast or st.fused)
     # large three-slot problems: residuals only at trial points, normal equations in chunks
+    # (chunked.py; their Jacobians' time then counts in time_in["normal_equations"])
     lazy = chunked.applies(st, param, problem.num_observations)
     r, Jp, Jc = param.evaluate(R, C, pts, jac=not lazy, factored=factored)
     times["evaluate"] += time.perf_counter() - tic
