@@ -32,6 +32,7 @@ class Angular(Parallax):
     name = "angular"
     k = 2
     groups = ((0, 2),)
+    row_arrays = None  # chart rows are indexed over all observations: no chunked build
 
     def __init__(self, problem, options=None):
         super().__init__(problem, options)

@@ -25,6 +25,9 @@ slots (observing, main, associate) whose Jacobians go into those cameras' blocks
 
 from __future__ import annotations
 
+import copy
+from types import SimpleNamespace
+
 import numpy as np
 
 from polarref.angular import (azimuth_elevation_from_direction, direction_from_azimuth_elevation,
@@ -95,6 +98,9 @@ class Parallax:
     name = "parallax"
     k = 2
     groups = ((0, 2),)
+    # per-observation attributes that residual_rows reads (sliced by rows_view); None: the
+    # form cannot evaluate a run of observations on its own (chunked.py then is not used)
+    row_arrays: tuple[str, ...] | None = ()
 
     def __init__(self, problem: BAProblem, options=None):
         self.p = problem
@@ -206,10 +212,14 @@ class Parallax:
 
     def _evaluate_kernels(self, R, C, pts, factored: bool):
         """:meth:`evaluate` through the compiled kernels."""
+        return self._evaluate_obs_kernels(R, C, self.point_terms_for_rows(R, C, pts), factored)
+
+    def _evaluate_obs_kernels(self, R, C, terms, factored: bool):
+        """The per-observation part of :meth:`_evaluate_kernels` (all of ``self.p``'s
+        observations; a :meth:`rows_view` has a run of them) from the per-point terms."""
         from polarref.ba import kernels
         p = self.p
-        Cm, d, sw, cw, hd, dh_dw, dh_de, dv_dab = kernels.parallax_points(
-            self.frame, pts, C, self.main, self.assoc, True)
+        Cm, d, sw, cw, hd, dh_dw, dh_de, dv_dab = terms
         Xc = kernels.parallax_rays(R, C, p.obs_cam, p.obs_pt, Cm, sw, hd)
         res, Jx = self.residual_rows(Xc, True)
         Jp, J_obs, J_m, J_a, Ad = kernels.parallax_jacobians(
@@ -218,6 +228,33 @@ class Parallax:
         if factored:
             return res, Jp, [J_obs, AnchorJacobian(Ad, dh_de)]
         return res, Jp, [J_obs, J_m, J_a]
+
+    def supports_rows(self) -> bool:
+        """Whether :meth:`evaluate_rows` is available (compiled kernels, fast projector)."""
+        return self.row_arrays is not None and self.fast and self.proj.fast
+
+    def point_terms_for_rows(self, R, C, pts):
+        """Per-point terms (kernels.parallax_points) shared by every :meth:`evaluate_rows`."""
+        from polarref.ba import kernels
+        return kernels.parallax_points(self.frame, pts, C, self.main, self.assoc, True)
+
+    def rows_view(self, m0: int, m1: int) -> "Parallax":
+        """A shallow copy that sees only observations m0:m1 (their indices, pixels,
+        intrinsics and ``row_arrays``; the per-point arrays stay whole)."""
+        v = copy.copy(self)
+        p = self.p
+        v.p = SimpleNamespace(obs_cam=p.obs_cam[m0:m1], obs_pt=p.obs_pt[m0:m1],
+                              obs_uv=p.obs_uv[m0:m1])
+        v.proj = self.proj.rows(m0, m1)
+        for name in self.row_arrays:
+            setattr(v, name, getattr(self, name)[m0:m1])
+        return v
+
+    def evaluate_rows(self, R, C, terms, m0: int, m1: int):
+        """:meth:`evaluate` (kernels, factored) of observations m0:m1 with the per-point
+        ``terms`` of :meth:`point_terms_for_rows`: (res, res_D_point, [res_D_obs,
+        AnchorJacobian]) with m1 - m0 rows (AnchorJacobian.h still per point, all P)."""
+        return self.rows_view(m0, m1)._evaluate_obs_kernels(R, C, terms, True)
 
     def num_behind_camera(self, R, C, pts) -> int:
         """Observations whose point has depth <= 0 in the observing camera. ``v_i`` is

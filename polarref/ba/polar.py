@@ -20,6 +20,7 @@ class Polar(Parallax):
     name = "polar"
     k = 3
     groups = ((0, 2), (2, 3))
+    row_arrays = ("theta_obs", "w_theta")
 
     def __init__(self, problem, options=None):
         super().__init__(problem, options)

@@ -9,6 +9,8 @@ projected anyway (finite residual), like Ceres' BAL example; COLMAP instead zero
 
 from __future__ import annotations
 
+import copy
+
 import numpy as np
 
 RADIAL_MODELS = ("SIMPLE_PINHOLE", "PINHOLE", "SIMPLE_RADIAL", "RADIAL", "PERSPECTIVE")
@@ -88,6 +90,14 @@ class Projector:
             self.K = np.array(table).reshape(-1, 6)[obs_cam]
         else:
             self.groups = camera_groups(cameras, obs_cam)
+
+    def rows(self, m0: int, m1: int) -> "Projector":
+        """This projector restricted to observations m0:m1 (fast kernel only)."""
+        if not self.fast:
+            raise ValueError("Projector.rows needs the pinhole+radial kernel")
+        out = copy.copy(self)
+        out.K = self.K[m0:m1]
+        return out
 
     def __call__(self, Xc: np.ndarray, jac: bool = True):
         if self.fast:

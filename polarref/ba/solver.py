@@ -48,6 +48,7 @@ from polarref.ba.options import (DEFAULT_DAMPING, DEFAULT_LM_GAUGE, BAOptions, B
 from polarref.ba.parameterization import (AnchoredJacobians, BoundedPoints, Parameterization,
                                           Staged, make_param)
 from polarref.ba.problem import BAProblem, nonzero_counts, prepare
+from polarref.ba import chunked
 from polarref.ba.kernels import use_kernels
 from polarref.ba.schur import SchurStructure
 from polarref.geometry import so3_exp
@@ -203,7 +204,10 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
 
     tic = time.perf_counter()
     factored = anchored and (not st.fast or st.fused)
-    r, Jp, Jc = param.evaluate(R, C, pts, jac=True, factored=factored)
+    # large three-slot problems: residuals only at trial points, normal equations in chunks
+    # (chunked.py; their Jacobians' time then counts in time_in["normal_equations"])
+    lazy = chunked.applies(st, param, problem.num_observations)
+    r, Jp, Jc = param.evaluate(R, C, pts, jac=not lazy, factored=factored)
     times["evaluate"] += time.perf_counter() - tic
     if not np.isfinite(r).all():
         from polarref.errors import PolarrefError
@@ -240,15 +244,19 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     while it < options.max_iterations:
         if need_build:
             tic = time.perf_counter()
-            if w is not None:
-                r_w, Jp_w = r * w, Jp * w[:, :, None]
-                Jc_w = [J * w[:, :, None] if isinstance(J, np.ndarray) else J.scaled(w)
-                        for J in Jc]
+            if lazy:
+                V, g_p, blocks = chunked.build(st, param, R, C, pts, w,
+                                               pt_free if any_pt_fixed else None)
             else:
-                r_w, Jp_w, Jc_w = r, Jp, Jc
-            if any_pt_fixed:
-                Jp_w = Jp_w * pt_free[problem.obs_pt][:, :, None]
-            V, g_p = st.point_terms(Jp_w, r_w)
+                if w is not None:
+                    r_w, Jp_w = r * w, Jp * w[:, :, None]
+                    Jc_w = [J * w[:, :, None] if isinstance(J, np.ndarray) else J.scaled(w)
+                            for J in Jc]
+                else:
+                    r_w, Jp_w, Jc_w = r, Jp, Jc
+                if any_pt_fixed:
+                    Jp_w = Jp_w * pt_free[problem.obs_pt][:, :, None]
+                V, g_p = st.point_terms(Jp_w, r_w)
             active = None
             if bounds is not None:
                 # at a bound with the descent direction pointing out of the box: held (only
@@ -265,7 +273,12 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
                     V[ai, :, ac] *= 0.0
                     g_p[ai, ac] = 0.0
             # gauge-fixed columns and fixed cameras are masked on the assembled blocks
-            g_c, W, U = builder.build(Jc_w, Jp_w, r_w)
+            if not lazy:
+                blocks = builder.build(Jc_w, Jp_w, r_w)
+            # the Jacobians are dead once the normal equations exist (a rejected step reuses
+            # those; an accepted one rebuilds from its own): not held through the next trial
+            r = Jp = Jc = r_w = Jp_w = Jc_w = None
+            (g_c, W, U), blocks = blocks, None
             if active is not None:  # W's column of a held component: its point's entries
                 e0 = np.searchsorted(st.entry_pt, ai, "left")
                 ne = np.searchsorted(st.entry_pt, ai, "right") - e0
@@ -308,6 +321,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         if system is not None:
             S, b, Li = system
             x = st.solve(S, b)
+            system = S = b = None  # factored and solved: not held through the trial evaluation
         times["solve"] += time.perf_counter() - tic
         if x is None:
             trace.append(IterationRecord(it, cost, False, rec_radius(), 0.0, gmax,
@@ -355,7 +369,8 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             pts_new = np.clip(pts_new, bounds[0], bounds[1])
         times["update"] += time.perf_counter() - tic
         tic = time.perf_counter()
-        r_new, Jp_new, Jc_new = param.evaluate(R_new, C_new, pts_new, jac=True, factored=factored)
+        r_new, Jp_new, Jc_new = param.evaluate(R_new, C_new, pts_new, jac=not lazy,
+                                               factored=factored)
         times["evaluate"] += time.perf_counter() - tic
         new_cost, w_new = _robust(r_new, param.groups, loss, scale)
         gain = (cost - new_cost) / model if model > 0 else -1.0
@@ -375,6 +390,8 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             rel = abs(cost - new_cost) / cost if cost > 0 else 0.0
             R, C, pts = R_new, C_new, pts_new
             r, Jp, Jc, w, cost = r_new, Jp_new, Jc_new, w_new, new_cost
+            r_new = Jp_new = Jc_new = None
+            V = Vd = W = U = None  # the rebuild allocates its own
             radius = min(options.max_trust_radius,
                          radius / max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3))
             decrease_factor = 2.0

@@ -75,3 +75,42 @@ def synthetic_reconstruction(num_cameras: int, num_points: int, *, seed: int = 0
 def clone(rec):
     """Deep copy of a Reconstruction."""
     return copy.deepcopy(rec)
+
+
+def ring_problem(num_cameras: int, num_points: int, mean_track: float, seed: int = 0):
+    """A BAProblem shaped like an SfM map (issue 14's memory proxy): ``num_cameras`` PINHOLE
+    cameras on a ring looking at points around the origin, each point seen by a run of
+    consecutive cameras (2 + Poisson(mean_track - 2) long), 0.5 px pixel noise; poses and
+    points perturbed (about 0.05 deg, 0.01 units); camera 0 fixed. Built with numpy only,
+    fast at a million observations."""
+    from polarref.ba import BAProblem
+    from polarref.camera import Camera
+    from polarref.geometry import so3_exp
+    from polarref.model.observations import Observations
+
+    rng = np.random.default_rng(seed)
+    ang = 2 * np.pi * np.arange(num_cameras) / num_cameras
+    C = np.stack([10 * np.cos(ang), 10 * np.sin(ang), 0.5 * np.sin(3 * ang)], 1)
+    R = np.empty((num_cameras, 3, 3))
+    for i, c in enumerate(C):  # look at the origin, world z up
+        z = -c / np.linalg.norm(c)
+        x = np.cross([0.0, 0.0, 1.0], z)
+        x /= np.linalg.norm(x)
+        R[i] = np.stack([x, np.cross(z, x), z])
+    X = rng.normal(0, 1.0, (num_points, 3))
+    L = np.clip(rng.poisson(mean_track - 2, num_points) + 2, 2, num_cameras)
+    first = rng.integers(0, num_cameras, num_points)
+    pt = np.repeat(np.arange(num_points), L)
+    off = np.arange(len(pt)) - np.repeat(np.cumsum(L) - L, L)
+    cam = (np.repeat(first, L) + off) % num_cameras
+    cal = Camera("PINHOLE", 1600, 1200, [1000.0, 1000.0, 800.0, 600.0])
+    Xc = np.einsum("mij,mj->mi", R[cam], X[pt] - C[cam])
+    uv = 1000.0 * Xc[:, :2] / Xc[:, 2:] + [800.0, 600.0] + rng.normal(0, 0.5, (len(pt), 2))
+    Rn = so3_exp(rng.normal(0, np.radians(0.05), (num_cameras, 3))) @ R
+    Cn = C + rng.normal(0, 0.01, C.shape)
+    Xn = X + rng.normal(0, 0.01, X.shape)
+    fixed = np.zeros(num_cameras, bool)
+    fixed[0] = True
+    return BAProblem([cal] * num_cameras, Rn, Cn, Xn,
+                     Observations.from_arrays(cam.astype(np.int64), pt.astype(np.int64), uv),
+                     cam_fixed=fixed)
