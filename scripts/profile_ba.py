@@ -23,6 +23,11 @@ evaluate (residuals + Jacobians), V (point blocks), build (W, g, U), schur (redu
 back (back-substitution); the Cholesky and the LM bookkeeping are left out (the same for
 every form). Less noisy than whole solves on a loaded machine; works against a checkout
 without the factored kernel build too (``PYTHONPATH=<checkout>``).
+
+``--cprofile N``: instead, ``cProfile`` with process CPU time as its clock around two solves of
+at most N iterations per form (kernel path): CPU ms per accepted iteration and the functions
+with the most own time, per iteration. Unlike ``--stages`` it includes the solver's own inline
+numpy work (robust weights, box constraint, damping, step bookkeeping).
 """
 
 from __future__ import annotations
@@ -49,9 +54,14 @@ def main(argv=None) -> int:
     ap.add_argument("--forms", default=",".join(PARAMS))
     ap.add_argument("--paths", default="numpy,numba", help="kernel paths to run")
     ap.add_argument("--stages", action="store_true", help="time the kernel stages one by one")
+    ap.add_argument("--cprofile", type=int, metavar="N", default=0,
+                    help="per-function process CPU time over two solves of <= N iterations")
+    ap.add_argument("--top", type=int, default=8, help="--cprofile: functions listed")
     args = ap.parse_args(argv)
     if args.stages:
         return stages(args)
+    if args.cprofile:
+        return cprofile(args)
     print(f"kernels warm-up {kernels.warm_up():.2f} s; load {os.getloadavg()[0]:.1f}\n")
     print("| problem | form | path | iters | setup ms | " + " | ".join(STAGES)
           + " | total ms / iter | numba speed-up | x Euclidean (same path) | cpu ms / accepted"
@@ -153,6 +163,39 @@ def stages(args) -> int:
             eu = sum(t["euclidean"].values()) if "euclidean" in t else float("nan")
             print(f"| {spec} | {f} | " + " | ".join(f"{row[k]:.2f}" for k in keys)
                   + f" | {tot:.2f} | {tot / eu:.2f}x |")
+        sys.stdout.flush()
+    return 0
+
+
+def cprofile(args) -> int:
+    import cProfile
+    import pstats
+
+    kernels.warm_up()
+    print(f"load {os.getloadavg()[0]:.1f}; max_iterations {args.cprofile}; 2 solves per form\n")
+    for spec in args.problems:
+        base, _ = load_problem(_resolve(spec))
+        prepare(base)
+        for form in args.forms.split(","):
+            opts = BAOptions(param=form, kernels="numba", max_iterations=args.cprofile)
+            solve(base.copy(), BAOptions(param=form, kernels="numba", max_iterations=1),
+                  prepared=True)  # first-call costs (imports, caches) out of the profile
+            prof = cProfile.Profile(time.process_time)
+            acc = its = 0
+            for _ in range(2):
+                prof.enable()
+                s = solve(base.copy(), opts, prepared=True)
+                prof.disable()
+                acc, its = acc + s.accepted_iterations, its + s.iterations
+            st = pstats.Stats(prof)
+            total = sum(v[2] for v in st.stats.values())
+            print(f"{spec} {form}: {its} iterations, {acc} accepted, "
+                  f"{1e3 * total / max(acc, 1):.2f} cpu ms / accepted")
+            rows = sorted(st.stats.items(), key=lambda kv: -kv[1][2])[:args.top]
+            for (file, line, fn), v in rows:
+                where = f"{os.path.basename(file)}:{line}({fn})" if line else fn
+                print(f"    {1e3 * v[2] / max(its, 1):7.2f} ms / iteration  {v[1]:5d} calls  "
+                      f"{where}")
         sys.stdout.flush()
     return 0
 

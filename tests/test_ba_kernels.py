@@ -77,9 +77,10 @@ def test_kernel_jacobians_equal_numpy(problems, param):
     for J1, J0 in zip([Jp1, *Jc1], [Jp0, *Jc0], strict=True):
         np.testing.assert_allclose(J1, J0, rtol=0, atol=1e-12 * np.abs(J0).max())
     if param != "euclidean":  # the factored anchors (the solver's form on the fused path)
-        _, Jp1, (Jo1, anc1) = fast.evaluate(p.R, p.C, pts, True, factored=True)
+        r1, Jp1, (Jo1, anc1) = fast.evaluate(p.R, p.C, pts, True, factored=True)
         _, _, (Jo0, anc0) = ref.evaluate(p.R, p.C, pts, True, factored=True)
-        for J1, J0 in ((Jp1, Jp0), (Jo1, Jo0), (anc1.Ad, anc0.Ad), (anc1.h, anc0.h)):
+        assert r1.shape == r0.shape and Jp1.shape == Jp0.shape
+        for J1, J0 in ((r1, r0), (Jp1, Jp0), (Jo1, Jo0), (anc1.Ad, anc0.Ad), (anc1.h, anc0.h)):
             np.testing.assert_allclose(J1, J0, rtol=0, atol=1e-12 * np.abs(J0).max())
     np.testing.assert_allclose(fast.pixel_residuals(p.R, p.C, pts),
                                ref.pixel_residuals(p.R, p.C, pts), rtol=0, atol=1e-9)
@@ -119,3 +120,58 @@ def test_fused_build_accumulating_cross_blocks(problems, param, monkeypatch):
     assert "entry-pair kernel" in got.linear_solver
     assert got.iterations == ref.iterations >= 2
     assert abs(got.final_cost - ref.final_cost) <= 1e-9 * ref.final_cost
+
+
+def test_angular_kernel_rows_with_axis_chart_rows_equal_numpy(problems):
+    """The compiled angular rows leave the axis-chart rows of the phi-gated observations to
+    numpy: with a phi gate tight enough to gate about a third of the observations, residuals
+    and factored Jacobians still equal the numpy path's (1e-12)."""
+    p = problems["sparse"]
+    opts = dict(param="angular", max_sigma_phi=0.005)  # gates 448 of 1,200 observations
+    ref = make_param(p, BAOptions(**opts, kernels="numpy"))
+    fast = make_param(p, BAOptions(**opts, kernels="numba"))
+    assert fast.use_chart and 0.2 < len(fast.chart_idx) / p.num_observations < 0.8
+    pts = ref.init_points() + 1e-3
+    r0, Jp0, (Jo0, anc0) = ref.evaluate(p.R, p.C, pts, True, factored=True)
+    r1, Jp1, (Jo1, anc1) = fast.evaluate(p.R, p.C, pts, True, factored=True)
+    # the chart rows differ from the (theta, phi) rows: a kernel ignoring them fails here
+    th = make_param(p, BAOptions(param="angular", kernels="numba", axis_residual="theta"))
+    assert np.abs(th.evaluate(p.R, p.C, pts, True, factored=True)[0] - r0).max() > 1e-3
+    for a, b in ((r1, r0), (Jp1, Jp0), (Jo1, Jo0), (anc1.Ad, anc0.Ad)):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12 * np.abs(b).max())
+
+
+@pytest.mark.parametrize("param", ["parallax", "polar", "angular"])
+@pytest.mark.parametrize("unique", [True, False])
+def test_fused_reduced_system_equals_numpy_camera_pairs(problems, param, unique, monkeypatch):
+    """The fused three-slot Schur pass (compact [N | t] cross terms per observer entry, formed
+    into the observer x anchor blocks of S) gives the reduced system (S, b) of the numpy
+    path (factored anchors, camera-pair GEMMs), every block, to 1e-12 of its largest entry;
+    with ``unique`` False the build accumulates its cross terms instead of writing them."""
+    from polarref.ba import schur
+    from polarref.ba.anchor_terms import AnchorTerms
+    monkeypatch.setattr(schur, "_PAIR_S", 0.0)  # both paths by entry / camera pairs
+    monkeypatch.setattr(schur, "_SEGMENT_S", 0.0)
+    monkeypatch.setattr(schur, "_PAIR_KERNEL_S", 0.0)
+    p = problems["sparse"]
+    prm = make_param(p, BAOptions(param=param))
+    pts = prm.init_points() + 1e-3
+    out = []
+    for fast in (False, True):
+        st = schur.SchurStructure(prm.slot_cams, prm.slot_cols, p.obs_pt, p.cam_mask.any(1),
+                                  p.num_points, fast=fast)
+        assert st.fused == fast and not st.use_gemm
+        if fast and not unique:
+            st.observer_unique = False
+        r, Jp, Jc = prm.evaluate(p.R, p.C, pts, True, factored=True)
+        builder = st if fast else AnchorTerms(st, p.obs_pt, *prm.anchor_cams)
+        mask_v = p.cam_mask[st.var_cams].astype(float)
+        g_c, W, U = st.apply_mask(mask_v, *builder.build(Jc, Jp, r))
+        V, g_p = st.point_terms(Jp, r)
+        Vd = V + 1e-3 * np.eye(3)
+        S, b, _ = st.reduced_system(U, W, Vd, g_c, g_p, np.ones((st.Nv, 6)))
+        out.append((np.triu(S), b))  # the kernel fills the upper triangle (Cholesky reads it)
+    (S0, b0), (S1, b1) = out
+    assert np.abs(np.triu(S0, 6)).max() > 0  # cameras coupled: cross blocks are exercised
+    np.testing.assert_allclose(S1, S0, rtol=0, atol=1e-12 * np.abs(S0).max())
+    np.testing.assert_allclose(b1, b0, rtol=0, atol=1e-12 * np.abs(b0).max())

@@ -81,8 +81,8 @@ def _peak_mb(problem, monkeypatch, lazy: bool) -> float:
 
 
 def test_polar_peak_allocation_is_bounded_by_the_normal_equations(monkeypatch):
-    """Chunked: the peak is the normal equations (W and the two cross-block arrays, (E, 6, 3)
-    each, and S) plus O(M) index structures and trial residuals (measured ~300 B per
+    """Chunked: the peak is the normal equations (W (E, 6, 3), the compact cross terms
+    [N | t] (E, 6, 4), and S) plus O(M) index structures and trial residuals (measured ~300 B per
     observation: slot/entry indices, the per-observation intrinsics, residual temporaries),
     under 400 B per observation more. The eager path also holds a full Jacobian set at the
     trial step (264 B per observation) and must fail that: the bound can tell them apart."""
@@ -90,7 +90,7 @@ def test_polar_peak_allocation_is_bounded_by_the_normal_equations(monkeypatch):
     M, Nv = p.num_observations, p.num_cameras
     E = M - int((p.obs_cam == 0).sum())  # entries: the observer pairs (camera 0 is fixed)
     mb = 1.0 / 2**20
-    normal = (3 * E * 18 + (6 * Nv) ** 2) * 8 * mb  # W, Xm, Xa; S
+    normal = (E * (18 + 24) + (6 * Nv) ** 2) * 8 * mb  # W, [N | t]; S
     jac_set = M * 3 * 11 * 8 * mb  # residuals, res_D_point, res_D_obs, A d (k = 3)
     lazy = _peak_mb(p, monkeypatch, lazy=True)
     eager = _peak_mb(p, monkeypatch, lazy=False)

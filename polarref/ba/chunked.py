@@ -58,11 +58,11 @@ def build(st, param, R, C, pts, w, pt_free):
     V, g_p = np.zeros((st.P, 3, 3)), np.zeros((st.P, 3))
     g_c, W, U = np.zeros((st.Nv, 6)), np.zeros((st.E, 6, 3)), np.zeros((st.B, 6, 6))
     cross = getattr(st, "cross_blocks", None)
-    if cross is None:
-        cross = (np.empty((st.E, 6, 3)), np.empty((st.E, 6, 3)), np.empty((st.P, 3, 3)))
+    if cross is None:  # as SchurStructure._build_fast: [N | t] per entry, Xma per point
+        cross = (np.empty((st.E, 6, 4)), np.empty((st.P, 3, 3)))
     if not st.observer_unique:
         cross[0][:] = 0.0
-        cross[1][:] = 0.0
+    h = np.zeros((st.P, 3))
     terms = param.point_terms_for_rows(R, C, pts)
     bounds = st.obs_bounds
     for p0, p1 in point_chunks(bounds, CHUNK_OBS):
@@ -81,7 +81,9 @@ def build(st, param, R, C, pts, w, pt_free):
                                np.ascontiguousarray(anc.h[p0:p1]), Jp, r,
                                np.ascontiguousarray(st.slot_vc[:, m0:m1]),
                                np.ascontiguousarray(st.slot_entry[:, m0:m1]),
-                               bounds[p0:p1 + 1] - m0, W, g_c, U, cross[0], cross[1],
-                               cross[2][p0:p1], st.observer_unique)
+                               bounds[p0:p1 + 1] - m0, W, g_c, U, cross[0],
+                               cross[1][p0:p1], st.observer_unique)
+        h = anc.h  # per point, all P (the schur kernel forms the cross blocks with it)
     st.cross_blocks = cross
+    st.cross_h = np.ascontiguousarray(h)
     return V, g_p, (g_c, W, U)

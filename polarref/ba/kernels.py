@@ -86,18 +86,19 @@ def warm_up() -> float:
     x3 = f((1, 3))
     for cross in (False, True):
         schur_dense(W, f((1, 3, 3)), f((1, 3)), np.array([0, 1], np.int64), one, one, f((6, 6)),
-                    g, cross, W, W, f((1, 3, 3)), z3, np.array([0, 1], np.int64))
+                    g, cross, f((1, 6, 4)), x3, f((1, 3, 3)), z3, np.array([0, 1], np.int64))
     slot_gram(J6, 0, J6, 0, one, -np.ones(1, np.int64), U)
     slot_gram(J6, 0, Jp, 3, one, one, U)
     slot_w_g(J6, 0, Jp, r, one, one, W, g)
     slot_w_g(Jp, 3, Jp, r, one, one, W, g)
     build_observer(J6, Jp, r, one, one, one, W, g, U)
-    add_cross(f((6, 6)), W, W, f((1, 3, 3)), np.array([0, 1], np.int64), one, one, z3,
+    add_cross(f((6, 6)), f((1, 6, 4)), x3, f((1, 3, 3)), np.array([0, 1], np.int64), one, one, z3,
               np.array([0, 1], np.int64))
     point_sums(Jp, r, one, f((1, 3, 3)), f((1, 3)))
     back_substitute_rhs(W, g, one, one, i((1, 3)))
-    build_anchored(J6, r, x3, Jp, r, z3, z3, np.array([0, 1], np.int64), W, g, U, W, W,
-                   f((1, 3, 3)), True)
+    for assign in (True, False):
+        build_anchored(J6, r, x3, Jp, r, z3, z3, np.array([0, 1], np.int64), W, g, U,
+                       f((1, 6, 4)), f((1, 3, 3)), assign)
     R, x1 = np.eye(3)[None].copy(), f(1)
     euclidean_jacobians(Jp, euclidean_rays(R, x3, x3, one, one), R, one)
     parallax_points(R, x3, x3, one, one, True)

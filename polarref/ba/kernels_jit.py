@@ -13,7 +13,7 @@ def _njit(fn):
 
 
 @_njit
-def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, Xm, Xa, Xma, ent,
+def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, X, h, Xma, ent,
                 obs_bounds):
     """Point elimination into the dense reduced system, per point p with entries a <= b:
     ``S[6 ca:, 6 cb:] -= Z_a Z_b^T`` (6x6) and ``b[ca] += Z_a q_p``, ``Z = W L^-T``.
@@ -24,11 +24,13 @@ def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, Xm, Xa, Xma,
     b (Nv, 6), updated in place.
 
     With ``cross`` (three-slot forms, see schur.py ``fused``) the camera blocks that couple two
-    different cameras of one observation, precomputed per entry by :func:`build_anchored`
-    (observer entry x main centre Xm, observer entry x associate centre Xa (E, 6, 3), main x
-    associate centre Xma (P, 3, 3); ent (3, M) the slots' entries, obs_bounds (P + 1,) each
-    point's observations), are added to the point's 6x6 blocks of S in the same pass as its
-    Schur products (the block is in cache then; a second pass over S cost ~40 %).
+    different cameras of one observation are added to the point's 6x6 blocks of S in the same
+    pass as its Schur products (the block is in cache then; a second pass over S cost ~40 %).
+    They come compact from :func:`build_anchored`: per observer entry X (E, 6, 4) = [N | t]
+    (N = the observer's own ``J0^T J0[:, 3:6]``, t = ``J0^T (A d)``), so observer x main
+    centre = ``-N - t h_p^T`` and observer x associate centre = ``t h_p^T`` (h (P, 3) = dh/de),
+    and main x associate centre Xma (P, 3, 3); ent (3, M) the slots' entries, obs_bounds
+    (P + 1,) each point's observations.
     """
     nmax = 0
     for g in range(len(bounds) - 1):
@@ -64,13 +66,13 @@ def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, Xm, Xa, Xma,
                     continue
                 # observer x anchor centre: rows of the observer, columns 3:6 of the anchor
                 if bb == em:
-                    _add_block(S, Xm, a, ra, rb + 3, 6, False)
+                    _add_cross(S, X, h, p, a, ra, rb + 3, True, False)
                 elif a == em:
-                    _add_block(S, Xm, bb, ra + 3, rb, 6, True)
+                    _add_cross(S, X, h, p, bb, ra + 3, rb, True, True)
                 if bb == ea:
-                    _add_block(S, Xa, a, ra, rb + 3, 6, False)
+                    _add_cross(S, X, h, p, a, ra, rb + 3, False, False)
                 elif a == ea:
-                    _add_block(S, Xa, bb, ra + 3, rb, 6, True)
+                    _add_cross(S, X, h, p, bb, ra + 3, rb, False, True)
                 if a == em and bb == ea:
                     _add_block(S, Xma, p, ra + 3, rb + 3, 3, False)
                 elif a == ea and bb == em:
@@ -78,7 +80,7 @@ def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, Xm, Xa, Xma,
 
 
 @_njit
-def add_cross(S, Xm, Xa, Xma, bounds, entry_pt, entry_cam, ent, obs_bounds):
+def add_cross(S, X, h, Xma, bounds, entry_pt, entry_cam, ent, obs_bounds):
     """The three-slot cross-camera blocks of :func:`build_anchored` into the upper triangle
     of S (6 Nv, 6 Nv), for the dense-visibility path whose Schur products come from one
     ``dsyrk`` (schur.py); arguments as :func:`schur_dense`. Every entry of a point is the
@@ -89,20 +91,44 @@ def add_cross(S, Xm, Xa, Xma, bounds, entry_pt, entry_cam, ent, obs_bounds):
         em, ea = ent[1, obs_bounds[p]], ent[2, obs_bounds[p]]
         for a in range(e0, e1):  # entries sorted by camera: a < em <=> cam(a) < cam(em)
             ra = 6 * entry_cam[a]
-            for X, ee in ((Xm, em), (Xa, ea)):
+            for main in (True, False):
+                ee = em if main else ea
                 if ee < 0 or ee == a:
                     continue
                 rx = 6 * entry_cam[ee]
                 if a < ee:
-                    _add_block(S, X, a, ra, rx + 3, 6, False)
+                    _add_cross(S, X, h, p, a, ra, rx + 3, main, False)
                 else:
-                    _add_block(S, X, a, rx + 3, ra, 6, True)
+                    _add_cross(S, X, h, p, a, rx + 3, ra, main, True)
         if em >= 0 and ea >= 0 and em != ea:
             rm, rx = 6 * entry_cam[em] + 3, 6 * entry_cam[ea] + 3
             if em < ea:
                 _add_block(S, Xma, p, rm, rx, 3, False)
             else:
                 _add_block(S, Xma, p, rx, rm, 3, True)
+
+
+@_njit
+def _add_cross(S, X, h, p, e, r0, c0, main, transposed):
+    """``S[r0:, c0:] +=`` observer entry e x the main (``-N - t h^T``) or associate
+    (``t h^T``) centre of point p, 6 x 3, or its transpose (X = [N | t], see schur_dense)."""
+    h0, h1, h2 = h[p, 0], h[p, 1], h[p, 2]
+    for i in range(6):
+        t = X[e, i, 3]
+        if main:
+            x0 = -X[e, i, 0] - t * h0
+            x1 = -X[e, i, 1] - t * h1
+            x2 = -X[e, i, 2] - t * h2
+        else:
+            x0, x1, x2 = t * h0, t * h1, t * h2
+        if transposed:
+            S[r0, c0 + i] += x0
+            S[r0 + 1, c0 + i] += x1
+            S[r0 + 2, c0 + i] += x2
+        else:
+            S[r0 + i, c0] += x0
+            S[r0 + i, c0 + 1] += x1
+            S[r0 + i, c0 + 2] += x2
 
 
 @_njit
@@ -192,21 +218,22 @@ def build_observer(J, Jp, res, g_idx, w_idx, u_idx, W, g, U):
 
 
 @_njit
-def build_anchored(J0, Ad, h, Jp, res, vc, ent, obs_bounds, W, g, U, Xm, Xa, Xma, assign):
+def build_anchored(J0, Ad, h, Jp, res, vc, ent, obs_bounds, W, g, U, X, Xma, assign):
     """W, g and the diagonal camera blocks of U for parallax landmarks with the anchors'
     Jacobians factored (anchor_terms.py: ``J_a = (A d) h^T``, ``J_m = -J_obs[:, 3:6] - J_a``),
-    and the main x associate centre blocks for :func:`schur_dense`.
+    and the compact cross-camera terms for :func:`schur_dense`.
 
     J0 (M, k, 6) observer Jacobians; Ad (M, k); h (P, 3) = dh/de; Jp (M, k, 3); res (M, k);
     vc, ent (3, M) variable camera / entry of the (observer, main, associate) slots, -1 =
-    fixed; obs_bounds (P + 1,). U (Nv, 6, 6) indexed by variable camera. Out: Xm, Xa
-    (E, 6, 3) observer x main / associate centre per observer entry, Xma (P, 3, 3) main x
-    associate centre (blocks whose two cameras coincide go into U instead), for
-    :func:`schur_dense`; with ``assign`` (every entry is the observer of at most one
-    observation) Xm, Xa are written, not accumulated (no zeroing; the entries of an anchor's
-    own observation stay unset and are never read). As anchor_terms.py, the
-    anchor blocks are sums over the point's observations of the observer's own products (its
-    centre columns) and of the k-vector ``A d``: no (M, k, 3) anchor Jacobian is formed.
+    fixed; obs_bounds (P + 1,). U (Nv, 6, 6) indexed by variable camera. Out: X (E, 6, 4) =
+    [N | t] per observer entry, ``N = J0^T J0[:, 3:6]`` and ``t = J0^T (A d)`` of its
+    observation (observer x main centre = ``-N - t h^T``, observer x associate centre =
+    ``t h^T``: schur_dense forms them, 24 numbers per entry instead of two 6x3 blocks), and
+    Xma (P, 3, 3) main x associate centre. Blocks whose two cameras coincide (the anchors'
+    own observations) go into U instead. With ``assign`` (every entry is the observer of at
+    most one observation) X is written, not accumulated (no zeroing). As anchor_terms.py,
+    the anchor blocks are sums over the point's observations of the observer's own products
+    (its centre columns) and of the k-vector ``A d``: no (M, k, 3) anchor Jacobian is formed.
     """
     k = J0.shape[1]
     acc = np.empty((6, 11))  # J0^T [J0 | A d | res | Jp] of one observation
@@ -255,20 +282,31 @@ def build_anchored(J0, Ad, h, Jp, res, vc, ent, obs_bounds, W, g, U, Xm, Xa, Xma
                         W[e0, i, j] += acc[i, 8 + j]
                 for j in range(6):
                     U[c0, i, j] += acc[i, j]
-            for i in range(6):
-                for j in range(3):  # J0^T J_a = t h^T; J0^T J_m = -(J0^T J0)[:, 3:6] - t h^T
-                    xa = acc[i, 6] * h[p, j]
-                    xm = -acc[i, 3 + j] - xa
-                    if c0 == vm:  # the observer is its point's anchor: a diagonal block
+            if e0 >= 0:  # cross terms, compact: [N | t] (schur_dense forms the blocks)
+                if assign:
+                    for i in range(6):
+                        for j in range(4):
+                            X[e0, i, j] = acc[i, 3 + j]
+                else:
+                    for i in range(6):
+                        for j in range(4):
+                            X[e0, i, j] += acc[i, 3 + j]
+            # the observer is its point's anchor: J0^T J_m (J0^T J_a) is a diagonal block;
+            # J0^T J_a = t h^T, J0^T J_m = -(J0^T J0)[:, 3:6] - t h^T
+            if c0 == vm:
+                for i in range(6):
+                    t = acc[i, 6]
+                    for j in range(3):
+                        xm = -acc[i, 3 + j] - t * h[p, j]
                         U[c0, i, 3 + j] += xm
                         U[c0, 3 + j, i] += xm
-                    elif e0 >= 0:
-                        Xm[e0, i, j] = xm if assign else Xm[e0, i, j] + xm
-                    if c0 == va:
+            if c0 == va:
+                for i in range(6):
+                    t = acc[i, 6]
+                    for j in range(3):
+                        xa = t * h[p, j]
                         U[c0, i, 3 + j] += xa
                         U[c0, 3 + j, i] += xa
-                    elif e0 >= 0:
-                        Xa[e0, i, j] = xa if assign else Xa[e0, i, j] + xa
         # anchors: g, W, U centre blocks from the point's sums (anchor_terms.py)
         for i in range(3):
             ga = h[p, i] * sr

@@ -42,7 +42,7 @@ def _group_starts(sorted_keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return starts, sorted_keys[starts]
 
 
-_NO_CROSS = (np.zeros((0, 6, 3)), np.zeros((0, 6, 3)), np.zeros((0, 3, 3)))  # schur_dense
+_NO_CROSS = (np.zeros((0, 6, 4)), np.zeros((0, 3)), np.zeros((0, 3, 3)))  # schur_dense
 
 
 def _c(a: np.ndarray) -> np.ndarray:
@@ -334,15 +334,15 @@ class SchurStructure:
             # memory (fresh 2 x (E, 6, 3) pages cost ~0.5 ms of page faults per build)
             cross = getattr(self, "cross_blocks", None)
             if cross is None:
-                cross = (np.empty((self.E, 6, 3)), np.empty((self.E, 6, 3)),
-                         np.empty((self.P, 3, 3)))
+                cross = (np.empty((self.E, 6, 4)), np.empty((self.P, 3, 3)))
             if not self.observer_unique:
                 cross[0][:] = 0.0
-                cross[1][:] = 0.0
-            kernels.build_anchored(_c(Jc[0]), _c(anc.Ad), _c(anc.h), Jp, r, self.slot_vc,
+            h = _c(anc.h)
+            kernels.build_anchored(_c(Jc[0]), _c(anc.Ad), h, Jp, r, self.slot_vc,
                                    self.slot_entry, self.obs_bounds, W, g_c, U, *cross,
                                    self.observer_unique)
             self.cross_blocks = cross
+            self.cross_h = h
             return g_c, W, U
         Jc = [_c(J) for J in Jc]
         if self.slot_cols == [(0, 6)]:  # one observer slot (Euclidean): one pass
@@ -410,7 +410,7 @@ class SchurStructure:
             S[self.u_ca, :, self.u_cb, :] = U_blocks
             S = S.reshape(6 * Nv, 6 * Nv)
             if E:
-                X = self.cross_blocks if self.fused else _NO_CROSS
+                X = self._cross() if self.fused else _NO_CROSS
                 kernels.schur_dense(_c(W), Li, q, self.entry_bounds, self.entry_pt,
                                     self.entry_cam, S, b, self.fused, *X, self.slot_entry,
                                     self.obs_bounds)
@@ -436,7 +436,7 @@ class SchurStructure:
                                     lower=1, overwrite_c=1)
             if self.fused:
                 from polarref.ba import kernels
-                kernels.add_cross(S, *self.cross_blocks, self.entry_bounds, self.entry_pt,
+                kernels.add_cross(S, *self._cross(), self.entry_bounds, self.entry_pt,
                                   self.entry_cam, self.slot_entry, self.obs_bounds)
                 self._zero_held(S)
         elif E:
@@ -447,6 +447,11 @@ class SchurStructure:
             S4[self.seg_cb[off], :, self.seg_ca[off], :] -= blocks[off].transpose(0, 2, 1)
         S[np.diag_indices_from(S)] += diag_c.reshape(-1)
         return S, b.reshape(-1), Li
+
+    def _cross(self):
+        """The fused build's compact cross terms (X [N | t], h, Xma) as schur_dense takes them."""
+        X, Xma = self.cross_blocks
+        return X, self.cross_h, Xma
 
     def _zero_held(self, S: np.ndarray) -> None:
         """Fused path: the held gauge columns (apply_mask's mask_v) of the cross blocks added

@@ -193,6 +193,9 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     pt_free = (~problem.pt_fixed).astype(np.float64)[:, None]
     any_pt_fixed = bool(problem.pt_fixed.any())
     bounds = param.point_bounds() if isinstance(param, BoundedPoints) else None
+    if bounds is not None:
+        bcols = np.flatnonzero(np.isfinite(bounds[0]) | np.isfinite(bounds[1]))
+        lo_b, hi_b = bounds[0][bcols], bounds[1][bcols]
     clipped_steps = 0
     times["structure"] = time.perf_counter() - tic
     R, C = problem.R.copy(), problem.C.copy()
@@ -256,16 +259,19 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
                 V, g_p = st.point_terms(Jp_w, r_w)
             active = None
             if bounds is not None:
-                # at a bound with the descent direction pointing out of the box: held
-                active = (((pts <= bounds[0]) & (g_p > 0)) | ((pts >= bounds[1]) & (g_p < 0)))
-                if active.any():
+                # at a bound with the descent direction pointing out of the box: held (only
+                # the bounded columns can be: parallax forms, omega; the others stay False)
+                pb, gb = pts[:, bcols], g_p[:, bcols]
+                act_b = ((pb <= lo_b) & (gb > 0)) | ((pb >= hi_b) & (gb < 0))
+                if act_b.any():
+                    active = np.zeros(pts.shape, bool)
+                    active[:, bcols] = act_b
                     # a held component's Jacobian column is zero: its row/column of V and its
-                    # column of W vanish (masked, exactly; no second pass over observations)
-                    keep = (~active).astype(np.float64)
-                    V = V * keep[:, :, None] * keep[:, None, :]
-                    g_p = np.where(active, 0.0, g_p)
-                else:
-                    active = None
+                    # column of W vanish (zeroed in place on the held points only, exactly)
+                    ai, ac = np.nonzero(active)
+                    V[ai, ac, :] *= 0.0
+                    V[ai, :, ac] *= 0.0
+                    g_p[ai, ac] = 0.0
             # gauge-fixed columns and fixed cameras are masked on the assembled blocks
             if not lazy:
                 blocks = builder.build(Jc_w, Jp_w, r_w)
@@ -273,8 +279,11 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             # those; an accepted one rebuilds from its own): not held through the next trial
             r = Jp = Jc = r_w = Jp_w = Jc_w = None
             (g_c, W, U), blocks = blocks, None
-            if active is not None:
-                W = W * keep[st.entry_pt][:, None, :]
+            if active is not None:  # W's column of a held component: its point's entries
+                e0 = np.searchsorted(st.entry_pt, ai, "left")
+                ne = np.searchsorted(st.entry_pt, ai, "right") - e0
+                ee = np.repeat(e0 - np.cumsum(ne) + ne, ne) + np.arange(ne.sum())
+                W[ee, :, np.repeat(ac, ne)] *= 0.0
             g_c, W, U = st.apply_mask(mask_v, g_c, W, U)
             diag_u = np.zeros((st.Nv, 6))
             diag_u[st.u_ca[st.u_ca == st.u_cb]] = np.diagonal(
@@ -335,12 +344,14 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         delta = None
         if bounds is not None:
             # additive retraction (parallax forms): clip the step onto the box
-            delta = np.clip(pts + dp, bounds[0], bounds[1]) - (pts + dp)
-            if delta.any():
+            # (unbounded columns: clip(x) - x = 0; only the bounded ones are computed)
+            xb = pts[:, bcols] + dp[:, bcols]
+            d_b = np.clip(xb, lo_b, hi_b) - xb
+            if d_b.any():
+                delta = np.zeros(pts.shape)
+                delta[:, bcols] = d_b
                 model = _clipped_model(a_lin, q_damp, g_p, dp, delta, D_p, V, mu)
                 dp = dp + delta
-            else:
-                delta = None
         step_norm = float(np.sqrt((dc**2).sum() + (dp**2).sum()))
         x_norm = float(np.sqrt((C**2).sum() + (pts**2).sum()))
         if step_norm <= options.parameter_tolerance * (x_norm + options.parameter_tolerance):
