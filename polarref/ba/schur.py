@@ -29,6 +29,7 @@ import scipy.sparse.linalg
 # ~30 ns per gathered entry pair (2 x 18 doubles), ~4 us per camera-pair GEMM call,
 # ~0.1 ns per dsyrk flop (n^2 k flops for an (n, k) operand).
 _PAIR_S = 3.0e-8
+_PAIR_CHUNK = 1 << 20  # entry pairs per gather run of the camera-pair GEMM path (~300 MB)
 _SEGMENT_S = 4.0e-6
 _FLOP_S = 1.0e-10
 _PAIR_KERNEL_S = 3.0e-8  # compiled kernel: one 6x6x3 block product per entry pair (measured below)
@@ -247,7 +248,7 @@ class SchurStructure:
         if E == 0:
             self.pair_a = self.pair_b = self.seg_starts = self.seg_ends = np.zeros(0, np.int64)
             self.seg_ca = self.seg_cb = np.zeros(0, np.int64)
-            self.seg_bounds = []
+            self.seg_bounds, self.seg_chunks = [], []
             return
         reps = np.repeat(counts, counts)  # per entry: size of its point's group
         first = np.repeat(self.entry_pt_starts, counts)  # per entry: its group's start
@@ -262,9 +263,12 @@ class SchurStructure:
         self.seg_starts, sk = _group_starts(key[order])
         self.seg_ends = np.r_[self.seg_starts[1:], len(order)]
         self.seg_ca, self.seg_cb = sk // Nv, sk % Nv
-        self.pair_cols_a = (3 * self.pair_a[:, None] + np.arange(3)).ravel()
-        self.pair_cols_b = (3 * self.pair_b[:, None] + np.arange(3)).ravel()
         self.seg_bounds = list(zip((3 * self.seg_starts).tolist(), (3 * self.seg_ends).tolist()))
+        # runs of whole segments of <= _PAIR_CHUNK pairs: the column gathers of _pair_blocks are
+        # 288 B per pair, 8 GB at once on the 857-view twin (tens of millions of entry pairs)
+        cut = np.searchsorted(self.seg_starts, np.arange(0, len(order), _PAIR_CHUNK), side="right") - 1
+        cut = np.unique(np.r_[np.maximum(cut, 0), len(self.seg_starts)])
+        self.seg_chunks = list(zip(cut[:-1].tolist(), cut[1:].tolist()))
 
     # ------------------------------------------------------------------------------------------
     def linear_solver_name(self) -> str:
@@ -465,13 +469,17 @@ class SchurStructure:
     def _pair_blocks(self, Z: np.ndarray) -> np.ndarray:
         """Z Z^T blocks (segments, 6, 6) of the camera pairs (seg_ca <= seg_cb)."""
         Zt = np.ascontiguousarray(Z.transpose(1, 0, 2)).reshape(6, -1)  # (6, 3E)
-        # column gathers (np.take on the last axis is 8x faster than fancy-indexing (6, E, 3));
-        # one GEMM per camera pair: batching padded segments was slower (2x gather volume)
-        Ga = np.take(Zt, self.pair_cols_a, axis=1)
-        Gb = np.take(Zt, self.pair_cols_b, axis=1)
         out = np.empty((len(self.seg_bounds), 6, 6))
-        for i, (s0, s1) in enumerate(self.seg_bounds):
-            out[i] = Ga[:, s0:s1] @ Gb[:, s0:s1].T
+        for g0, g1 in self.seg_chunks:
+            p0, p1 = int(self.seg_starts[g0]), int(self.seg_ends[g1 - 1])
+            # column gathers (np.take on the last axis is 8x faster than fancy-indexing (6, E, 3));
+            # one GEMM per camera pair: batching padded segments was slower (2x gather volume)
+            Ga = np.take(Zt, (3 * self.pair_a[p0:p1, None] + np.arange(3)).ravel(), axis=1)
+            Gb = np.take(Zt, (3 * self.pair_b[p0:p1, None] + np.arange(3)).ravel(), axis=1)
+            c0 = 3 * p0
+            for i in range(g0, g1):
+                s0, s1 = self.seg_bounds[i]
+                out[i] = Ga[:, s0 - c0:s1 - c0] @ Gb[:, s0 - c0:s1 - c0].T
         return out
 
     def _sparse_system(self, U_blocks, Z, diag_c):
