@@ -85,6 +85,14 @@ def pycolmap_map(db_path: str, image_dir: str, work_dir: str, mapper: str, seed:
     db = copy_database(Path(db_path), work / "database.db")
     run = run_mapper(db, Path(image_dir), work / "sparse", mapper,
                      ColmapSfMOptions(seed=seed, num_threads=num_threads))
+    model = write_largest_model(run, work, mapper)
+    return MethodJobResult(str(model), {k: float(v) for k, v in run.stage_runtime_s.items()},
+                           num_models=int(run.num_models), verified_pairs=int(run.verified_pairs),
+                           registered=int(run.reconstruction.num_reg_images()))
+
+
+def write_largest_model(run, work: Path, mapper: str) -> Path:
+    """``work/model`` (COLMAP text) of a pycolmap mapping run; a run that registered nothing fails."""
     rec = run.reconstruction
     if rec is None or rec.num_reg_images() == 0:
         raise RuntimeError(f"pycolmap {mapper} mapping registered no images "
@@ -92,9 +100,7 @@ def pycolmap_map(db_path: str, image_dir: str, work_dir: str, mapper: str, seed:
     model = work / "model"
     model.mkdir(parents=True, exist_ok=True)
     rec.write_text(str(model))
-    return MethodJobResult(str(model), {k: float(v) for k, v in run.stage_runtime_s.items()},
-                           num_models=int(run.num_models), verified_pairs=int(run.verified_pairs),
-                           registered=int(rec.num_reg_images()))
+    return model
 
 
 def ours_sfm(image_dir: str, camera: dict, ba: str, work_dir: str, preset: str, cache_dir: str) -> MethodJobResult:

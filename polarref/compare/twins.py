@@ -140,7 +140,7 @@ def job_pycolmap_map(db_path: str, image_dir: str, work_dir: str, mapper: str, s
                      snapshot_every: int = 0) -> TwinJobResult:
     """pycolmap mapping of a copy of ``db_path``; incremental with ``snapshot_every`` > 0 resumes
     an interrupted run from its last snapshot (:mod:`polarref.peers.colmap_resume`)."""
-    from polarref.compare.jobs import pycolmap_map
+    from polarref.compare.jobs import pycolmap_map, write_largest_model
 
     if mapper != "incremental" or snapshot_every <= 0:
         out = pycolmap_map(db_path, image_dir, work_dir, mapper, seed, num_threads=1)
@@ -150,12 +150,7 @@ def job_pycolmap_map(db_path: str, image_dir: str, work_dir: str, mapper: str, s
 
     run, ledger = map_incremental_resumable(Path(db_path), Path(image_dir), Path(work_dir),
                                             ColmapSfMOptions(seed=seed, num_threads=1), snapshot_every)
-    rec = run.reconstruction
-    if rec is None or rec.num_reg_images() == 0:
-        raise RuntimeError(f"pycolmap incremental mapping registered no images ({run.num_models} models)")
-    model = Path(work_dir) / "model"
-    model.mkdir(parents=True, exist_ok=True)
-    rec.write_text(str(model))
+    model = write_largest_model(run, Path(work_dir), mapper)
     return TwinJobResult(dict(run.stage_runtime_s), _peak_mb(), model_dir=str(model),
                          counted_wall_s=ledger.counted_s, segments=len(ledger.segments))
 

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from polarref import records
-from polarref.peers.colmap_sfm import ColmapSfMOptions, ColmapSfMRun, _pycolmap, copy_database, count_verified_pairs
+from polarref.peers.colmap_sfm import ColmapSfMOptions, ColmapSfMRun, _pycolmap, copy_database, largest_model
 from polarref.model.colmap import incremental_options
 
 LEDGER = "segments.json"
@@ -132,9 +132,4 @@ def map_incremental_resumable(db_path: Path, image_dir: Path, work_dir: Path, op
                                         next_image_callback=on_next_image, cancellation_token=token)
     seg.finished_epoch_s = time.time()
     records.save(ledger, work / LEDGER)
-    best = max((recs or {}).values(), key=lambda r: r.num_reg_images(), default=None)
-    if best is not None:
-        best.update_point_3d_errors()
-    run = ColmapSfMRun(best, {"mapping": ledger.counted_s}, num_models=len(recs or {}),
-                       verified_pairs=count_verified_pairs(db))
-    return run, ledger
+    return largest_model(recs, db, ledger.counted_s), ledger

@@ -275,12 +275,16 @@ def run_mapper(db_path: Path, image_dir: Path, out_dir: Path, mapper: str = "inc
                                             options=incremental_options(opts))
     else:
         recs = pycolmap.global_mapping(str(db_path), str(image_dir), str(out_dir), options=global_options(opts))
-    elapsed = time.perf_counter() - t0
+    return largest_model(recs, db_path, time.perf_counter() - t0)
+
+
+def largest_model(recs, db_path: Path, mapping_s: float) -> ColmapSfMRun:
+    """The run record of a mapper's output ``{index: Reconstruction}`` (None/empty: nothing mapped)."""
     recs = recs or {}
     best = max(recs.values(), key=lambda r: r.num_reg_images(), default=None)
     if best is not None:
         best.update_point_3d_errors()  # the mean error reads cached per-point errors
-    return ColmapSfMRun(best, {"mapping": elapsed}, num_models=len(recs),
+    return ColmapSfMRun(best, {"mapping": mapping_s}, num_models=len(recs),
                         verified_pairs=count_verified_pairs(db_path))
 
 
