@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from pathlib import Path
 
 import pytest
 
@@ -184,3 +185,18 @@ def test_twin_comparison_runs_every_method_and_resumes(tmp_path):
         assert 100 < table.methods[name].mean_keypoints <= 4096, name   # both extract at most 4096
     readme = (tmp_path / "tables" / "README.md").read_text().split("## Table 3")[1]
     assert f"| #Tie point | 670,355 | 671,331 | {table.methods[PT.BASELINE].tie_points:,} |" in readme
+    # The variant script with the tables' own setting reproduces the stage's model's figures
+    # (same code, same caches), and refuses to overwrite its JSON.
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("twin_variant", Path(__file__).parents[1] / "scripts" / "twin_variant.py")
+    tv = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tv)
+    out_json = tmp_path / "variant.json"
+    assert tv.main([str(tmp_path / "out"), "euclidean", str(out_json), "--track-conflicts", "drop"]) == 0
+    rec = json.loads(out_json.read_text())
+    for key in ("registered", "tie_points", "reprojected_px"):
+        assert rec["variant"][key] == rec["baseline"][key] == getattr(table.methods[PT.BASELINE], key), key
+    assert rec["variant"]["rotation_error_deg"] == pytest.approx(rec["baseline"]["rotation_error_deg"], rel=1e-9)
+    assert rec["target_met"] is None and len(rec["provenance"]["git_commit"]) == 40
+    assert tv.main([str(tmp_path / "out"), "euclidean", str(out_json), "--track-conflicts", "split"]) == 1

@@ -81,11 +81,11 @@ def _camera(camera: dict):
     return cam(camera)
 
 
-def _sfm_config(pairs_file: str, cache_dir: str):
+def _sfm_config(pairs_file: str, cache_dir: str, track_conflicts: str = "drop"):
     from polarref.sfm.pipeline import PRESETS
 
     base = PRESETS["default"]
-    return dataclasses.replace(base, use_cache=True, cache_dir=cache_dir,
+    return dataclasses.replace(base, use_cache=True, cache_dir=cache_dir, track_conflicts=track_conflicts,
                                matching=dataclasses.replace(base.matching, pairing="file", pairs_file=pairs_file))
 
 
@@ -108,11 +108,15 @@ def job_ours_features(image_dir: str, camera: dict, pairs_file: str, cache_dir: 
                          feature_file=str(Path(cache_dir) / f"features-{key}.npz"))
 
 
-def job_ours_sfm(image_dir: str, camera: dict, ba: str, work_dir: str, pairs_file: str, cache_dir: str) -> TwinJobResult:
-    """Our incremental SfM with BA ``ba`` on the cached features/matches; model in work_dir/sfm/model."""
+def job_ours_sfm(image_dir: str, camera: dict, ba: str, work_dir: str, pairs_file: str, cache_dir: str,
+                 track_conflicts: str = "drop") -> TwinJobResult:
+    """Our incremental SfM with BA ``ba`` on the cached features/matches; model in work_dir/sfm/model.
+
+    ``track_conflicts``: the tables use the pipeline default ("drop"); "split" is the variant
+    measured by ``scripts/twin_variant.py`` (tracks and mapping only: the caches do not depend on it)."""
     from polarref.sfm.pipeline import run_sfm, with_ba
 
-    config = with_ba(_sfm_config(pairs_file, cache_dir), ba)
+    config = with_ba(_sfm_config(pairs_file, cache_dir, track_conflicts), ba)
     result = run_sfm(Path(image_dir), Path(work_dir) / "sfm", config, camera=_camera(camera), overwrite=True)
     t = result.report.runtime_s
     skip = {"total", "metrics", "export", "features_cached", "matches_cached", "features", "matching", "verification"}
