@@ -542,6 +542,46 @@ def _theta_row(x, y, z, jac, out, m, w):
 
 
 @_njit
+def pixel_rows(Xc, K, obs_uv, k, jac):
+    """Pixel residuals ``uv - obs_uv`` into rows 0:2 of res (M, k) and, with jac, ``uv_D_Xc``
+    into J (M, k, 3) (J has 0 rows without jac): projection.project with the same operations
+    in the same order (bitwise its result), in one pass and without its (M,) temporaries.
+    Rows 2: of res and J are left unset for the caller (polar's view-angle row), so a
+    k-row residual needs no second copy. K (M, 6) fx, fy, cx, cy, k1, k2; obs_uv (M, 2)."""
+    M = len(Xc)
+    res = np.empty((M, k))
+    J = np.empty((M if jac else 0, k, 3))
+    for m in range(M):
+        fx, fy, cx, cy, k1, k2 = K[m, 0], K[m, 1], K[m, 2], K[m, 3], K[m, 4], K[m, 5]
+        iz = 1.0 / Xc[m, 2]
+        x, y = Xc[m, 0] * iz, Xc[m, 1] * iz
+        r2 = x * x + y * y
+        dist = 1.0 + r2 * (k1 + k2 * r2)
+        res[m, 0] = (fx * x * dist + cx) - obs_uv[m, 0]
+        res[m, 1] = (fy * y * dist + cy) - obs_uv[m, 1]
+        if not jac:
+            continue
+        a = 2.0 * (k1 + 2.0 * k2 * r2)
+        dxx, dxy, dyy = dist + a * x * x, a * x * y, dist + a * y * y
+        j00, j01 = fx * dxx * iz, fx * dxy * iz
+        j10, j11 = fy * dxy * iz, fy * dyy * iz
+        J[m, 0, 0], J[m, 0, 1], J[m, 0, 2] = j00, j01, -(j00 * x + j01 * y)
+        J[m, 1, 0], J[m, 1, 1], J[m, 1, 2] = j10, j11, -(j10 * x + j11 * y)
+    return res, J
+
+
+@_njit
+def theta_row_into(Xc, theta_obs, w_theta, res, J, jac):
+    """Polar's weighted view-angle row ``(theta - theta_obs) w_theta`` into row 2 of res
+    (M, 3) and, with jac, its ``res_D_Xc`` into row 2 of J (M, 3, 3), in place (rows 0:2
+    from :func:`pixel_rows`): the same values as :func:`polar_rows`' third row."""
+    Jt = J[:, 2, :]  # a view: _theta_row writes row 2 of J
+    for m in range(len(Xc)):
+        th = _theta_row(Xc[m, 0], Xc[m, 1], Xc[m, 2], jac, Jt, m, w_theta[m])
+        res[m, 2] = (th - theta_obs[m]) * w_theta[m]
+
+
+@_njit
 def polar_rows(Xc, res_uv, Juv, theta_obs, w_theta, jac):
     """Polar residuals (M, 3): pixel rows ``res_uv`` (M, 2) and the weighted view-angle row
     ``(theta - theta_obs) w_theta`` (polar.py), with jac their ``res_D_Xc`` (M, 3, 3) from the
