@@ -207,3 +207,19 @@ def test_pixel_rows_kernel_equals_numpy_projection(k):
         np.testing.assert_allclose(res, ref_r, rtol=1e-12, atol=0)
         np.testing.assert_allclose(J, ref_J, rtol=1e-12, atol=1e-300)
         assert np.abs(res[:, 2]).max() > 1e-3  # the third row is really there
+
+
+def test_parallax_xyz_kernel_equals_numpy(problems):
+    """The compiled write-back of parallax landmarks (to_xyz with kernels) against numpy's,
+    off the initial estimate and with a tenth of the points at infinity (w = 0: written FAR
+    baselines out, counted)."""
+    p = problems["sparse"]
+    ref = make_param(p, BAOptions(param="parallax", kernels="numpy"))
+    fast = make_param(p, BAOptions(param="parallax", kernels="numba"))
+    pts = ref.init_points() + 1e-3
+    pts[::10, 2] = 0.0
+    C = p.C + 0.01
+    X0, X1 = ref.to_xyz(p.R, C, pts), fast.to_xyz(p.R, C, pts)
+    assert ref.num_at_infinity == fast.num_at_infinity == len(pts[::10])
+    np.testing.assert_allclose(X1, X0, rtol=1e-12, atol=0)
+    assert np.abs(X1 - ref.to_xyz(p.R, C, ref.init_points())).max() > 1e-3  # pts matter

@@ -75,6 +75,7 @@ def warm_up() -> float:
                                          build_anchored, build_observer, euclidean_jacobians,
                                          euclidean_rays,
                                          parallax_jacobians, parallax_points, parallax_rays,
+                                         parallax_xyz,
                                          pixel_rows, point_sums, polar_rows, schur_dense,
                                          slot_gram, slot_w_g, theta_row_into)
     t = time.perf_counter()
@@ -103,6 +104,7 @@ def warm_up() -> float:
     euclidean_jacobians(Jp, euclidean_rays(R, x3, x3, one, one), R, one)
     parallax_points(R, x3, x3, one, one, True)
     parallax_rays(R, x3, one, one, x3, x1, x3)
+    parallax_xyz(R, x3, x3, one, one, 1e8)
     for dense in (True, False):
         parallax_jacobians(Jp, x3, R, x3, one, one, x3, x3, x1, x1, x1, x3, f((1, 3, 2)), dense)
     for jac in (True, False):

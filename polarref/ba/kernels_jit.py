@@ -451,6 +451,36 @@ def parallax_points(frame, pts, C, main, assoc, jac):
 
 
 @_njit
+def parallax_xyz(frame, pts, C, main, assoc, far):
+    """XYZ (P, 3) of parallax landmarks (parallax.py ``to_xyz``: ``C_m + (h / sin(w)) d``, or
+    ``far |e|`` along d where ``|sin(w)| far < 1``) and the number of such points at
+    infinity; the solve's write-back, one pass instead of numpy's (P,) temporaries."""
+    P = len(pts)
+    X = np.empty((P, 3))
+    n_far = 0
+    for p in range(P):
+        ca, sa = np.cos(pts[p, 0]), np.sin(pts[p, 0])
+        cb, sb = np.cos(pts[p, 1]), np.sin(pts[p, 1])
+        u0, u1, u2 = cb * ca, cb * sa, sb
+        m, a = main[p], assoc[p]
+        d0 = frame[p, 0, 0] * u0 + frame[p, 0, 1] * u1 + frame[p, 0, 2] * u2
+        d1 = frame[p, 1, 0] * u0 + frame[p, 1, 1] * u1 + frame[p, 1, 2] * u2
+        d2 = frame[p, 2, 0] * u0 + frame[p, 2, 1] * u1 + frame[p, 2, 2] * u2
+        e0, e1, e2 = C[a, 0] - C[m, 0], C[a, 1] - C[m, 1], C[a, 2] - C[m, 2]
+        sw = np.sin(pts[p, 2])
+        if abs(sw) * far < 1.0:
+            dist = far * np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+            n_far += 1
+        else:
+            c = d0 * e0 + d1 * e1 + d2 * e2
+            x0, x1, x2 = d1 * e2 - d2 * e1, d2 * e0 - d0 * e2, d0 * e1 - d1 * e0
+            s = np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+            dist = (sw * c + np.cos(pts[p, 2]) * s) / sw
+        X[p, 0], X[p, 1], X[p, 2] = C[m, 0] + dist * d0, C[m, 1] + dist * d1, C[m, 2] + dist * d2
+    return X, n_far
+
+
+@_njit
 def parallax_rays(R, C, obs_cam, obs_pt, Cm, sw, hd):
     """Camera-frame rays ``Xc[m] = R_i (sin(w) (C_m - C_i) + h d)`` (M, 3) of parallax
     landmarks (parallax.py); Cm, hd = h d (P, 3) and sw (P,) per point."""

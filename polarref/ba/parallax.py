@@ -277,6 +277,11 @@ class Parallax:
 
     def to_xyz(self, R, C, pts) -> np.ndarray:
         """XYZ of the landmarks; points at infinity (w ~ 0) go FAR baselines out along d."""
+        if self.fast:  # the solve's write-back: compiled (kernels.py), equal to rounding
+            from polarref.ba import kernels
+            X, self.num_at_infinity = kernels.parallax_xyz(self.frame, pts, C, self.main,
+                                                           self.assoc, FAR)
+            return X
         Cm, d, e, _, _, sw, _, h = self.landmark_terms(C, pts)
         base = np.linalg.norm(e, axis=1)
         far = np.abs(sw) * FAR < 1.0
