@@ -175,3 +175,51 @@ def test_fused_reduced_system_equals_numpy_camera_pairs(problems, param, unique,
     assert np.abs(np.triu(S0, 6)).max() > 0  # cameras coupled: cross blocks are exercised
     np.testing.assert_allclose(S1, S0, rtol=0, atol=1e-12 * np.abs(S0).max())
     np.testing.assert_allclose(b1, b0, rtol=0, atol=1e-12 * np.abs(b0).max())
+
+
+@pytest.mark.parametrize("k", [2, 3])
+def test_pixel_rows_kernel_equals_numpy_projection(k):
+    """The compiled pixel rows (Projector.residuals with ``compiled``) against the numpy
+    projection (projection.project) on random rays with radial distortion: the same operations
+    in the same order, so equal to rounding (1e-12 relative; bitwise here), and the view-angle
+    row written in place beside them equals the stacked polar rows (polar_rows)."""
+    from polarref.ba import kernels
+    from polarref.ba.projection import project
+    rng = np.random.default_rng(3)
+    M = 500
+    Xc = np.c_[rng.normal(size=(M, 2)), rng.uniform(0.5, 3.0, M)]
+    Xc[::7, 2] *= -1.0  # behind the camera: projected anyway (both paths)
+    K = np.c_[rng.uniform(300, 900, (M, 2)), rng.uniform(100, 400, (M, 2)),
+              rng.normal(0, 0.1, M), rng.normal(0, 0.01, M)]
+    obs = rng.uniform(0, 500, (M, 2))
+    uv, Juv = project(Xc, K)
+    for jac in (True, False):
+        res, J = kernels.pixel_rows(Xc, K, obs, k, jac)
+        assert res.shape == (M, k) and J.shape == ((M, k, 3) if jac else (0, k, 3))
+        np.testing.assert_allclose(res[:, :2], uv - obs, rtol=1e-12, atol=0)
+        if jac:
+            np.testing.assert_allclose(J[:, :2], Juv, rtol=1e-12, atol=1e-300)
+    if k == 3:
+        theta_obs, w = rng.uniform(0, 1, M), rng.uniform(0.5, 2, M)
+        res, J = kernels.pixel_rows(Xc, K, obs, 3, True)
+        kernels.theta_row_into(Xc, theta_obs, w, res, J, True)
+        ref_r, ref_J = kernels.polar_rows(Xc, uv - obs, Juv, theta_obs, w, True)
+        np.testing.assert_allclose(res, ref_r, rtol=1e-12, atol=0)
+        np.testing.assert_allclose(J, ref_J, rtol=1e-12, atol=1e-300)
+        assert np.abs(res[:, 2]).max() > 1e-3  # the third row is really there
+
+
+def test_parallax_xyz_kernel_equals_numpy(problems):
+    """The compiled write-back of parallax landmarks (to_xyz with kernels) against numpy's,
+    off the initial estimate and with a tenth of the points at infinity (w = 0: written FAR
+    baselines out, counted)."""
+    p = problems["sparse"]
+    ref = make_param(p, BAOptions(param="parallax", kernels="numpy"))
+    fast = make_param(p, BAOptions(param="parallax", kernels="numba"))
+    pts = ref.init_points() + 1e-3
+    pts[::10, 2] = 0.0
+    C = p.C + 0.01
+    X0, X1 = ref.to_xyz(p.R, C, pts), fast.to_xyz(p.R, C, pts)
+    assert ref.num_at_infinity == fast.num_at_infinity == len(pts[::10])
+    np.testing.assert_allclose(X1, X0, rtol=1e-12, atol=0)
+    assert np.abs(X1 - ref.to_xyz(p.R, C, ref.init_points())).max() > 1e-3  # pts matter

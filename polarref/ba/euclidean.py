@@ -33,8 +33,8 @@ class Euclidean:
 
     def __init__(self, problem: BAProblem, options=None):
         self.p = problem
-        self.proj = Projector(problem.cameras, problem.obs_cam)
         self.fast = options is not None and use_kernels(options.kernels)  # kernels.py
+        self.proj = Projector(problem.cameras, problem.obs_cam, compiled=self.fast)
         self.slot_cams = problem.obs_cam[None, :]
         self.slot_cols = ((0, 6),)  # the observing camera: rotation and centre
 
@@ -53,13 +53,16 @@ class Euclidean:
     def evaluate(self, R, C, pts, jac: bool = True, factored: bool = False):
         """Residuals (M, 2); with jac also ``res_D_point`` (M, 2, 3) and [``res_D_cam`` (M, 2, 6)]."""
         Ri, Xc = self.camera_frame(R, C, pts)
+        if self.fast:
+            res, Juv = self.proj.residuals(Xc, self.p.obs_uv, 2, jac)
+            if not jac:
+                return res, None, None
+            from polarref.ba import kernels
+            Jp, Jc = kernels.euclidean_jacobians(Juv, Xc, R, self.p.obs_cam)
+            return res, Jp, [Jc]
         if not jac:
             return self.proj(Xc, jac=False) - self.p.obs_uv, None, None
         uv, Juv = self.proj(Xc)
-        if self.fast:
-            from polarref.ba import kernels
-            Jp, Jc = kernels.euclidean_jacobians(Juv, Xc, R, self.p.obs_cam)
-            return uv - self.p.obs_uv, Jp, [Jc]
         Jp = Juv @ Ri
         Jc = np.empty((len(Xc), 2, 6))
         Jc[:, :, :3] = rot_columns(Xc, Juv)

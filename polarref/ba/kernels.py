@@ -75,8 +75,9 @@ def warm_up() -> float:
                                          build_anchored, build_observer, euclidean_jacobians,
                                          euclidean_rays,
                                          parallax_jacobians, parallax_points, parallax_rays,
-                                         point_sums, polar_rows, schur_dense, slot_gram,
-                                         slot_w_g)
+                                         parallax_xyz,
+                                         pixel_rows, point_sums, polar_rows, schur_dense,
+                                         slot_gram, slot_w_g, theta_row_into)
     t = time.perf_counter()
     f, i = np.zeros, np.zeros
     one = np.zeros(1, np.int64)
@@ -103,11 +104,15 @@ def warm_up() -> float:
     euclidean_jacobians(Jp, euclidean_rays(R, x3, x3, one, one), R, one)
     parallax_points(R, x3, x3, one, one, True)
     parallax_rays(R, x3, one, one, x3, x1, x3)
+    parallax_xyz(R, x3, x3, one, one, 1e8)
     for dense in (True, False):
         parallax_jacobians(Jp, x3, R, x3, one, one, x3, x3, x1, x1, x1, x3, f((1, 3, 2)), dense)
     for jac in (True, False):
         polar_rows(x3, r, f((1 if jac else 0, 2, 3)), x1, x1, jac)
         angular_rows(x3, r, f((1, 2, 2)), x1, np.ones(1, bool), jac)
+        for k in (2, 3):
+            res3, J3 = pixel_rows(x3, f((1, 6)), r, k, jac)
+        theta_row_into(x3, x1, x1, res3, J3, jac)
     dt = time.perf_counter() - t
     log.debug("BA kernels ready in %.2f s", dt)
     return dt

@@ -451,6 +451,36 @@ def parallax_points(frame, pts, C, main, assoc, jac):
 
 
 @_njit
+def parallax_xyz(frame, pts, C, main, assoc, far):
+    """XYZ (P, 3) of parallax landmarks (parallax.py ``to_xyz``: ``C_m + (h / sin(w)) d``, or
+    ``far |e|`` along d where ``|sin(w)| far < 1``) and the number of such points at
+    infinity; the solve's write-back, one pass instead of numpy's (P,) temporaries."""
+    P = len(pts)
+    X = np.empty((P, 3))
+    n_far = 0
+    for p in range(P):
+        ca, sa = np.cos(pts[p, 0]), np.sin(pts[p, 0])
+        cb, sb = np.cos(pts[p, 1]), np.sin(pts[p, 1])
+        u0, u1, u2 = cb * ca, cb * sa, sb
+        m, a = main[p], assoc[p]
+        d0 = frame[p, 0, 0] * u0 + frame[p, 0, 1] * u1 + frame[p, 0, 2] * u2
+        d1 = frame[p, 1, 0] * u0 + frame[p, 1, 1] * u1 + frame[p, 1, 2] * u2
+        d2 = frame[p, 2, 0] * u0 + frame[p, 2, 1] * u1 + frame[p, 2, 2] * u2
+        e0, e1, e2 = C[a, 0] - C[m, 0], C[a, 1] - C[m, 1], C[a, 2] - C[m, 2]
+        sw = np.sin(pts[p, 2])
+        if abs(sw) * far < 1.0:
+            dist = far * np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+            n_far += 1
+        else:
+            c = d0 * e0 + d1 * e1 + d2 * e2
+            x0, x1, x2 = d1 * e2 - d2 * e1, d2 * e0 - d0 * e2, d0 * e1 - d1 * e0
+            s = np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+            dist = (sw * c + np.cos(pts[p, 2]) * s) / sw
+        X[p, 0], X[p, 1], X[p, 2] = C[m, 0] + dist * d0, C[m, 1] + dist * d1, C[m, 2] + dist * d2
+    return X, n_far
+
+
+@_njit
 def parallax_rays(R, C, obs_cam, obs_pt, Cm, sw, hd):
     """Camera-frame rays ``Xc[m] = R_i (sin(w) (C_m - C_i) + h d)`` (M, 3) of parallax
     landmarks (parallax.py); Cm, hd = h d (P, 3) and sw (P,) per point."""
@@ -539,6 +569,46 @@ def _theta_row(x, y, z, jac, out, m, w):
         out[m, 1] = y * f * sg * w
         out[m, 2] = -rho / n2 * sg * w
     return theta
+
+
+@_njit
+def pixel_rows(Xc, K, obs_uv, k, jac):
+    """Pixel residuals ``uv - obs_uv`` into rows 0:2 of res (M, k) and, with jac, ``uv_D_Xc``
+    into J (M, k, 3) (J has 0 rows without jac): projection.project with the same operations
+    in the same order (bitwise its result), in one pass and without its (M,) temporaries.
+    Rows 2: of res and J are left unset for the caller (polar's view-angle row), so a
+    k-row residual needs no second copy. K (M, 6) fx, fy, cx, cy, k1, k2; obs_uv (M, 2)."""
+    M = len(Xc)
+    res = np.empty((M, k))
+    J = np.empty((M if jac else 0, k, 3))
+    for m in range(M):
+        fx, fy, cx, cy, k1, k2 = K[m, 0], K[m, 1], K[m, 2], K[m, 3], K[m, 4], K[m, 5]
+        iz = 1.0 / Xc[m, 2]
+        x, y = Xc[m, 0] * iz, Xc[m, 1] * iz
+        r2 = x * x + y * y
+        dist = 1.0 + r2 * (k1 + k2 * r2)
+        res[m, 0] = (fx * x * dist + cx) - obs_uv[m, 0]
+        res[m, 1] = (fy * y * dist + cy) - obs_uv[m, 1]
+        if not jac:
+            continue
+        a = 2.0 * (k1 + 2.0 * k2 * r2)
+        dxx, dxy, dyy = dist + a * x * x, a * x * y, dist + a * y * y
+        j00, j01 = fx * dxx * iz, fx * dxy * iz
+        j10, j11 = fy * dxy * iz, fy * dyy * iz
+        J[m, 0, 0], J[m, 0, 1], J[m, 0, 2] = j00, j01, -(j00 * x + j01 * y)
+        J[m, 1, 0], J[m, 1, 1], J[m, 1, 2] = j10, j11, -(j10 * x + j11 * y)
+    return res, J
+
+
+@_njit
+def theta_row_into(Xc, theta_obs, w_theta, res, J, jac):
+    """Polar's weighted view-angle row ``(theta - theta_obs) w_theta`` into row 2 of res
+    (M, 3) and, with jac, its ``res_D_Xc`` into row 2 of J (M, 3, 3), in place (rows 0:2
+    from :func:`pixel_rows`): the same values as :func:`polar_rows`' third row."""
+    Jt = J[:, 2, :]  # a view: _theta_row writes row 2 of J
+    for m in range(len(Xc)):
+        th = _theta_row(Xc[m, 0], Xc[m, 1], Xc[m, 2], jac, Jt, m, w_theta[m])
+        res[m, 2] = (th - theta_obs[m]) * w_theta[m]
 
 
 @_njit

@@ -104,7 +104,9 @@ class Parallax:
 
     def __init__(self, problem: BAProblem, options=None):
         self.p = problem
-        self.proj = Projector(problem.cameras, problem.obs_cam)
+        # compiled rays and chain rule (kernels.py) for the solver's dense slot Jacobians
+        self.fast = options is not None and use_kernels(options.kernels)
+        self.proj = Projector(problem.cameras, problem.obs_cam, compiled=self.fast)
         self.main, self.assoc, omega0 = choose_anchors(problem)
         self.omega0 = omega0
         op = problem.obs_pt
@@ -113,8 +115,6 @@ class Parallax:
         self.slot_cols = ((0, 6), (3, 6), (3, 6))
         self.anchor_cams = (self.main, self.assoc)  # Jc = [J_obs, AnchorJacobian]
         self.frame = direction_frames(problem.X - problem.C[self.main])
-        # compiled rays and chain rule (kernels.py) for the solver's dense slot Jacobians
-        self.fast = options is not None and use_kernels(options.kernels)
 
     def init_points(self) -> np.ndarray:
         p = self.p
@@ -175,6 +175,8 @@ class Parallax:
 
     def residual_rows(self, Xc: np.ndarray, jac: bool):
         """Residuals (M, k) and ``res_D_Xc`` (M, k, 3); pixel residuals here."""
+        if self.fast:
+            return self.proj.residuals(Xc, self.p.obs_uv, 2, jac)
         if not jac:
             return self.proj(Xc, jac=False) - self.p.obs_uv, None
         uv, Juv = self.proj(Xc)
@@ -266,6 +268,8 @@ class Parallax:
 
     def pixel_residuals(self, R, C, pts) -> np.ndarray:
         Xc, _ = self.rays(R, C, pts, False)
+        if self.fast:
+            return self.proj.residuals(Xc, self.p.obs_uv, 2, False)[0]
         return self.proj(Xc, jac=False) - self.p.obs_uv
 
     def retract_points(self, pts, dp):
@@ -273,6 +277,11 @@ class Parallax:
 
     def to_xyz(self, R, C, pts) -> np.ndarray:
         """XYZ of the landmarks; points at infinity (w ~ 0) go FAR baselines out along d."""
+        if self.fast:  # the solve's write-back: compiled (kernels.py), equal to rounding
+            from polarref.ba import kernels
+            X, self.num_at_infinity = kernels.parallax_xyz(self.frame, pts, C, self.main,
+                                                           self.assoc, FAR)
+            return X
         Cm, d, e, _, _, sw, _, h = self.landmark_terms(C, pts)
         base = np.linalg.norm(e, axis=1)
         far = np.abs(sw) * FAR < 1.0

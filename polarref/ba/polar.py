@@ -34,17 +34,14 @@ class Polar(Parallax):
         self.w_theta = 1.0 / s_theta
 
     def residual_rows(self, Xc, jac):
-        if self.fast:  # the view-angle row and the stacking compiled (kernels.py)
+        if self.fast:  # the view-angle row compiled (kernels.py), written beside the
+            # pixel rows in place: no (M, 2) / (M, 2, 3) pixel arrays copied into (M, 3)
             from polarref.ba import kernels
-            if not jac:
-                res_uv, Juv = self.proj(Xc, jac=False) - self.p.obs_uv, np.zeros((0, 2, 3))
-            else:
-                uv, Juv = self.proj(Xc)
-                res_uv = uv - self.p.obs_uv
-            res, J = kernels.polar_rows(np.ascontiguousarray(Xc), np.ascontiguousarray(res_uv),
-                                        np.ascontiguousarray(Juv), self.theta_obs,
-                                        self.w_theta, jac)
-            return res, (J if jac else None)
+            Xc = np.ascontiguousarray(Xc)
+            res, J = self.proj.residuals(Xc, self.p.obs_uv, 3, jac)
+            kernels.theta_row_into(Xc, self.theta_obs, self.w_theta, res,
+                                   J if jac else np.empty((0, 3, 3)), jac)
+            return res, J
         res = np.empty((len(Xc), 3))
         theta, Jt = theta_rows(Xc, jac)
         res[:, 2] = (theta - self.theta_obs) * self.w_theta

@@ -82,10 +82,12 @@ def project(Xc: np.ndarray, K: np.ndarray, jac: bool = True):
 class Projector:
     """Projects observations with their camera's model: the fast kernel or Camera's own."""
 
-    def __init__(self, cameras: list, obs_cam: np.ndarray):
-        """cameras: one Camera per problem camera (index = camera index); obs_cam (M,)."""
+    def __init__(self, cameras: list, obs_cam: np.ndarray, compiled: bool = False):
+        """cameras: one Camera per problem camera (index = camera index); obs_cam (M,);
+        compiled: :meth:`residuals` through the numba kernel (kernels.py) where it applies."""
         table = [radial_params(c) for c in cameras]
         self.fast = all(t is not None for t in table)
+        self.compiled = compiled and self.fast
         if self.fast:
             self.K = np.array(table).reshape(-1, 6)[obs_cam]
         else:
@@ -98,6 +100,24 @@ class Projector:
         out = copy.copy(self)
         out.K = self.K[m0:m1]
         return out
+
+    def residuals(self, Xc: np.ndarray, obs_uv: np.ndarray, k: int = 2, jac: bool = True):
+        """Pixel residuals ``uv - obs_uv`` in rows 0:2 of an (M, k) array and, with jac,
+        ``uv_D_Xc`` in rows 0:2 of an (M, k, 3) array (else None); rows 2: are left unset
+        for the caller's own residual rows. The same values as :meth:`__call__`."""
+        if self.compiled:
+            from polarref.ba import kernels
+            res, J = kernels.pixel_rows(np.ascontiguousarray(Xc), self.K, obs_uv, k, jac)
+            return res, (J if jac else None)
+        res = np.empty((len(Xc), k))
+        if not jac:
+            res[:, :2] = self(Xc, jac=False) - obs_uv
+            return res, None
+        uv, Juv = self(Xc)
+        res[:, :2] = uv - obs_uv
+        J = np.empty((len(Xc), k, 3))
+        J[:, :2] = Juv
+        return res, J
 
     def __call__(self, Xc: np.ndarray, jac: bool = True):
         if self.fast:
