@@ -16,7 +16,8 @@ import sys
 import time
 from pathlib import Path
 
-from polarref.compare.twins import job_ours_sfm
+from polarref.compare.twins import finished_stage_inputs, job_ours_sfm
+from polarref.errors import PolarrefError
 from polarref.provenance import collect
 
 
@@ -30,13 +31,13 @@ def main(argv=None) -> int:
     if a.out.exists():
         print(f"error: {a.out} exists", file=sys.stderr)
         return 1
-    stage = json.loads((a.run / "stages" / f"ours-{a.ba}.json").read_text())
-    run = json.loads((a.run / "run.json").read_text())
-    pairs = a.run / json.loads((a.run / "pairs.json").read_text())["file"]
+    try:
+        stage, run, pairs, scene = finished_stage_inputs(a.run, f"ours-{a.ba}")
+    except PolarrefError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     from polarref.compare.jobs import camera_to_json
-    from polarref.compare.scenes import prepare
 
-    scene = prepare(run["scene_dir"] or run["twin"], "default", run["seed"])
     work = a.work or a.out.with_suffix("")
     t0 = time.perf_counter()
     r = job_ours_sfm(str(scene.image_dir), camera_to_json(scene.camera), a.ba, str(work), str(pairs),

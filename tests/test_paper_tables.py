@@ -200,3 +200,4 @@ def test_twin_comparison_runs_every_method_and_resumes(tmp_path):
     assert rec["variant"]["rotation_error_deg"] == pytest.approx(rec["baseline"]["rotation_error_deg"], rel=1e-9)
     assert rec["target_met"] is None and len(rec["provenance"]["git_commit"]) == 40
     assert tv.main([str(tmp_path / "out"), "euclidean", str(out_json), "--track-conflicts", "split"]) == 1
+    assert tv.main([str(tmp_path / "nowhere"), "polar", str(tmp_path / "x.json"), "--track-conflicts", "split"]) == 1

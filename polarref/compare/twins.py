@@ -162,6 +162,24 @@ def job_pycolmap_map(db_path: str, image_dir: str, work_dir: str, mapper: str, s
 JOBS = {f.__name__: f for f in (job_ours_features, job_ours_sfm, job_pycolmap_db, job_pycolmap_map)}
 
 
+def finished_stage_inputs(run_dir: Path, stage: str):
+    """What a rerun of one finished stage of a twin run needs (scripts/twin_memory.py, twin_variant.py).
+
+    Returns (stage record, run.json settings, pairs file, prepared scene); a missing stage record
+    raises :class:`PolarrefError` naming the command that makes it."""
+    from polarref.compare.scenes import prepare
+
+    run_dir = Path(run_dir)
+    stage_file = run_dir / "stages" / f"{stage}.json"
+    if not stage_file.is_file():
+        raise PolarrefError(f"{stage_file} missing: run `polarref compare <twin> --out {run_dir}` first")
+    rec = json.loads(stage_file.read_text())
+    run = json.loads((run_dir / "run.json").read_text())
+    pairs = run_dir / json.loads((run_dir / "pairs.json").read_text())["file"]
+    scene = prepare(run["scene_dir"] or run["twin"], "default", run["seed"])
+    return rec, run, pairs, scene
+
+
 # ---- the run ----------------------------------------------------------------------------------
 class _Stages:
     """Resumable stages: ``stages/<name>.json`` marks a finished one."""
