@@ -13,10 +13,9 @@ import argparse
 import filecmp
 import json
 import sys
-import time
 from pathlib import Path
 
-from polarref.compare.twins import finished_stage_inputs, job_ours_sfm
+from polarref.compare.twins import rerun_ours_stage
 from polarref.errors import PolarrefError
 from polarref.provenance import collect
 
@@ -28,25 +27,17 @@ def main(argv=None) -> int:
     ap.add_argument("out", type=Path, help="JSON to write (refused if it exists)")
     ap.add_argument("--work", type=Path, default=None, help="scratch folder for the model (default: beside OUT)")
     a = ap.parse_args(argv)
-    if a.out.exists():
-        print(f"error: {a.out} exists", file=sys.stderr)
-        return 1
     try:
-        stage, run, pairs, scene = finished_stage_inputs(a.run, f"ours-{a.ba}")
+        rr = rerun_ours_stage(a.run, a.ba, a.out, a.work)
     except PolarrefError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
-    from polarref.compare.jobs import camera_to_json
-
-    work = a.work or a.out.with_suffix("")
-    t0 = time.perf_counter()
-    r = job_ours_sfm(str(scene.image_dir), camera_to_json(scene.camera), a.ba, str(work), str(pairs),
-                     str(a.run / "cache"))
+    stage, run, scene, r = rr.stage, rr.run, rr.scene, rr.result
     same = filecmp.cmp(Path(r.model_dir) / "points3D.txt", Path(stage["result"]["model_dir"]) / "points3D.txt",
                        shallow=False)
     rec = {"twin": run["twin"], "method": f"ours-{a.ba}", "images": len(scene.image_names),
            "peak_rss_mb": r.peak_rss_mb, "stage_runtime_s": r.stage_runtime_s,
-           "wall_s": time.perf_counter() - t0, "model_identical_to_stage": same,
+           "wall_s": rr.wall_s, "model_identical_to_stage": same,
            "stage_record": {"peak_rss_mb": stage["result"]["peak_rss_mb"],
                             "stage_runtime_s": stage["result"]["stage_runtime_s"],
                             "finished_utc": stage["finished_utc"], "git_commit": stage.get("git_commit")},

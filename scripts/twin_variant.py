@@ -15,10 +15,9 @@ the tables' "drop").
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 
-from polarref.compare.twins import finished_stage_inputs, job_ours_sfm
+from polarref.compare.twins import rerun_ours_stage
 from polarref.errors import PolarrefError
 from polarref.provenance import collect
 
@@ -45,21 +44,12 @@ def main(argv=None) -> int:
     ap.add_argument("--track-conflicts", choices=("drop", "split"), required=True)
     ap.add_argument("--work", type=Path, default=None, help="scratch folder for the model (default: beside OUT)")
     a = ap.parse_args(argv)
-    if a.out.exists():
-        print(f"error: {a.out} exists (remove it to measure again)", file=sys.stderr)
-        return 1
     try:
-        stage, run, pairs, scene = finished_stage_inputs(a.run, f"ours-{a.ba}")
+        rr = rerun_ours_stage(a.run, a.ba, a.out, a.work, track_conflicts=a.track_conflicts)
     except PolarrefError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
-    from polarref.compare.jobs import camera_to_json
-
-    work = a.work or a.out.with_suffix("")
-    t0 = time.perf_counter()
-    r = job_ours_sfm(str(scene.image_dir), camera_to_json(scene.camera), a.ba, str(work), str(pairs),
-                     str(a.run / "cache"), track_conflicts=a.track_conflicts)
-    wall = time.perf_counter() - t0
+    stage, run, scene, r, wall = rr.stage, rr.run, rr.scene, rr.result, rr.wall_s
     variant = {**_scored(Path(r.model_dir), scene.gt), "peak_rss_mb": r.peak_rss_mb,
                "stage_runtime_s": r.stage_runtime_s, "wall_s": wall}
     baseline = {**_scored(Path(stage["result"]["model_dir"]), scene.gt), "peak_rss_mb": stage["result"]["peak_rss_mb"],

@@ -189,9 +189,13 @@ def test_twin_comparison_runs_every_method_and_resumes(tmp_path):
     # (same code, same caches), and refuses to overwrite its JSON.
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("twin_variant", Path(__file__).parents[1] / "scripts" / "twin_variant.py")
-    tv = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tv)
+    def script(name):
+        spec = importlib.util.spec_from_file_location(name, Path(__file__).parents[1] / "scripts" / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+
+    tv, tm = script("twin_variant"), script("twin_memory")
     out_json = tmp_path / "variant.json"
     assert tv.main([str(tmp_path / "out"), "euclidean", str(out_json), "--track-conflicts", "drop"]) == 0
     rec = json.loads(out_json.read_text())
@@ -201,3 +205,7 @@ def test_twin_comparison_runs_every_method_and_resumes(tmp_path):
     assert rec["target_met"] is None and len(rec["provenance"]["git_commit"]) == 40
     assert tv.main([str(tmp_path / "out"), "euclidean", str(out_json), "--track-conflicts", "split"]) == 1
     assert tv.main([str(tmp_path / "nowhere"), "polar", str(tmp_path / "x.json"), "--track-conflicts", "split"]) == 1
+    # The memory script's rerun reproduces the stage's model byte for byte.
+    assert tm.main([str(tmp_path / "out"), "euclidean", str(tmp_path / "mem.json")]) == 0
+    mem = json.loads((tmp_path / "mem.json").read_text())
+    assert mem["model_identical_to_stage"] is True and mem["peak_rss_mb"] > 50

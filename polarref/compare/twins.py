@@ -162,22 +162,40 @@ def job_pycolmap_map(db_path: str, image_dir: str, work_dir: str, mapper: str, s
 JOBS = {f.__name__: f for f in (job_ours_features, job_ours_sfm, job_pycolmap_db, job_pycolmap_map)}
 
 
-def finished_stage_inputs(run_dir: Path, stage: str):
-    """What a rerun of one finished stage of a twin run needs (scripts/twin_memory.py, twin_variant.py).
+@dataclass
+class StageRerun:
+    """An ``ours-*`` stage of a finished twin run, rerun in this process (scripts/twin_*.py)."""
 
-    Returns (stage record, run.json settings, pairs file, prepared scene); a missing stage record
-    raises :class:`PolarrefError` naming the command that makes it."""
+    stage: dict            # the run's record of the stage (stages/<stage>.json)
+    run: dict              # the run's settings (run.json)
+    scene: object          # the prepared scene (images, camera, GT)
+    result: TwinJobResult  # the rerun's
+    wall_s: float          # the rerun's wall time
+
+
+def rerun_ours_stage(run_dir: Path, ba: str, out: Path, work: Path | None = None,
+                     track_conflicts: str = "drop") -> StageRerun:
+    """Rerun ``ours-<ba>`` of a finished twin run on its feature/match caches with this checkout.
+
+    ``out`` is the JSON the caller will write: an existing one is refused (:class:`PolarrefError`),
+    as is a run without that stage (the error names the command that makes it)."""
+    from polarref.compare.jobs import camera_to_json
     from polarref.compare.scenes import prepare
 
-    run_dir = Path(run_dir)
-    stage_file = run_dir / "stages" / f"{stage}.json"
+    run_dir, out = Path(run_dir), Path(out)
+    if out.exists():
+        raise PolarrefError(f"{out} exists (remove it to measure again)")
+    stage_file = run_dir / "stages" / f"ours-{ba}.json"
     if not stage_file.is_file():
         raise PolarrefError(f"{stage_file} missing: run `polarref compare <twin> --out {run_dir}` first")
-    rec = json.loads(stage_file.read_text())
+    stage = json.loads(stage_file.read_text())
     run = json.loads((run_dir / "run.json").read_text())
     pairs = run_dir / json.loads((run_dir / "pairs.json").read_text())["file"]
     scene = prepare(run["scene_dir"] or run["twin"], "default", run["seed"])
-    return rec, run, pairs, scene
+    t0 = time.perf_counter()
+    result = job_ours_sfm(str(scene.image_dir), camera_to_json(scene.camera), ba, str(work or out.with_suffix("")),
+                          str(pairs), str(run_dir / "cache"), track_conflicts=track_conflicts)
+    return StageRerun(stage, run, scene, result, time.perf_counter() - t0)
 
 
 # ---- the run ----------------------------------------------------------------------------------
