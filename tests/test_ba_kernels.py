@@ -182,7 +182,7 @@ def test_pixel_rows_kernel_equals_numpy_projection(k):
     """The compiled pixel rows (Projector.residuals with ``compiled``) against the numpy
     projection (projection.project) on random rays with radial distortion: the same operations
     in the same order, so equal to rounding (1e-12 relative; bitwise here), and the view-angle
-    row written in place beside them equals the stacked polar rows (polar_rows)."""
+    row written in place beside them equals the numpy view-angle row (angular_obs.theta_rows, polar.py)."""
     from polarref.ba import kernels
     from polarref.ba.projection import project
     rng = np.random.default_rng(3)
@@ -203,7 +203,9 @@ def test_pixel_rows_kernel_equals_numpy_projection(k):
         theta_obs, w = rng.uniform(0, 1, M), rng.uniform(0.5, 2, M)
         res, J = kernels.pixel_rows(Xc, K, obs, 3, True)
         kernels.theta_row_into(Xc, theta_obs, w, res, J, True)
-        ref_r, ref_J = kernels.polar_rows(Xc, uv - obs, Juv, theta_obs, w, True)
+        from polarref.ba.angular_obs import theta_rows
+        theta, Jt = theta_rows(Xc, True)
+        ref_r, ref_J = np.c_[uv - obs, (theta - theta_obs) * w], np.concatenate([Juv, (Jt * w[:, None])[:, None]], 1)
         np.testing.assert_allclose(res, ref_r, rtol=1e-12, atol=0)
         np.testing.assert_allclose(J, ref_J, rtol=1e-12, atol=1e-300)
         assert np.abs(res[:, 2]).max() > 1e-3  # the third row is really there

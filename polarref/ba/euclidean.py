@@ -53,21 +53,18 @@ class Euclidean:
     def evaluate(self, R, C, pts, jac: bool = True, factored: bool = False):
         """Residuals (M, 2); with jac also ``res_D_point`` (M, 2, 3) and [``res_D_cam`` (M, 2, 6)]."""
         Ri, Xc = self.camera_frame(R, C, pts)
+        res, Juv = self.proj.residuals(Xc, self.p.obs_uv, 2, jac)  # compiled or numpy (Projector)
+        if not jac:
+            return res, None, None
         if self.fast:
-            res, Juv = self.proj.residuals(Xc, self.p.obs_uv, 2, jac)
-            if not jac:
-                return res, None, None
             from polarref.ba import kernels
             Jp, Jc = kernels.euclidean_jacobians(Juv, Xc, R, self.p.obs_cam)
             return res, Jp, [Jc]
-        if not jac:
-            return self.proj(Xc, jac=False) - self.p.obs_uv, None, None
-        uv, Juv = self.proj(Xc)
         Jp = Juv @ Ri
         Jc = np.empty((len(Xc), 2, 6))
         Jc[:, :, :3] = rot_columns(Xc, Juv)
         Jc[:, :, 3:] = -Jp
-        return uv - self.p.obs_uv, Jp, [Jc]
+        return res, Jp, [Jc]
 
     def pixel_residuals(self, R, C, pts) -> np.ndarray:
         return self.evaluate(R, C, pts, jac=False)[0]

@@ -76,7 +76,7 @@ def warm_up() -> float:
                                          euclidean_rays,
                                          parallax_jacobians, parallax_points, parallax_rays,
                                          parallax_xyz,
-                                         pixel_rows, point_sums, polar_rows, schur_dense,
+                                         pixel_rows, point_sums, schur_dense,
                                          slot_gram, slot_w_g, theta_row_into)
     t = time.perf_counter()
     f, i = np.zeros, np.zeros
@@ -108,7 +108,6 @@ def warm_up() -> float:
     for dense in (True, False):
         parallax_jacobians(Jp, x3, R, x3, one, one, x3, x3, x1, x1, x1, x3, f((1, 3, 2)), dense)
     for jac in (True, False):
-        polar_rows(x3, r, f((1 if jac else 0, 2, 3)), x1, x1, jac)
         angular_rows(x3, r, f((1, 2, 2)), x1, np.ones(1, bool), jac)
         for k in (2, 3):
             res3, J3 = pixel_rows(x3, f((1, 6)), r, k, jac)

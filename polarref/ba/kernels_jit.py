@@ -604,32 +604,11 @@ def pixel_rows(Xc, K, obs_uv, k, jac):
 def theta_row_into(Xc, theta_obs, w_theta, res, J, jac):
     """Polar's weighted view-angle row ``(theta - theta_obs) w_theta`` into row 2 of res
     (M, 3) and, with jac, its ``res_D_Xc`` into row 2 of J (M, 3, 3), in place (rows 0:2
-    from :func:`pixel_rows`): the same values as :func:`polar_rows`' third row."""
+    from :func:`pixel_rows`): the same values as polar.py's numpy view-angle row."""
     Jt = J[:, 2, :]  # a view: _theta_row writes row 2 of J
     for m in range(len(Xc)):
         th = _theta_row(Xc[m, 0], Xc[m, 1], Xc[m, 2], jac, Jt, m, w_theta[m])
         res[m, 2] = (th - theta_obs[m]) * w_theta[m]
-
-
-@_njit
-def polar_rows(Xc, res_uv, Juv, theta_obs, w_theta, jac):
-    """Polar residuals (M, 3): pixel rows ``res_uv`` (M, 2) and the weighted view-angle row
-    ``(theta - theta_obs) w_theta`` (polar.py), with jac their ``res_D_Xc`` (M, 3, 3) from the
-    pixel rows' Juv (M, 2, 3)."""
-    M = len(Xc)
-    res = np.empty((M, 3))
-    J = np.empty((M if jac else 0, 3, 3))
-    Jt = np.empty((M if jac else 0, 3))
-    for m in range(M):
-        res[m, 0], res[m, 1] = res_uv[m, 0], res_uv[m, 1]
-        th = _theta_row(Xc[m, 0], Xc[m, 1], Xc[m, 2], jac, Jt, m, w_theta[m])
-        res[m, 2] = (th - theta_obs[m]) * w_theta[m]
-        if jac:
-            for i in range(3):
-                J[m, 0, i] = Juv[m, 0, i]
-                J[m, 1, i] = Juv[m, 1, i]
-                J[m, 2, i] = Jt[m, i]
-    return res, J
 
 
 @_njit

@@ -175,12 +175,7 @@ class Parallax:
 
     def residual_rows(self, Xc: np.ndarray, jac: bool):
         """Residuals (M, k) and ``res_D_Xc`` (M, k, 3); pixel residuals here."""
-        if self.fast:
-            return self.proj.residuals(Xc, self.p.obs_uv, 2, jac)
-        if not jac:
-            return self.proj(Xc, jac=False) - self.p.obs_uv, None
-        uv, Juv = self.proj(Xc)
-        return uv - self.p.obs_uv, Juv
+        return self.proj.residuals(Xc, self.p.obs_uv, 2, jac)
 
     def evaluate(self, R, C, pts, jac: bool = True, factored: bool = False):
         """Residuals (M, k); with jac also ``res_D_point`` (M, k, 3) and the per-slot camera
@@ -268,9 +263,7 @@ class Parallax:
 
     def pixel_residuals(self, R, C, pts) -> np.ndarray:
         Xc, _ = self.rays(R, C, pts, False)
-        if self.fast:
-            return self.proj.residuals(Xc, self.p.obs_uv, 2, False)[0]
-        return self.proj(Xc, jac=False) - self.p.obs_uv
+        return self.proj.residuals(Xc, self.p.obs_uv, 2, False)[0]
 
     def retract_points(self, pts, dp):
         return pts + dp

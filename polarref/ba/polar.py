@@ -42,15 +42,9 @@ class Polar(Parallax):
             kernels.theta_row_into(Xc, self.theta_obs, self.w_theta, res,
                                    J if jac else np.empty((0, 3, 3)), jac)
             return res, J
-        res = np.empty((len(Xc), 3))
+        res, J = self.proj.residuals(Xc, self.p.obs_uv, 3, jac)
         theta, Jt = theta_rows(Xc, jac)
         res[:, 2] = (theta - self.theta_obs) * self.w_theta
-        if not jac:
-            res[:, :2] = self.proj(Xc, jac=False) - self.p.obs_uv
-            return res, None
-        uv, Juv = self.proj(Xc)
-        res[:, :2] = uv - self.p.obs_uv
-        J = np.empty((len(Xc), 3, 3))
-        J[:, :2] = Juv
-        J[:, 2] = Jt * self.w_theta[:, None]
+        if jac:
+            J[:, 2] = Jt * self.w_theta[:, None]
         return res, J
