@@ -180,7 +180,6 @@ def rerun_ours_stage(run_dir: Path, ba: str, out: Path, work: Path | None = None
     ``out`` is the JSON the caller will write: an existing one is refused (:class:`PolarrefError`),
     as is a run without that stage (the error names the command that makes it)."""
     from polarref.compare.jobs import camera_to_json
-    from polarref.compare.scenes import prepare
 
     run_dir, out = Path(run_dir), Path(out)
     if out.exists():
@@ -191,7 +190,7 @@ def rerun_ours_stage(run_dir: Path, ba: str, out: Path, work: Path | None = None
     stage = json.loads(stage_file.read_text())
     run = json.loads((run_dir / "run.json").read_text())
     pairs = run_dir / json.loads((run_dir / "pairs.json").read_text())["file"]
-    scene = prepare(run["scene_dir"] or run["twin"], "default", run["seed"])
+    scene = _scene(TwinRun(**run))  # the scene the run itself prepared (run.json is a TwinRun)
     t0 = time.perf_counter()
     result = job_ours_sfm(str(scene.image_dir), camera_to_json(scene.camera), ba, str(work or out.with_suffix("")),
                           str(pairs), str(run_dir / "cache"), track_conflicts=track_conflicts)
