@@ -208,8 +208,15 @@ class Parallax:
         return res, Jp, [J_obs, *anchors.dense(J_obs, op)]
 
     def _evaluate_kernels(self, R, C, pts, factored: bool):
-        """:meth:`evaluate` through the compiled kernels."""
-        return self._evaluate_obs_kernels(R, C, self.point_terms_for_rows(R, C, pts), factored)
+        """:meth:`evaluate` through the compiled kernels; factored, with the anchors' maps
+        (xspace.py)."""
+        terms = self.point_terms_for_rows(R, C, pts)
+        res, Jp, Jc = self._evaluate_obs_kernels(R, C, terms, factored)
+        if factored:
+            from polarref.ba import xspace_jit
+            _, d, sw, _, _, _, dh_de, dv_dab = terms
+            Jc[1].maps = xspace_jit.anchor_maps(d, sw, dh_de, dv_dab, C, self.main, self.assoc)
+        return res, Jp, Jc
 
     def _evaluate_obs_kernels(self, R, C, terms, factored: bool):
         """The per-observation part of :meth:`_evaluate_kernels` (all of ``self.p``'s
