@@ -28,7 +28,9 @@ without the factored kernel build too (``PYTHONPATH=<checkout>``).
 write-back after the last iteration counts, as in ``polarref bench ba``), with the solver's
 clock read as process CPU time; median over ``--repeat`` interleaved solves, 1 BLAS thread,
 kernel path; with the split of setup, first iteration (first build, step and trial) and the
-tail after the last iteration record (write-back, final pixel cost).
+tail after the last iteration record (write-back, final pixel cost). ``--anchor-schur cross``
+runs the three-slot forms on the reference elimination (anchor cross terms) instead of the
+X-space one (ba/xspace.py), so both can be timed from one checkout.
 
 ``--cprofile N``: instead, ``cProfile`` with process CPU time as its clock around two solves of
 at most N iterations per form (kernel path): CPU ms per accepted iteration and the functions
@@ -65,6 +67,8 @@ def main(argv=None) -> int:
     ap.add_argument("--top", type=int, default=8, help="--cprofile: functions listed")
     ap.add_argument("--bench-cpu", action="store_true",
                     help="the bench's per-iteration figure in process CPU time")
+    ap.add_argument("--anchor-schur", default="xspace", choices=("xspace", "cross"),
+                    help="--bench-cpu: the three-slot forms' elimination (BAOptions.anchor_schur)")
     args = ap.parse_args(argv)
     if args.stages:
         return stages(args)
@@ -190,7 +194,8 @@ def bench_cpu(args) -> int:
     solver_mod.time = types.SimpleNamespace(perf_counter=time.process_time)
     forms = args.forms.split(",")
     kernels.warm_up()
-    print(f"load {os.getloadavg()[0]:.1f}; median of {args.repeat}\n\n| problem | form | "
+    print(f"load {os.getloadavg()[0]:.1f}; median of {args.repeat}; anchor_schur "
+          f"{args.anchor_schur}\n\n| problem | form | "
           "iterations | cpu ms / accepted | x Euclidean | setup ms | first ms | tail ms | "
           "final cost |\n|---|---|---|---|---|---|---|---|---|")
     try:
@@ -198,14 +203,14 @@ def bench_cpu(args) -> int:
             for spec in args.problems:
                 base, _ = load_problem(_resolve(spec))
                 prepare(base)
+                opts = dict(kernels="numba", anchor_schur=args.anchor_schur)
                 for form in forms:  # first-call costs out of the timed solves
-                    solve(base.copy(), BAOptions(param=form, kernels="numba", max_iterations=1),
+                    solve(base.copy(), BAOptions(param=form, max_iterations=1, **opts),
                           prepared=True)
                 runs: dict = {f: [] for f in forms}
                 for _ in range(args.repeat):
                     for form in forms:
-                        s = solve(base.copy(), BAOptions(param=form, kernels="numba"),
-                                  prepared=True)
+                        s = solve(base.copy(), BAOptions(param=form, **opts), prepared=True)
                         runs[form].append(s)
                 med = {f: statistics.median((s.wall_s - s.setup_s) / max(s.accepted_iterations, 1)
                                             for s in runs[f]) for f in forms}

@@ -292,7 +292,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             # gauge-fixed columns and fixed cameras are masked on the assembled blocks
             if not lazy:
                 use_x = xs is not None and xs.carries(Jc_w[1], active)
-                blocks = (xs.build(Jc_w[0], Jc_w[1], Jp_w, r_w) if use_x
+                blocks = (xs.build(Jc_w[0], Jc_w[1], Jp_w, r_w, V, g_p, mask_v) if use_x
                           else builder.build(Jc_w, Jp_w, r_w))
                 builds_x += use_x
                 builds_ref += xs is not None and not use_x
@@ -311,7 +311,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
                 U[st.u_ca == st.u_cb], axis1=1, axis2=2)
             g_sys = g_c  # the reduced system's gradient; g_c the forms' own (tests, model)
             if use_x:
-                g_c, diag_f = xs.forms_terms(mask_v, W, V, g_sys, g_p)
+                g_c, diag_f = xs.forms_terms(g_sys)
                 diag_u += diag_f
             if identity_damping:  # ParallaxBA / Nielsen: (H + mu I)
                 if mu_n is None and not gn:

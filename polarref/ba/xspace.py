@@ -56,9 +56,11 @@ def anchor_maps(d, sw, s, dh_de, dv_dab) -> tuple[np.ndarray, np.ndarray]:
 class AnchorElimination:
     """The X-space elimination on a fused three-slot SchurStructure (kernel path).
 
-    Per build: :meth:`build` (observer-only W, g_E, U diagonal blocks), :meth:`forms_terms`
-    (forms' gradient and diag(U_f)); per LM step: :meth:`reduced_system`,
-    :meth:`back_substitute`. W's anchor entries are damped in place between those two.
+    Per build: :meth:`build` (observer-only W, g_E, U diagonal blocks, and the anchors'
+    share of the forms' gradient and diag(U_f)), :meth:`forms_terms`; per LM step:
+    :meth:`reduced_system`, :meth:`back_substitute`. W stays the undamped observer-only one:
+    the damping's ``-B^T Lq`` on the anchor entries enters inside the Schur pass and as
+    ``Lq B dc`` in the back-substitution.
     """
 
     def __init__(self, st, main: np.ndarray, assoc: np.ndarray):
@@ -71,7 +73,7 @@ class AnchorElimination:
         # the anchors observe their point: their entries are observer entries of its rows
         self.em = np.ascontiguousarray(st.slot_entry[1][starts], np.int64)
         self.ea = np.ascontiguousarray(st.slot_entry[2][starts], np.int64)
-        self.maps = self._damped = self._save = None
+        self.maps = self.lam = self.gx = self.diag_f = None
 
     @staticmethod
     def carries(anchors, active) -> bool:
@@ -86,61 +88,62 @@ class AnchorElimination:
         Bm, b = anchors.maps
         return not (Bm[ai].any() or b[ai].any())
 
-    def build(self, J_obs: np.ndarray, anchors, Jp: np.ndarray, r: np.ndarray):
-        """(g_E (Nv, 6), W (E, 6, 3), U (Nv, 6, 6)) of the observer slot alone, unmasked."""
-        from polarref.ba import kernels
+    def build(self, J_obs, anchors, Jp, r, V, g_p, mask_v):
+        """(g_E (Nv, 6), W (E, 6, 3), U (Nv, 6, 6)) of the observer slot alone, unmasked; V,
+        g_p the (held-masked) point sums, mask_v (Nv, 6) the gauge mask (the maps' held
+        columns are zeroed)."""
+        from polarref.ba import xspace_jit
         st = self.st
+        c = np.ascontiguousarray
         g, W, U = np.zeros((st.Nv, 6)), np.zeros((st.E, 6, 3)), np.zeros((st.Nv, 6, 6))
-        kernels.build_observer(np.ascontiguousarray(J_obs), np.ascontiguousarray(Jp),
-                               np.ascontiguousarray(r), st.slot_vc[0], st.slot_entry[0],
-                               st.slot_vc[0], W, g, U)
+        self.gx, self.diag_f = np.zeros((st.Nv, 6)), np.zeros((st.Nv, 6))
         Bm, b = anchors.maps
-        self.maps = (Bm.copy(), b.copy())  # masked in place by forms_terms
-        self._restore()  # the previous build's W, if a failed solve left it damped
+        self.maps = (Bm.copy(), b.copy())  # masked in place
+        xspace_jit.build_xspace(c(J_obs), c(Jp), c(r), st.slot_vc, st.slot_entry, st.obs_bounds,
+                                c(mask_v), *self.maps, c(V), c(g_p), W, g, U, self.gx,
+                                self.diag_f)
         return g, W, U
 
-    def forms_terms(self, mask_v, W, V, g_E, g_p) -> tuple[np.ndarray, np.ndarray]:
-        """(g_f (Nv, 6), diag(U_f) - diag(U_E) (Nv, 6)) for masked g_E, W; masks the maps."""
-        from polarref.ba import xspace_jit
-        g_f, extra = g_E.copy(), np.zeros_like(g_E)
-        xspace_jit.forms_terms(*self.maps, np.ascontiguousarray(mask_v), self.vm, self.va,
-                               self.em, self.ea, W, np.ascontiguousarray(V),
-                               np.ascontiguousarray(g_p), g_f, extra)
-        return g_f, extra
+    def forms_terms(self, g_E) -> tuple[np.ndarray, np.ndarray]:
+        """(g_f (Nv, 6), diag(U_f) - diag(U_E) (Nv, 6)) from the masked g_E of the build."""
+        return g_E + self.gx, self.diag_f
 
     def reduced_system(self, U, W, Vd, g_E, g_p, diag_c, lam):
         """(S, b, Li) of the damped X-space system (module docstring); lam (P, 3) the point
-        blocks' damping diagonal. W's anchor entries stay damped (in place) for
-        :meth:`back_substitute`, which restores them; so does the next call."""
+        blocks' damping diagonal (kept for :meth:`back_substitute`)."""
         from polarref.ba import xspace_jit
-        self._restore()
+        from polarref.ba.schur import chol_inv3
+        st = self.st
         Bm, b = self.maps
-        lam = np.ascontiguousarray(lam)
-        if self._save is None:
-            P = len(self.vm)
-            self._save = (np.empty((P, 3, 3)), np.empty((P, 3)))
-        xspace_jit.damp_W(W, *self._save, Bm, b, lam, self.vm, self.va, self.em, self.ea)
-        self._damped = W
-        system = self.st.reduced_system(U, W, Vd, g_E, g_p, diag_c, cross=False)
-        if system is None:
-            self._restore()
-        else:
-            xspace_jit.add_damping(system[0], Bm, b, lam, self.vm, self.va)
-        return system
+        self.lam = lam = np.ascontiguousarray(lam)
+        if st.use_gemm:  # dense visibility: Z = W L^-T for one dsyrk, from a damped copy
+            Wd = W.copy()
+            xspace_jit.damp_W(Wd, Bm, b, lam, self.vm, self.va, self.em, self.ea)
+            system = st.reduced_system(U, Wd, Vd, g_E, g_p, diag_c, cross=False)
+            if system is not None:
+                xspace_jit.add_damping(system[0], Bm, b, lam, self.vm, self.va)
+            return system
+        Li = chol_inv3(Vd)
+        if Li is None:
+            return None
+        q = np.matmul(Li, g_p[:, :, None])[:, :, 0]
+        Nv = st.Nv
+        S = np.zeros((Nv, 6, Nv, 6))
+        S[st.u_ca, :, st.u_cb, :] = U
+        S = S.reshape(6 * Nv, 6 * Nv)
+        bvec = -g_E
+        if st.E:
+            xspace_jit.schur_xspace(W, Li, q, st.entry_bounds, st.entry_pt, st.entry_cam,
+                                    self.em, self.ea, self.vm, self.va, Bm, b, lam, S, bvec)
+        S[np.diag_indices_from(S)] += diag_c.reshape(-1)
+        return S, bvec.reshape(-1), Li
 
     def back_substitute(self, W, Li, g_p, dc: np.ndarray) -> np.ndarray:
-        """Point steps dq (P, 3) from the camera step dc (Nv, 6, masked), with the W damped by
-        the last :meth:`reduced_system` (restored here)."""
-        from polarref.ba import xspace_jit
-        if self._damped is not W:
-            raise ValueError("back_substitute needs the W of the last reduced_system")
-        y = self.st.back_substitute(W, Li, g_p, dc)
-        self._restore()
-        xspace_jit.point_steps(y, *self.maps, np.ascontiguousarray(dc), self.vm, self.va)
-        return y
-
-    def _restore(self) -> None:
-        if self._damped is not None:
-            from polarref.ba import xspace_jit
-            xspace_jit.restore_W(self._damped, *self._save, self.vm, self.va, self.em, self.ea)
-            self._damped = None
+        """Point steps dq (P, 3) from the camera step dc (Nv, 6, masked)."""
+        from polarref.ba import kernels, xspace_jit
+        rhs = -g_p
+        dc = np.ascontiguousarray(dc)
+        if self.st.E:
+            kernels.back_substitute_rhs(W, dc, self.st.entry_pt, self.st.entry_cam, rhs)
+        xspace_jit.point_steps(rhs, Li, *self.maps, self.lam, dc, self.vm, self.va)
+        return rhs
