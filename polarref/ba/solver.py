@@ -51,6 +51,7 @@ from polarref.ba.problem import BAProblem, nonzero_counts, prepare
 from polarref.ba import chunked
 from polarref.ba.kernels import use_kernels
 from polarref.ba.schur import SchurStructure
+from polarref.ba.xspace import AnchorElimination, xspace_note
 from polarref.geometry import so3_exp
 
 log = logging.getLogger(__name__)
@@ -99,14 +100,6 @@ def behind_camera_xyz(R, C, X, obs_cam, obs_pt) -> int:
     """Observations whose point X (P, 3) has depth <= 0 in its camera (R (N,3,3), C (N,3))."""
     z = np.einsum("mj,mj->m", R[obs_cam, 2], X[obs_pt] - C[obs_cam])
     return int((z <= 0).sum())
-
-
-def _xspace_note(builds_x: int, builds_ref: int) -> str:
-    """The linear solver string's note on the X-space anchor elimination (xspace.py)."""
-    if not builds_x:
-        return ""
-    ref = f", {builds_ref} of {builds_x + builds_ref} builds by cross terms" if builds_ref else ""
-    return f"; anchors eliminated in X-space{ref}"
 
 
 def _clipped_model(a_lin, q_damp, g_p, dp, delta, D_p, V, mu) -> float:
@@ -220,7 +213,6 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     xs = None
     if (options.anchor_schur == "xspace" and anchored and st.fused and not lazy
             and not any_pt_fixed):
-        from polarref.ba.xspace import AnchorElimination
         xs = AnchorElimination(st, *param.anchor_cams)
     builds_x = builds_ref = 0
     use_x = False
@@ -449,7 +441,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         num_points=problem.num_points, num_observations=problem.num_observations,
         num_variable_cameras=st.Nv, gauge=problem.gauge,
         exclusions=nonzero_counts(problem.exclusions),
-        linear_solver=st.linear_solver_name() + _xspace_note(builds_x, builds_ref), trace=trace, time_in=times, setup_s=setup_s,
+        linear_solver=st.linear_solver_name() + xspace_note(builds_x, builds_ref), trace=trace, time_in=times, setup_s=setup_s,
         behind_camera={"initial": behind0, "final": behind_camera_xyz(
             problem.R, problem.C, problem.X, problem.obs_cam, problem.obs_pt)})
     summary.points_state = pts

@@ -30,6 +30,14 @@ beta)``): ``X = C_m + (h / sin w) d``, so ``D = [dv/d(alpha, beta) | -s d] diag(
 and ``B_m = D^-1 - B_a``. Both vanish at w = 0 (the point at infinity: the anchors do not
 enter its rays), where they stay finite, so points at infinity need no special case.
 
+Implementation (xspace_jit.py): the build is the observer slot's alone (the Euclidean
+form's), with the anchors' share of ``g_f`` and ``diag(U_f)`` summed in its point loop; W
+stays undamped, the anchors' ``-B^T Lq`` enters inside the Schur pass (``schur_xspace``; the
+dense-visibility dsyrk path damps a copy of W) and as ``Lq B dc`` in the back-substitution.
+Measured (reports/bench-ba/notes.md, sixth pass): the build and the Schur pass cost what the
+Euclidean form's do, 0.5-1.5 ms per iteration less than with the cross terms (4 ms on
+synth-200-sparse).
+
 Where ``B`` does not carry the anchors' Jacobians, the solver keeps the reference path
 (anchor_terms / the fused kernels' cross terms) for that build: fixed points (their Jp is
 zeroed), a box-constrained omega held at a bound with ``B != 0`` (its Jp column is zeroed;
@@ -51,6 +59,14 @@ def anchor_maps(d, sw, s, dh_de, dv_dab) -> tuple[np.ndarray, np.ndarray]:
     Bm = Dinv.copy()
     Bm[:, 2, :] -= b
     return Bm, b
+
+
+def xspace_note(builds_x: int, builds_ref: int) -> str:
+    """The solve's linear-solver string note: builds in X-space and by cross terms."""
+    if not builds_x:
+        return ""
+    ref = f", {builds_ref} of {builds_x + builds_ref} builds by cross terms" if builds_ref else ""
+    return f"; anchors eliminated in X-space{ref}"
 
 
 class AnchorElimination:
