@@ -254,6 +254,18 @@ def test_xspace_falls_back_with_fixed_points(problem):
     assert "X-space" not in b.linear_solver
 
 
+def test_xspace_with_fixed_cameras():
+    """Local-BA-like: every 4th camera fixed (anchors on them drop their maps' columns)."""
+    init, _ = synthetic_reconstruction(16, 200, seed=7, noise_px=0.5, rot_deg=0.3,
+                                       point_sigma=0.05, center_sigma=0.05, track_length=4)
+    p = problem_from_reconstruction(init)
+    p.cam_fixed = np.zeros(p.num_cameras, bool)
+    p.cam_fixed[::4] = True
+    prepare(p)
+    a, b = _same(_solves(p, dict(param="angular", max_iterations=30, loss="huber")))
+    assert "X-space" in b.linear_solver and "fixed cameras" in p.gauge
+
+
 def test_carries_needs_zero_maps_on_held_points():
     from polarref.ba.anchor_terms import AnchorJacobian
     Bm, b = np.zeros((3, 3, 3)), np.zeros((3, 3))
