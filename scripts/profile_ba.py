@@ -28,7 +28,10 @@ without the factored kernel build too (``PYTHONPATH=<checkout>``).
 write-back after the last iteration counts, as in ``polarref bench ba``), with the solver's
 clock read as process CPU time; median over ``--repeat`` interleaved solves, 1 BLAS thread,
 kernel path; with the split of setup, first iteration (first build, step and trial) and the
-tail after the last iteration record (write-back, final pixel cost).
+tail after the last iteration record (write-back, final pixel cost). ``--anchor-schur cross``
+runs the three-slot forms on the reference elimination (anchor cross terms) instead of the
+X-space one (ba/xspace.py), so both can be timed from one checkout (``--stages`` too);
+``--paired`` times both in one run, interleaved solve by solve, with the per-round ratios.
 
 ``--cprofile N``: instead, ``cProfile`` with process CPU time as its clock around two solves of
 at most N iterations per form (kernel path): CPU ms per accepted iteration and the functions
@@ -65,9 +68,17 @@ def main(argv=None) -> int:
     ap.add_argument("--top", type=int, default=8, help="--cprofile: functions listed")
     ap.add_argument("--bench-cpu", action="store_true",
                     help="the bench's per-iteration figure in process CPU time")
+    ap.add_argument("--anchor-schur", default="xspace", choices=("xspace", "cross"),
+                    help="--bench-cpu, --stages: the three-slot forms' elimination "
+                         "(BAOptions.anchor_schur)")
+    ap.add_argument("--paired", action="store_true",
+                    help="--bench-cpu's figure for both eliminations, interleaved, with paired "
+                         "ratios")
     args = ap.parse_args(argv)
     if args.stages:
         return stages(args)
+    if args.paired:
+        return paired(args)
     if args.bench_cpu:
         return bench_cpu(args)
     if args.cprofile:
@@ -149,11 +160,26 @@ def stages(args) -> int:
             r, Jp, Jc = prm.evaluate(p.R, p.C, pts, True, factored=fac)
             mask_v = p.cam_mask[st.var_cams].astype(float)
             V, g_p = st.point_terms(Jp, r)
-            g_c, W, U = st.apply_mask(mask_v, *st.build(Jc, Jp, r))
             Vd = V + 1e-3 * np.eye(3)
             diag_c = np.ones((st.Nv, 6))
-            _, _, Li = st.reduced_system(U, W, Vd, g_c, g_p, diag_c)
             dc = np.zeros((st.Nv, 6))
+            xs = _xspace(st, prm) if fac and args.anchor_schur == "xspace" else None
+            if xs is not None:  # the X-space elimination (ba/xspace.py)
+                lam = np.full((p.num_points, 3), 1e-3)
+                g_c, W, U = st.apply_mask(mask_v, *xs.build(Jc[0], Jc[1], Jp, r, V, g_p, mask_v))
+                _, _, Li = xs.reduced_system(U, W, Vd, g_c, g_p, diag_c, lam)
+                calls[form] = {
+                    "evaluate": lambda prm=prm, pts=pts: prm.evaluate(p.R, p.C, pts, True,
+                                                                      factored=True),
+                    "V": lambda st=st, Jp=Jp, r=r: st.point_terms(Jp, r),
+                    "build": lambda xs=xs, a=(Jc[0], Jc[1], Jp, r, V, g_p, mask_v): st.apply_mask(
+                        mask_v, *xs.build(*a)),
+                    "schur": lambda xs=xs, a=(U, W, Vd, g_c, g_p, diag_c, lam): xs.reduced_system(
+                        *a),
+                    "back": lambda xs=xs, a=(W, Li, g_p, dc): xs.back_substitute(*a)}
+                continue
+            g_c, W, U = st.apply_mask(mask_v, *st.build(Jc, Jp, r))
+            _, _, Li = st.reduced_system(U, W, Vd, g_c, g_p, diag_c)
             calls[form] = {
                 "evaluate": lambda prm=prm, pts=pts, fac=fac: prm.evaluate(p.R, p.C, pts, True,
                                                                            factored=fac),
@@ -177,6 +203,62 @@ def stages(args) -> int:
     return 0
 
 
+def _xspace(st, prm):
+    """The X-space elimination on ``st``, or None in a checkout without it."""
+    try:
+        from polarref.ba.xspace import AnchorElimination
+    except ImportError:
+        return None
+    return AnchorElimination(st, *prm.anchor_cams)
+
+
+def paired(args) -> int:
+    """--bench-cpu's figure for the forms on both eliminations (and Euclidean), interleaved
+    solve by solve; min and median over --repeat and the median of the per-round ratios
+    (x Euclidean, X-space / cross), which cancel the load's slow drifts."""
+    import statistics
+    import types
+
+    from threadpoolctl import threadpool_limits
+
+    from polarref.ba import solver as solver_mod
+
+    solver_mod.time = types.SimpleNamespace(perf_counter=time.process_time)
+    kernels.warm_up()
+    print(f"load {os.getloadavg()[0]:.1f}; {args.repeat} rounds\n\n| problem | form | "
+          "elimination | iterations | cpu ms / accepted, min | median | x Euclidean, paired | "
+          "X-space / cross, paired | final cost |\n|---|---|---|---|---|---|---|---|---|")
+    cfgs = [("euclidean", "cross")] + [(f, m) for f in args.forms.split(",") if f != "euclidean"
+                                       for m in ("cross", "xspace")]
+    try:
+        with threadpool_limits(limits=1, user_api="blas"):
+            for spec in args.problems:
+                base, _ = load_problem(_resolve(spec))
+                prepare(base)
+                for f, m in cfgs:
+                    solve(base.copy(), BAOptions(param=f, kernels="numba", anchor_schur=m,
+                                                 max_iterations=1), prepared=True)
+                runs: dict = {c: [] for c in cfgs}
+                for _ in range(args.repeat):
+                    for f, m in cfgs:
+                        runs[(f, m)].append(solve(base.copy(), BAOptions(
+                            param=f, kernels="numba", anchor_schur=m), prepared=True))
+                fig = {c: [(s.wall_s - s.setup_s) / max(s.accepted_iterations, 1) for s in rs]
+                       for c, rs in runs.items()}
+                for c in cfgs:
+                    s = runs[c][0]
+                    eu = statistics.median(a / b for a, b in zip(fig[c], fig[cfgs[0]]))
+                    vs = (f"{statistics.median(a / b for a, b in zip(fig[c], fig[(c[0], 'cross')])):.3f}"
+                          if c[1] == "xspace" else "")
+                    print(f"| {spec} | {c[0]} | {c[1]} | {s.iterations}/{s.accepted_iterations} | "
+                          f"{1e3 * min(fig[c]):.2f} | {1e3 * statistics.median(fig[c]):.2f} | "
+                          f"{eu:.2f}x | {vs} | {s.final_cost!r} |")
+                sys.stdout.flush()
+    finally:
+        solver_mod.time = time
+    return 0
+
+
 def bench_cpu(args) -> int:
     import statistics
     import types
@@ -190,7 +272,8 @@ def bench_cpu(args) -> int:
     solver_mod.time = types.SimpleNamespace(perf_counter=time.process_time)
     forms = args.forms.split(",")
     kernels.warm_up()
-    print(f"load {os.getloadavg()[0]:.1f}; median of {args.repeat}\n\n| problem | form | "
+    print(f"load {os.getloadavg()[0]:.1f}; median of {args.repeat}; anchor_schur "
+          f"{args.anchor_schur}\n\n| problem | form | "
           "iterations | cpu ms / accepted | x Euclidean | setup ms | first ms | tail ms | "
           "final cost |\n|---|---|---|---|---|---|---|---|---|")
     try:
@@ -198,14 +281,14 @@ def bench_cpu(args) -> int:
             for spec in args.problems:
                 base, _ = load_problem(_resolve(spec))
                 prepare(base)
+                opts = dict(kernels="numba", anchor_schur=args.anchor_schur)
                 for form in forms:  # first-call costs out of the timed solves
-                    solve(base.copy(), BAOptions(param=form, kernels="numba", max_iterations=1),
+                    solve(base.copy(), BAOptions(param=form, max_iterations=1, **opts),
                           prepared=True)
                 runs: dict = {f: [] for f in forms}
                 for _ in range(args.repeat):
                     for form in forms:
-                        s = solve(base.copy(), BAOptions(param=form, kernels="numba"),
-                                  prepared=True)
+                        s = solve(base.copy(), BAOptions(param=form, **opts), prepared=True)
                         runs[form].append(s)
                 med = {f: statistics.median((s.wall_s - s.setup_s) / max(s.accepted_iterations, 1)
                                             for s in runs[f]) for f in forms}

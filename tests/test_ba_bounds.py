@@ -125,18 +125,33 @@ def test_clipped_model_equals_dense_gauss_newton_model():
 
 
 @pytest.mark.parametrize("param", ["polar", "angular"])
-def test_held_components_kernel_path_equals_numpy(forward, param):
+@pytest.mark.parametrize("anchor_schur", ["cross", "xspace"])
+def test_held_components_kernel_path_equals_numpy(forward, param, anchor_schur, request):
     """Points that reach the bound are held there (their omega column of V, g_p and W zeroed
-    in place, solver.py): the compiled path (its own W layout and fused build) and the numpy
-    reference take the same steps through those iterations (same count, cost to 1e-9).
+    in place, solver.py): the compiled path (its own W layout and fused build, or the X-space
+    elimination, xspace.py) and the numpy reference take the same steps through those
+    iterations (same count, cost to 1e-9).
     Not parallax: on these problems its two paths already part at rounding level (main
-    8ecd977 too: 33 vs 37 iterations at 3e-3), a clipped step more or less."""
+    8ecd977 too: 33 vs 37 iterations at 3e-3), a clipped step more or less. Neither, at 3e-4
+    (condition number of the damped system ~1e10, 40 iterations without converging), does
+    the X-space path: its LM step at the last common state is as accurate as the cross
+    path's (5e-13 vs 1.4e-12 of an extended-precision solve, angular, iteration 4), yet the
+    trajectories part at iteration 7 (angular) / 26 (polar): the same 40 iterations and
+    points held at the bound, final costs 8.8e-6 / 2.1e-7 apart (measured)."""
     pytest.importorskip("numba")
     init, _, _ = forward
+    chaotic = anchor_schur == "xspace" and request.node.callspec.params["forward"][0] < 1e-3
     got = {}
     for k in ("numpy", "numba"):
-        got[k] = adjust(clone(init), BAOptions(param=param, max_iterations=40, kernels=k))
+        got[k] = adjust(clone(init), BAOptions(param=param, max_iterations=40, kernels=k,
+                                               anchor_schur=anchor_schur))
     a, b = got["numpy"], got["numba"]
     assert b.point_bounds["at_lower"] >= 1 and b.point_bounds["clipped_steps"] >= 1
-    assert a.iterations == b.iterations and a.point_bounds == b.point_bounds
+    assert ("X-space" in b.linear_solver) == (anchor_schur == "xspace")
+    assert a.iterations == b.iterations
+    assert a.point_bounds["at_lower"] == b.point_bounds["at_lower"]
+    if chaotic:
+        assert abs(a.final_cost - b.final_cost) <= 1e-4 * a.final_cost
+        return
+    assert a.point_bounds == b.point_bounds
     assert abs(a.final_cost - b.final_cost) <= 1e-9 * a.final_cost

@@ -66,11 +66,11 @@ def test_point_chunks_cover_points_in_order():
     assert ch == [(0, 2), (2, 3), (3, 5), (5, 6), (6, 7), (7, 8)]
 
 
-def _peak_mb(problem, monkeypatch, lazy: bool) -> float:
+def _peak_mb(problem, monkeypatch, lazy: bool, anchor_schur: str = "xspace") -> float:
     monkeypatch.setattr(chunked, "MIN_OBS", 0 if lazy else 1 << 62)
     monkeypatch.setattr(chunked, "CHUNK_OBS", 4096)
     p = problem.copy()
-    opts = BAOptions(param="polar", kernels="numba", max_iterations=3)
+    opts = BAOptions(param="polar", kernels="numba", max_iterations=3, anchor_schur=anchor_schur)
     solve(problem.copy(), opts, prepared=True)  # compile / load kernels outside the window
     tracemalloc.start()
     try:
@@ -84,8 +84,10 @@ def test_polar_peak_allocation_is_bounded_by_the_normal_equations(monkeypatch):
     """Chunked: the peak is the normal equations (W (E, 6, 3), the compact cross terms
     [N | t] (E, 6, 4), and S) plus O(M) index structures and trial residuals (measured ~300 B per
     observation: slot/entry indices, the per-observation intrinsics, residual temporaries),
-    under 400 B per observation more. The eager path also holds a full Jacobian set at the
-    trial step (264 B per observation) and must fail that: the bound can tell them apart."""
+    under 400 B per observation more. The eager path with the same normal equations (anchor
+    cross terms) also holds a full Jacobian set at the trial step (264 B per observation) and
+    must fail that: the bound can tell them apart. The eager X-space elimination (xspace.py)
+    holds no cross terms: its peak is lower by about their (E, 6, 4) array."""
     p = _problem(cams=60, points=6000, track=10.0)
     M, Nv = p.num_observations, p.num_cameras
     E = M - int((p.obs_cam == 0).sum())  # entries: the observer pairs (camera 0 is fixed)
@@ -93,6 +95,9 @@ def test_polar_peak_allocation_is_bounded_by_the_normal_equations(monkeypatch):
     normal = (E * (18 + 24) + (6 * Nv) ** 2) * 8 * mb  # W, [N | t]; S
     jac_set = M * 3 * 11 * 8 * mb  # residuals, res_D_point, res_D_obs, A d (k = 3)
     lazy = _peak_mb(p, monkeypatch, lazy=True)
-    eager = _peak_mb(p, monkeypatch, lazy=False)
+    eager = _peak_mb(p, monkeypatch, lazy=False, anchor_schur="cross")
+    eager_x = _peak_mb(p, monkeypatch, lazy=False)
     assert normal < lazy < normal + 400 * M * mb, (lazy, normal, M)
     assert eager > lazy + 0.75 * jac_set, (eager, lazy, jac_set)
+    cross = E * 24 * 8 * mb
+    assert eager - 1.25 * cross < eager_x < eager - 0.75 * cross, (eager_x, eager, cross)

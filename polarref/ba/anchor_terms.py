@@ -30,10 +30,12 @@ class AnchorJacobian:
 
     Ad: np.ndarray  # (M, k) A d per observation
     h: np.ndarray  # (P, 3) dh/de per point
+    # (Bm (P, 3, 3), b (P, 3)): the same Jacobians as maps of Jp (xspace.py), kernel path
+    maps: tuple | None = None
 
     def scaled(self, w: np.ndarray) -> "AnchorJacobian":
-        """Rows scaled by (M, k) weights (robust loss)."""
-        return AnchorJacobian(self.Ad * w, self.h)
+        """Rows scaled by (M, k) weights (robust loss; the maps are weight-free)."""
+        return AnchorJacobian(self.Ad * w, self.h, self.maps)
 
     def dense(self, J_obs: np.ndarray, obs_pt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(J_m, J_a), each (M, k, 3): the explicit Jacobians (tests, generic path)."""

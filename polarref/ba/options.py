@@ -58,6 +58,10 @@ class BAOptions:
     # per-iteration sums: "numba" compiled kernels (ba/kernels.py), "numpy" the reference
     # path, "auto" numba when it imports
     kernels: str = "auto"
+    # three-slot forms, kernel path, dense S: "xspace" eliminates the points in the variable
+    # y = dq + B dc (ba/xspace.py: no anchor cross terms, the same LM step to rounding);
+    # "cross" the reference (anchor cross terms in the build and the Schur pass)
+    anchor_schur: str = "xspace"
     # BLAS threads inside the solve (threadpoolctl); None leaves the process setting alone. One
     # thread is fastest here: the BLAS calls are small and multi-threaded OpenBLAS on 2 busy
     # cores spent 0.64 s instead of 0.014 s in the Ladybug-49 Cholesky solves.
@@ -83,6 +87,8 @@ class BAOptions:
             raise ValueError(f"nielsen_tau must be > 0, got {self.nielsen_tau}")
         if self.kernels not in ("auto", "numba", "numpy"):
             raise ValueError(f"unknown kernels {self.kernels!r}; choose auto, numba or numpy")
+        if self.anchor_schur not in ("xspace", "cross"):
+            raise ValueError(f"unknown anchor_schur {self.anchor_schur!r}; choose xspace or cross")
         if self.axis_residual not in ("chart", "theta"):
             raise ValueError(f"unknown axis_residual {self.axis_residual!r}; choose chart or theta")
         if self.blas_threads is not None and self.blas_threads < 1:

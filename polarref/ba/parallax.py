@@ -106,6 +106,8 @@ class Parallax:
         self.p = problem
         # compiled rays and chain rule (kernels.py) for the solver's dense slot Jacobians
         self.fast = options is not None and use_kernels(options.kernels)
+        # the anchors' maps for the X-space elimination (xspace.py), with the factored kernels
+        self.want_maps = options is None or options.anchor_schur == "xspace"
         self.proj = Projector(problem.cameras, problem.obs_cam, compiled=self.fast)
         self.main, self.assoc, omega0 = choose_anchors(problem)
         self.omega0 = omega0
@@ -208,8 +210,15 @@ class Parallax:
         return res, Jp, [J_obs, *anchors.dense(J_obs, op)]
 
     def _evaluate_kernels(self, R, C, pts, factored: bool):
-        """:meth:`evaluate` through the compiled kernels."""
-        return self._evaluate_obs_kernels(R, C, self.point_terms_for_rows(R, C, pts), factored)
+        """:meth:`evaluate` through the compiled kernels; factored, with the anchors' maps
+        (xspace.py)."""
+        terms = self.point_terms_for_rows(R, C, pts)
+        res, Jp, Jc = self._evaluate_obs_kernels(R, C, terms, factored)
+        if factored and self.want_maps:
+            from polarref.ba import xspace_jit
+            _, d, sw, _, _, _, dh_de, dv_dab = terms
+            Jc[1].maps = xspace_jit.anchor_maps(d, sw, dh_de, dv_dab, C, self.main, self.assoc)
+        return res, Jp, Jc
 
     def _evaluate_obs_kernels(self, R, C, terms, factored: bool):
         """The per-observation part of :meth:`_evaluate_kernels` (all of ``self.p``'s

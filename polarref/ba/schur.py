@@ -394,11 +394,12 @@ class SchurStructure:
             out[:, c0:c1] += self.g_reduce[s](np.einsum("mki,mk->mi", J, r))
         return out
 
-    def reduced_system(self, U_blocks, W, Vd, g_c, g_p, diag_c):
+    def reduced_system(self, U_blocks, W, Vd, g_c, g_p, diag_c, cross: bool = True):
         """Assemble S (dense (6Nv, 6Nv) or sparse) and b = -g_c + W V^-1 g_p.
 
         Args: U blocks (B, 6, 6), W (E, 6, 3), damped V (P, 3, 3), g_c (Nv, 6), g_p (P, 3),
-        camera damping diag_c (Nv, 6).
+        camera damping diag_c (Nv, 6); cross: the fused build's cross blocks go in (False:
+        the observer-only system of xspace.py).
         Returns (S, b, Li) with ``Li`` from :func:`chol_inv3` (reused for back-substitution),
         or None when a damped point block is not positive definite.
         """
@@ -408,17 +409,18 @@ class SchurStructure:
             return None
         q = np.matmul(Li, g_p[:, :, None])[:, :, 0]  # L^-1 g_p
         b = -g_c.copy()
+        fused = self.fused and cross
         if self.fast and not self.sparse_S and not self.use_gemm:
             from polarref.ba import kernels
             S = np.zeros((Nv, 6, Nv, 6))
             S[self.u_ca, :, self.u_cb, :] = U_blocks
             S = S.reshape(6 * Nv, 6 * Nv)
             if E:
-                X = self._cross() if self.fused else _NO_CROSS
+                X = self._cross() if fused else _NO_CROSS
                 kernels.schur_dense(_c(W), Li, q, self.entry_bounds, self.entry_pt,
-                                    self.entry_cam, S, b, self.fused, *X, self.slot_entry,
+                                    self.entry_cam, S, b, fused, *X, self.slot_entry,
                                     self.obs_bounds)
-            if self.fused:
+            if fused:
                 self._zero_held(S)
             S[np.diag_indices_from(S)] += diag_c.reshape(-1)
             return S, b.reshape(-1), Li
@@ -438,7 +440,7 @@ class SchurStructure:
             Sf = S.T
             scipy.linalg.blas.dsyrk(-1.0, Zd.reshape(6 * Nv, -1).T, beta=1.0, c=Sf, trans=1,
                                     lower=1, overwrite_c=1)
-            if self.fused:
+            if fused:
                 from polarref.ba import kernels
                 kernels.add_cross(S, *self._cross(), self.entry_bounds, self.entry_pt,
                                   self.entry_cam, self.slot_entry, self.obs_bounds)

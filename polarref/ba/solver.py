@@ -51,6 +51,7 @@ from polarref.ba.problem import BAProblem, nonzero_counts, prepare
 from polarref.ba import chunked
 from polarref.ba.kernels import use_kernels
 from polarref.ba.schur import SchurStructure
+from polarref.ba.xspace import AnchorElimination, xspace_note
 from polarref.geometry import so3_exp
 
 log = logging.getLogger(__name__)
@@ -207,6 +208,14 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     # large three-slot problems: residuals only at trial points, normal equations in chunks
     # (chunked.py; their Jacobians' time then counts in time_in["normal_equations"])
     lazy = chunked.applies(st, param, problem.num_observations)
+    # three-slot forms: points eliminated in the variable y = dq + B dc (xspace.py), where
+    # the maps B carry the anchors' Jacobians; else (per build) the reference cross terms
+    xs = None
+    if (options.anchor_schur == "xspace" and anchored and st.fused and not lazy
+            and not any_pt_fixed):
+        xs = AnchorElimination(st, *param.anchor_cams)
+    builds_x = builds_ref = 0
+    use_x = False
     r, Jp, Jc = param.evaluate(R, C, pts, jac=not lazy, factored=factored)
     times["evaluate"] += time.perf_counter() - tic
     if not np.isfinite(r).all():
@@ -274,7 +283,11 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
                     g_p[ai, ac] = 0.0
             # gauge-fixed columns and fixed cameras are masked on the assembled blocks
             if not lazy:
-                blocks = builder.build(Jc_w, Jp_w, r_w)
+                use_x = xs is not None and xs.carries(Jc_w[1], active)
+                blocks = (xs.build(Jc_w[0], Jc_w[1], Jp_w, r_w, V, g_p, mask_v) if use_x
+                          else builder.build(Jc_w, Jp_w, r_w))
+                builds_x += use_x
+                builds_ref += xs is not None and not use_x
             # the Jacobians are dead once the normal equations exist (a rejected step reuses
             # those; an accepted one rebuilds from its own): not held through the next trial
             r = Jp = Jc = r_w = Jp_w = Jc_w = None
@@ -288,6 +301,10 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             diag_u = np.zeros((st.Nv, 6))
             diag_u[st.u_ca[st.u_ca == st.u_cb]] = np.diagonal(
                 U[st.u_ca == st.u_cb], axis1=1, axis2=2)
+            g_sys = g_c  # the reduced system's gradient; g_c the forms' own (tests, model)
+            if use_x:
+                g_c, diag_f = xs.forms_terms(g_sys)
+                diag_u += diag_f
             if identity_damping:  # ParallaxBA / Nielsen: (H + mu I)
                 if mu_n is None and not gn:
                     mu_n = initial_nielsen_mu(options.nielsen_tau, diag_u, mask_v, V,
@@ -314,7 +331,10 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             Vd[ai, :, ac] = 0.0
             Vd[ai, ac, ac] = 1.0
         diag_c = np.where(mask_v > 0, mu * D_c, 1.0)
-        system = st.reduced_system(U, W, Vd, g_c, g_p, diag_c)
+        if use_x:
+            system = xs.reduced_system(U, W, Vd, g_sys, g_p, diag_c, mu * D_p)
+        else:
+            system = st.reduced_system(U, W, Vd, g_c, g_p, diag_c)
         times["schur"] += time.perf_counter() - tic
         tic = time.perf_counter()
         x = None
@@ -336,7 +356,8 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             continue
         tic = time.perf_counter()
         dc = x.reshape(st.Nv, 6) * mask_v
-        dp = st.back_substitute(W, Li, g_p, dc) * pt_free
+        dp = (xs.back_substitute(W, Li, g_p, dc) if use_x
+              else st.back_substitute(W, Li, g_p, dc)) * pt_free
         # Predicted decrease of the linear model: 1/2 (-g^T dx + mu dx^T D dx).
         a_lin = -(g_c * dc).sum() - (g_p * dp).sum()
         q_damp = mu * ((D_c * dc**2 * mask_v).sum() + (D_p * dp**2).sum())
@@ -420,7 +441,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         num_points=problem.num_points, num_observations=problem.num_observations,
         num_variable_cameras=st.Nv, gauge=problem.gauge,
         exclusions=nonzero_counts(problem.exclusions),
-        linear_solver=st.linear_solver_name(), trace=trace, time_in=times, setup_s=setup_s,
+        linear_solver=st.linear_solver_name() + xspace_note(builds_x, builds_ref), trace=trace, time_in=times, setup_s=setup_s,
         behind_camera={"initial": behind0, "final": behind_camera_xyz(
             problem.R, problem.C, problem.X, problem.obs_cam, problem.obs_pt)})
     summary.points_state = pts
