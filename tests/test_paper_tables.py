@@ -9,6 +9,7 @@ from pathlib import Path
 
 import pytest
 
+from polarref.compare import paper_scale as PS
 from polarref.compare import paper_tables as PT
 
 
@@ -203,6 +204,11 @@ def test_twin_comparison_runs_every_method_and_resumes(tmp_path):
         assert rec["variant"][key] == rec["baseline"][key] == getattr(table.methods[PT.BASELINE], key), key
     assert rec["variant"]["rotation_error_deg"] == pytest.approx(rec["baseline"]["rotation_error_deg"], rel=1e-9)
     assert rec["target_met"] is None and len(rec["provenance"]["git_commit"]) == 40
+    # the README's variant line reads the script's record as written (no target off rosetta)
+    (tmp_path / "v").mkdir()
+    (tmp_path / "v" / "variant-drop.json").write_text(out_json.read_text())
+    (line,) = PS.variant_lines(tmp_path / "v")
+    assert f"{rec['variant']['tie_points']:,} tie points" in line and "**" not in line
     assert tv.main([str(tmp_path / "out"), "euclidean", str(out_json), "--track-conflicts", "split"]) == 1
     assert tv.main([str(tmp_path / "nowhere"), "polar", str(tmp_path / "x.json"), "--track-conflicts", "split"]) == 1
     # The memory script's rerun reproduces the stage's model byte for byte.

@@ -17,6 +17,7 @@ from polarref.compare import paper_tables as PT
 from polarref.sfm.feature_cache import mean_keypoints
 from polarref.compare import twins
 from polarref.compare.index import build_index
+from polarref.errors import PolarrefError
 
 
 def _ok(name, minutes, ties, obs, registered=631, rot=0.1, images=631):
@@ -231,3 +232,37 @@ def test_mean_keypoints_from_our_feature_cache_and_a_colmap_database(tmp_path):
     assert twins.mean_keypoints_db(tmp_path / "missing.db") is None
     (tmp_path / "empty.db").write_bytes(b"")
     assert twins.mean_keypoints_db(tmp_path / "empty.db") is None    # no keypoints table
+
+
+# ---- pipeline variants beside a twin's table ----------------------------------------------------
+
+def _variant(ties: int, target=100_000) -> dict:
+    """A record as scripts/twin_variant.py writes it (the fields the README reads)."""
+    side = {"registered": 631, "reprojected_px": 1_000_000, "rotation_error_deg": 0.01}
+    return {"twin": "rosetta", "method": "ours-euclidean", "images": 631,
+            "variant_settings": {"track_conflicts": "split"}, "baseline_settings": {"track_conflicts": "drop"},
+            "variant": {**side, "tie_points": ties, "mean_reprojection_error_px": 0.34},
+            "baseline": {**side, "tie_points": 99_321, "mean_reprojection_error_px": 0.28},
+            "tie_point_target": target, "provenance": {"git_commit": "e498bb0e07" + "0" * 30}}
+
+
+def test_readme_lists_variants_with_their_own_verdict_and_keeps_the_tables_check(tmp_path):
+    root = _reports(tmp_path, {"rosetta": _rosetta(**{
+        PT.BASELINE: _ok(PT.BASELINE, 50.0, 99_321, 600_000), PT.OURS: _ok(PT.OURS, 55.0, 99_277, 600_000)})})
+    twin = root / "paper-tables" / "rosetta"
+    (twin / "variant-a-split.json").write_text(json.dumps(_variant(119_860)))
+    (twin / "variant-b-split.json").write_text(json.dumps(_variant(99_999)))
+    PT.write_readme(root / "paper-tables")
+    ros = (root / "paper-tables" / "README.md").read_text().split("### `rosetta`")[1]
+    assert "- ours yields >= 100,000 tie points: ours-euclidean 99,321, ours-polar 99,277: **not met**" in ros
+    lines = [x for x in ros.splitlines() if x.startswith("- variant of ")]
+    assert len(lines) == 2
+    assert "119,860 tie points" in lines[0] and "99,321" in lines[0] and lines[0].endswith("**met**")
+    assert "99,999 tie points" in lines[1] and lines[1].endswith("**not met**")
+    assert "commit e498bb0" in lines[0] and "track_conflicts = split" in lines[0]
+    # a variant without a target (another twin) gets no verdict; a broken record is one clear error
+    (twin / "variant-b-split.json").write_text(json.dumps(_variant(50_000, target=None)))
+    assert "**" not in PS.variant_lines(twin)[1]
+    (twin / "variant-c.json").write_text("{not json")
+    with pytest.raises(PolarrefError, match="variant-c.json: not a pipeline-variant record"):
+        PS.variant_lines(twin)

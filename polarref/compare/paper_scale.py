@@ -8,6 +8,7 @@ rules (:mod:`polarref.compare.single_run`). A missing value is "not tested", nev
 
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -187,12 +188,39 @@ def done_when(table: PT.TwinTable) -> list[str]:
     return lines
 
 
+def variant_lines(twin_dir: str | os.PathLike) -> list[str]:
+    """One line per committed pipeline variant of an ours method (``variant-*.json`` beside the
+    twin's table, written by scripts/twin_variant.py): its tie points against the twin's target,
+    beside the tables' own setting. The done-when line above stays on the tables' setting: a
+    variant meeting the target is reported as a variant, not folded into the table."""
+    lines = []
+    for f in sorted(Path(twin_dir).glob("variant-*.json")):
+        try:
+            v = json.loads(f.read_text())
+            var, base, target = v["variant"], v["baseline"], v.get("tie_point_target")
+            settings = ", ".join(f"{k} = {x}" for k, x in v["variant_settings"].items())
+            tables = ", ".join(f"{k} = {x}" for k, x in v["baseline_settings"].items())
+            commit = (v.get("provenance") or {}).get("git_commit") or "not recorded"
+            line = (f"- variant of {v['method']} with {settings} (`{f.name}`, commit {commit[:7]}): "
+                    f"{var['registered']}/{v['images']} registered, {var['tie_points']:,} tie points, "
+                    f"{var['mean_reprojection_error_px']:.3f} px (tables' {tables}: {base['tie_points']:,}, "
+                    f"{base['mean_reprojection_error_px']:.3f} px)")
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+            raise PolarrefError(f"{f}: not a pipeline-variant record ({type(e).__name__}: {e})") from None
+        if target is not None:
+            line += f"; >= {target:,} tie points: **{'met' if var['tie_points'] >= target else 'not met'}**"
+        lines.append(line)
+    return lines
+
+
 def has_results(table: PT.TwinTable | None) -> bool:
     return table is not None and any(r.status != PT.NOT_RUN for r in table.methods.values())
 
 
-def render_scale(tables: dict[str, PT.TwinTable | None], reports_root: str | os.PathLike | None) -> list[str]:
-    """Markdown lines of the README's "What changed with scale" section."""
+def render_scale(tables: dict[str, PT.TwinTable | None], reports_root: str | os.PathLike | None,
+                 tables_root: str | os.PathLike | None = None) -> list[str]:
+    """Markdown lines of the README's "What changed with scale" section (``tables_root``: where
+    each twin's folder may hold pipeline-variant records, see :func:`variant_lines`)."""
     lines = ["## What changed with scale", "",
              "Each twin with results beside the committed small-scene reports of its scene class, judged by "
              "the same single-run rules (C4: whole-method speed-up Euclidean/polar >= "
@@ -212,4 +240,7 @@ def render_scale(tables: dict[str, PT.TwinTable | None], reports_root: str | os.
         if notes:
             lines += ["Small scenes: " + "; ".join(notes) + ".", ""]
         lines += ["Done-when checks of issue 13:", "", *done_when(table), ""]
+        variants = variant_lines(Path(tables_root) / twin) if tables_root is not None else []
+        if variants:
+            lines += ["Pipeline variants of ours on this twin (not the tables' setting):", "", *variants, ""]
     return lines

@@ -229,7 +229,8 @@ def _paper_cell(v, row: str) -> str:
     return f"{v:g}" if row in ("accuracy_px", "efficiency_min") else _fmt(row, v)  # as printed
 
 
-def render_readme(tables: dict[str, TwinTable | None], reports_root: str | os.PathLike | None = None) -> str:
+def render_readme(tables: dict[str, TwinTable | None], reports_root: str | os.PathLike | None = None,
+                  tables_root: str | os.PathLike | None = None) -> str:
     """The paper's three tables beside ours (a twin without results: every cell "not run"), then
     what changed with scale against the committed small-scene reports under ``reports_root``."""
     lines = ["# Tables 1-3 of the paper beside their twins", "",
@@ -251,7 +252,7 @@ def render_readme(tables: dict[str, TwinTable | None], reports_root: str | os.Pa
         lines += ["", f"C4 on the twin: {v['C4']}. C5 on the twin: {v['C5']}.", ""]
     from polarref.compare.paper_scale import render_scale
 
-    lines += render_scale(tables, reports_root)
+    lines += render_scale(tables, reports_root, tables_root)
     return "\n".join(lines)
 
 
@@ -269,7 +270,8 @@ def write_readme(root: str | os.PathLike, reports_root: str | os.PathLike | None
     folder above ``root``, i.e. ``reports/`` for ``reports/paper-tables``)."""
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
-    text = render_readme(load_tables(root), root.resolve().parent if reports_root is None else reports_root)
+    text = render_readme(load_tables(root), root.resolve().parent if reports_root is None else reports_root,
+                         root)
     return atomic_write(root / "README.md", text + "\n")
 
 
