@@ -187,34 +187,46 @@ def slot_w_g(J, c0, Jp, res, w_idx, g_idx, W, g):
 
 
 @_njit
+def observer_share(J, Jp, res, m, acc):
+    """``acc (6, 10) = J[m]^T [J[m] | res[m] | Jp[m]]``: one observation's share of U, g and W,
+    accumulated row by row (fixed-length inner loops, which numba unrolls and vectorizes)."""
+    acc[:] = 0.0
+    for r in range(J.shape[1]):
+        rr = res[m, r]
+        for i in range(6):
+            x = J[m, r, i]
+            for j in range(6):
+                acc[i, j] += x * J[m, r, j]
+            acc[i, 6] += x * rr
+            for j in range(3):
+                acc[i, 7 + j] += x * Jp[m, r, j]
+
+
+@_njit
+def add_observer_share(acc, c, e, u, g, W, U):
+    """``g[c] +=``, ``W[e] +=``, ``U[u] +=`` the share :func:`observer_share` left in acc
+    (e, u = -1: skip that block)."""
+    for i in range(6):
+        g[c, i] += acc[i, 6]
+        if e >= 0:
+            for j in range(3):
+                W[e, i, j] += acc[i, 7 + j]
+        if u >= 0:
+            for j in range(6):
+                U[u, i, j] += acc[i, j]
+
+
+@_njit
 def build_observer(J, Jp, res, g_idx, w_idx, u_idx, W, g, U):
     """One camera slot of 6 columns (Euclidean): ``g[g_idx[m]] += J^T res``, ``W[w_idx[m]] +=
     J^T Jp``, ``U[u_idx[m]] += J^T J`` in one pass over observations (the same row-by-row
     accumulation as :func:`build_anchored`). J (M, k, 6), Jp (M, k, 3), res (M, k); -1 = skip."""
-    M, k, _ = J.shape
-    acc = np.empty((6, 10))  # J^T [J | res | Jp] of one observation
-    for m in range(M):
-        c, e, u = g_idx[m], w_idx[m], u_idx[m]
-        if c < 0:
+    acc = np.empty((6, 10))
+    for m in range(J.shape[0]):
+        if g_idx[m] < 0:
             continue
-        acc[:] = 0.0
-        for r in range(k):
-            rr = res[m, r]
-            for i in range(6):
-                x = J[m, r, i]
-                for j in range(6):
-                    acc[i, j] += x * J[m, r, j]
-                acc[i, 6] += x * rr
-                for j in range(3):
-                    acc[i, 7 + j] += x * Jp[m, r, j]
-        for i in range(6):
-            g[c, i] += acc[i, 6]
-            if e >= 0:
-                for j in range(3):
-                    W[e, i, j] += acc[i, 7 + j]
-            if u >= 0:
-                for j in range(6):
-                    U[u, i, j] += acc[i, j]
+        observer_share(J, Jp, res, m, acc)
+        add_observer_share(acc, g_idx[m], w_idx[m], u_idx[m], g, W, U)
 
 
 @_njit

@@ -8,6 +8,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from polarref.ba.kernels_jit import add_observer_share, observer_share
+
 
 def _njit(fn):
     return numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
@@ -57,33 +59,17 @@ def build_xspace(J0, Jp, res, vc, ent, obs_bounds, mask_v, Bm, b, V, g_p, W, g, 
     diag(W B + B^T W^T + B^T V B)``. The maps' held camera columns (gauge; mask_v (Nv, 6))
     are zeroed in place first. J0 (M, k, 6), Jp (M, k, 3), res (M, k); vc, ent (3, M) as
     kernels_jit.build_anchored; V (P, 3, 3), g_p (P, 3) the point sums; gx, diag_f (Nv, 6)."""
-    k = J0.shape[1]
     acc = np.empty((6, 10))  # J0^T [J0 | res | Jp] of one observation
     for p in range(len(obs_bounds) - 1):
         m0, m1 = obs_bounds[p], obs_bounds[p + 1]
         if m1 == m0:
             continue
         for m in range(m0, m1):
-            c, e = vc[0, m], ent[0, m]
+            c = vc[0, m]
             if c < 0:
                 continue
-            acc[:] = 0.0
-            for r in range(k):
-                rr = res[m, r]
-                for i in range(6):
-                    x = J0[m, r, i]
-                    for j in range(6):
-                        acc[i, j] += x * J0[m, r, j]
-                    acc[i, 6] += x * rr
-                    for j in range(3):
-                        acc[i, 7 + j] += x * Jp[m, r, j]
-            for i in range(6):
-                g[c, i] += acc[i, 6]
-                if e >= 0:
-                    for j in range(3):
-                        W[e, i, j] += acc[i, 7 + j]
-                for j in range(6):
-                    U[c, i, j] += acc[i, j]
+            observer_share(J0, Jp, res, m, acc)
+            add_observer_share(acc, c, ent[0, m], c, g, W, U)
         cm, ca = vc[1, m0], vc[2, m0]
         if cm >= 0:
             e = ent[1, m0]
