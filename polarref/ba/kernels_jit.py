@@ -43,13 +43,25 @@ def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, X, h, Xma, e
         if cross:
             em, ea = ent[1, obs_bounds[p]], ent[2, obs_bounds[p]]
         for a in range(e0, e1):
-            entry_z(W[a], Li, q, p, Z[a - e0], b, entry_cam[a])
+            za = Z[a - e0]
+            ca = entry_cam[a]
+            for i in range(6):
+                for j in range(3):  # (W Li^T)[i, j] = sum_l W[i, l] Li[j, l], Li lower
+                    s = 0.0
+                    for l in range(j + 1):
+                        s += W[a, i, l] * Li[p, j, l]
+                    za[i, j] = s
+                b[ca, i] += za[i, 0] * q[p, 0] + za[i, 1] * q[p, 1] + za[i, 2] * q[p, 2]
         for a in range(e0, e1):
             za = Z[a - e0]
             ra = 6 * entry_cam[a]
             for bb in range(a, e1):
+                zb = Z[bb - e0]
                 rb = 6 * entry_cam[bb]
-                sub_zz(S, za, Z[bb - e0], ra, rb)
+                for i in range(6):
+                    z0, z1, z2 = za[i, 0], za[i, 1], za[i, 2]
+                    for j in range(6):
+                        S[ra + i, rb + j] -= z0 * zb[j, 0] + z1 * zb[j, 1] + z2 * zb[j, 2]
                 if bb == a or (em < 0 and ea < 0):
                     continue
                 # observer x anchor centre: rows of the observer, columns 3:6 of the anchor
@@ -65,28 +77,6 @@ def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, X, h, Xma, e
                     _add_block(S, Xma, p, ra + 3, rb + 3, 3, False)
                 elif a == ea and bb == em:
                     _add_block(S, Xma, p, ra + 3, rb + 3, 3, True)
-
-
-@_njit
-def entry_z(w, Li, q, p, za, b, ca):
-    """One entry's share of the point elimination: ``za = w L_p^-T`` (6, 3) for its W block
-    w (6, 3) and ``b[ca] += za q_p`` (Li lower)."""
-    for i in range(6):
-        for j in range(3):  # (w Li^T)[i, j] = sum_l w[i, l] Li[j, l]
-            s = 0.0
-            for l in range(j + 1):
-                s += w[i, l] * Li[p, j, l]
-            za[i, j] = s
-        b[ca, i] += za[i, 0] * q[p, 0] + za[i, 1] * q[p, 1] + za[i, 2] * q[p, 2]
-
-
-@_njit
-def sub_zz(S, za, zb, ra, rb):
-    """``S[ra:ra + 6, rb:rb + 6] -= za zb^T``: one entry pair's Schur product."""
-    for i in range(6):
-        z0, z1, z2 = za[i, 0], za[i, 1], za[i, 2]
-        for j in range(6):
-            S[ra + i, rb + j] -= z0 * zb[j, 0] + z1 * zb[j, 1] + z2 * zb[j, 2]
 
 
 @_njit

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from polarref.ba.kernels_jit import add_observer_share, entry_z, observer_share, sub_zz
+from polarref.ba.kernels_jit import add_observer_share, observer_share
 
 
 def _njit(fn):
@@ -121,12 +121,25 @@ def schur_xspace(W, Li, q, bounds, entry_pt, entry_cam, em, ea, vm, va, Bm, b, l
             elif a == pa:
                 for i in range(3):
                     w[3 + i, 2] -= b[p, i] * l2
-            entry_z(w, Li, q, p, Z[a - e0], bvec, entry_cam[a])
+            za = Z[a - e0]
+            ca = entry_cam[a]
+            for i in range(6):
+                for j in range(3):  # (w Li^T)[i, j], Li lower
+                    s = 0.0
+                    for l in range(j + 1):
+                        s += w[i, l] * Li[p, j, l]
+                    za[i, j] = s
+                bvec[ca, i] += za[i, 0] * q[p, 0] + za[i, 1] * q[p, 1] + za[i, 2] * q[p, 2]
         for a in range(e0, e1):
             za = Z[a - e0]
             ra = 6 * entry_cam[a]
             for bb in range(a, e1):
-                sub_zz(S, za, Z[bb - e0], ra, 6 * entry_cam[bb])
+                zb = Z[bb - e0]
+                rb = 6 * entry_cam[bb]
+                for i in range(6):
+                    z0, z1, z2 = za[i, 0], za[i, 1], za[i, 2]
+                    for j in range(6):
+                        S[ra + i, rb + j] -= z0 * zb[j, 0] + z1 * zb[j, 1] + z2 * zb[j, 2]
         _add_damping(S, Bm, b, l0, l1, l2, p, vm[p], va[p])
 
 
