@@ -99,6 +99,9 @@ def schur_xspace(W, Li, q, bounds, entry_pt, entry_cam, em, ea, vm, va, Bm, b, l
     diagonal) and ``B^T Lambda B`` goes onto the anchors' centre blocks of S (upper
     triangle; diagonal blocks whole). W is not modified. em, ea, vm, va (P,) the anchors'
     entries and variable cameras (-1 = fixed)."""
+    # The entry loops repeat kernels_jit.schur_dense's on purpose: as shared njit helpers per
+    # entry and entry pair (tried: commit 339be37) the Schur pass took ~1.6x as long
+    # (Ladybug-49, Euclidean form: 4.3-4.7 -> 7.3-7.5 ms per pass).
     nmax = 0
     for gi in range(len(bounds) - 1):
         nmax = max(nmax, bounds[gi + 1] - bounds[gi])
