@@ -11,6 +11,7 @@ same problem, and the clipped step's model decrease against a dense Gauss-Newton
 
 import numpy as np
 import pytest
+from _dense_jacobian import dense_jacobian
 
 from polarref.ba import BAOptions, adjust, prepare
 from polarref.ba.adapter import problem_from_reconstruction
@@ -96,13 +97,7 @@ def test_clipped_model_equals_dense_gauss_newton_model():
     r, Jp, Jc = prm.evaluate(p.R, p.C, pts, True)
     M, k = r.shape
     N, P = p.num_cameras, p.num_points
-    J = np.zeros((M, k, 6 * N + 3 * P))
-    m = np.arange(M)
-    for s, (c0, c1) in enumerate(prm.slot_cols):
-        for j in range(c0, c1):
-            np.add.at(J, (m, slice(None), 6 * prm.slot_cams[s] + j), Jc[s][:, :, j - c0])
-    for j in range(3):
-        J[m, :, 6 * N + 3 * p.obs_pt + j] = Jp[:, :, j]
+    J = dense_jacobian(p, prm, Jp, Jc, masked=False)
     J = J.reshape(M * k, -1)[:, 6:]  # camera 0 held (any gauge choice will do here)
     H, g = J.T @ J, J.T @ r.reshape(-1)
     D = np.clip(np.diag(H), 1e-6, 1e32)

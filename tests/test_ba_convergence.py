@@ -15,6 +15,7 @@ import copy
 
 import numpy as np
 import pytest
+from _dense_jacobian import dense_lm_step
 
 import polarref.ba.schur as schur_mod
 from polarref.ba import BAOptions, adjust, prepare, solve
@@ -85,21 +86,7 @@ def _dense_step(p, prm, mu):
     r, Jp, Jc = prm.evaluate(R, C, pts, True)
     if len(Jc) < len(prm.slot_cols):
         Jc = [Jc[0], *Jc[1].dense(Jc[0], p.obs_pt)]
-    M, k = r.shape
-    N, P = p.num_cameras, p.num_points
-    J = np.zeros((M, k, 6 * N + 3 * P))
-    m = np.arange(M)
-    for s, (c0, c1) in enumerate(prm.slot_cols):
-        for j in range(c0, c1):
-            np.add.at(J, (m, slice(None), 6 * prm.slot_cams[s] + j), Jc[s][:, :, j - c0] *
-                      p.cam_mask[prm.slot_cams[s], j][:, None])
-    for j in range(3):
-        J[m, :, 6 * N + 3 * p.obs_pt + j] = Jp[:, :, j]
-    free = np.r_[p.cam_mask.reshape(-1), np.ones(3 * P, bool)]
-    J = J.reshape(M * k, -1)[:, free]
-    H, g = J.T @ J, J.T @ r.reshape(-1)
-    D = np.clip(np.diag(H), 1e-6, 1e32)
-    return np.linalg.solve(H + mu * np.diag(D), -g), (r, Jp, Jc)
+    return dense_lm_step(p, prm, r, Jp, Jc, mu)[0], (r, Jp, Jc)
 
 
 @pytest.mark.parametrize("param", PARAMS)

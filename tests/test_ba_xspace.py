@@ -13,6 +13,7 @@
 
 import numpy as np
 import pytest
+from _dense_jacobian import dense_lm_step
 
 from polarref.ba import BAOptions, prepare, solve
 from polarref.ba.adapter import problem_from_reconstruction
@@ -103,21 +104,7 @@ def test_maps_carry_the_anchor_jacobians(far_problem, form, near_inf):
 def _dense_step(p, prm, pts, mu, w, nielsen):
     """(dx (free columns), g) of (H + mu D) dx = -g from the explicit dense Jacobian."""
     r, Jp, Jc = prm.evaluate(p.R, p.C, pts, True, factored=False)
-    M, k = r.shape
-    N, P = p.num_cameras, p.num_points
-    J = np.zeros((M, k, 6 * N + 3 * P))
-    m = np.arange(M)
-    for s, (c0, c1) in enumerate(prm.slot_cols):
-        for j in range(c0, c1):
-            np.add.at(J, (m, slice(None), 6 * prm.slot_cams[s] + j),
-                      Jc[s][:, :, j - c0] * p.cam_mask[prm.slot_cams[s], j][:, None])
-    for j in range(3):
-        J[m, :, 6 * N + 3 * p.obs_pt + j] = Jp[:, :, j]
-    free = np.r_[p.cam_mask.reshape(-1), np.ones(3 * P, bool)]
-    J = (J * w[:, :, None]).reshape(M * k, -1)[:, free]
-    H, g = J.T @ J, J.T @ (r * w).reshape(-1)
-    D = np.ones(len(H)) if nielsen else np.clip(np.diag(H), 1e-6, 1e32)
-    return np.linalg.solve(H + mu * np.diag(D), -g), g
+    return dense_lm_step(p, prm, r, Jp, Jc, mu, w, nielsen)
 
 
 @pytest.mark.parametrize("form", FORMS)
