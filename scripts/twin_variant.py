@@ -13,27 +13,18 @@ the tables' "drop").
 """
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
 
-from polarref.compare.twins import rerun_ours_stage
+from polarref.compare.thresholds import TWIN_ROSETTA_MIN_TIES
+from polarref.compare.twins import rerun_ours_stage, score_model
 from polarref.errors import PolarrefError
 from polarref.provenance import collect
+from polarref.sfm.pipeline import PRESETS
 
-TIE_POINT_TARGET = {"rosetta": 100_000}  # issue 13's done-when (the other twins have none)
-
-
-def _scored(model_dir: Path, gt) -> dict:
-    from polarref.compare.scoring import score
-    from polarref.reconstruction import Reconstruction
-
-    s = score(Reconstruction.read(model_dir), gt, None)
-    m, g = s.metrics, s.gt
-    return {"registered": int(m.registered_images), "tie_points": int(m.tie_points),
-            "reprojected_px": int(m.reprojected_px), "mean_reprojection_error_px": float(m.mean_reprojection_error_px),
-            "rotation_error_deg": None if g is None else float(g.rotation_error_deg_mean),
-            "centre_error_rel": None if g is None else float(g.center_error_rel_mean)}
+TIE_POINT_TARGET = {"rosetta": TWIN_ROSETTA_MIN_TIES}  # issue 13's done-when (the other twins have none)
 
 
 def main(argv=None) -> int:
@@ -50,15 +41,16 @@ def main(argv=None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     stage, run, scene, r, wall = rr.stage, rr.run, rr.scene, rr.result, rr.wall_s
-    variant = {**_scored(Path(r.model_dir), scene.gt), "peak_rss_mb": r.peak_rss_mb,
+    variant = {**dataclasses.asdict(score_model(r.model_dir, scene.gt)), "peak_rss_mb": r.peak_rss_mb,
                "stage_runtime_s": r.stage_runtime_s, "wall_s": wall}
-    baseline = {**_scored(Path(stage["result"]["model_dir"]), scene.gt), "peak_rss_mb": stage["result"]["peak_rss_mb"],
+    baseline = {**dataclasses.asdict(score_model(stage["result"]["model_dir"], scene.gt)),
+                "peak_rss_mb": stage["result"]["peak_rss_mb"],
                 "stage_runtime_s": stage["result"]["stage_runtime_s"], "wall_s": stage["wall_s"],
                 "finished_utc": stage["finished_utc"], "git_commit": stage.get("git_commit")}
     target = TIE_POINT_TARGET.get(run["twin"])
     rec = {"twin": run["twin"], "method": f"ours-{a.ba}", "images": len(scene.image_names),
            "variant_settings": {"track_conflicts": a.track_conflicts},
-           "baseline_settings": {"track_conflicts": "drop"},
+           "baseline_settings": {"track_conflicts": PRESETS["default"].track_conflicts},
            "variant": variant, "baseline": baseline,
            "tie_point_target": target,
            "target_met": None if target is None else {"variant": variant["tie_points"] >= target,

@@ -81,11 +81,13 @@ def _camera(camera: dict):
     return cam(camera)
 
 
-def _sfm_config(pairs_file: str, cache_dir: str, track_conflicts: str = "drop"):
+def _sfm_config(pairs_file: str, cache_dir: str, track_conflicts: str | None = None):
+    """The tables' pipeline settings; ``track_conflicts`` None keeps the pipeline's default."""
     from polarref.sfm.pipeline import PRESETS
 
     base = PRESETS["default"]
-    return dataclasses.replace(base, use_cache=True, cache_dir=cache_dir, track_conflicts=track_conflicts,
+    return dataclasses.replace(base, use_cache=True, cache_dir=cache_dir,
+                               track_conflicts=track_conflicts or base.track_conflicts,
                                matching=dataclasses.replace(base.matching, pairing="file", pairs_file=pairs_file))
 
 
@@ -109,10 +111,10 @@ def job_ours_features(image_dir: str, camera: dict, pairs_file: str, cache_dir: 
 
 
 def job_ours_sfm(image_dir: str, camera: dict, ba: str, work_dir: str, pairs_file: str, cache_dir: str,
-                 track_conflicts: str = "drop") -> TwinJobResult:
+                 track_conflicts: str | None = None) -> TwinJobResult:
     """Our incremental SfM with BA ``ba`` on the cached features/matches; model in work_dir/sfm/model.
 
-    ``track_conflicts``: the tables use the pipeline default ("drop"); "split" is the variant
+    ``track_conflicts``: the tables use the pipeline default (None); "split" is the variant
     measured by ``scripts/twin_variant.py`` (tracks and mapping only: the caches do not depend on it)."""
     from polarref.sfm.pipeline import run_sfm, with_ba
 
@@ -174,7 +176,7 @@ class StageRerun:
 
 
 def rerun_ours_stage(run_dir: Path, ba: str, out: Path, work: Path | None = None,
-                     track_conflicts: str = "drop") -> StageRerun:
+                     track_conflicts: str | None = None) -> StageRerun:
     """Rerun ``ours-<ba>`` of a finished twin run on its feature/match caches with this checkout.
 
     ``out`` is the JSON the caller will write: an existing one is refused (:class:`PolarrefError`),
@@ -297,6 +299,32 @@ def ours_mean_keypoints(feats: dict, cache: Path) -> float | None:
     return means.pop() if len(means) == 1 else None
 
 
+@dataclass
+class ModelScore:
+    """One model scored as the twin tables score it (GT errors after a Sim3 alignment; None
+    without GT)."""
+
+    registered: int
+    tie_points: int
+    reprojected_px: int
+    mean_reprojection_error_px: float
+    rotation_error_deg: float | None
+    centre_error_rel: float | None
+
+
+def score_model(model_dir: str | Path, gt) -> ModelScore:
+    """The tables' scores of the COLMAP model in ``model_dir`` against ``gt``."""
+    from polarref.compare.scoring import score
+    from polarref.reconstruction import Reconstruction
+
+    s = score(Reconstruction.read(Path(model_dir)), gt, None)
+    m, g = s.metrics, s.gt
+    return ModelScore(int(m.registered_images), int(m.tie_points), int(m.reprojected_px),
+                      float(m.mean_reprojection_error_px),
+                      None if g is None else float(g.rotation_error_deg_mean),
+                      None if g is None else float(g.center_error_rel_mean))
+
+
 def _method_result(name: str, recs: list[dict], scene, gt) -> PT.MethodResult:
     """Score one method's model; its stages' times add up to its efficiency."""
     n = len(scene.image_names)
@@ -311,16 +339,10 @@ def _method_result(name: str, recs: list[dict], scene, gt) -> PT.MethodResult:
     wall = sum(float(r["result"].get("counted_wall_s") or r["wall_s"]) for r in recs)
     segments = max(int(r["result"].get("segments") or 1) for r in recs)
     peak = max((float(r["result"].get("peak_rss_mb") or 0.0) for r in recs), default=None)
-    from polarref.compare.scoring import score
-    from polarref.reconstruction import Reconstruction
-
-    rec = Reconstruction.read(Path(recs[-1]["result"]["model_dir"]))
-    s = score(rec, gt, None)
-    g, m = s.gt, s.metrics
+    s = score_model(recs[-1]["result"]["model_dir"], gt)
     return PT.MethodResult(
-        name, "ok", "", n, int(m.registered_images), float(m.mean_reprojection_error_px), wall / 60.0,
-        int(m.tie_points), int(m.reprojected_px), None if g is None else g.rotation_error_deg_mean,
-        None if g is None else g.center_error_rel_mean, stages, peak, segments=segments)
+        name, "ok", "", n, s.registered, s.mean_reprojection_error_px, wall / 60.0, s.tie_points,
+        s.reprojected_px, s.rotation_error_deg, s.centre_error_rel, stages, peak, segments=segments)
 
 
 def run_twin(run: TwinRun) -> PT.TwinTable:
