@@ -225,3 +225,74 @@ def test_parallax_xyz_kernel_equals_numpy(problems):
     assert ref.num_at_infinity == fast.num_at_infinity == len(pts[::10])
     np.testing.assert_allclose(X1, X0, rtol=1e-12, atol=0)
     assert np.abs(X1 - ref.to_xyz(p.R, C, ref.init_points())).max() > 1e-3  # pts matter
+
+
+def test_angular_rows_kernel_modes_equal_numpy():
+    """The compiled angular rows (forms_jit._angular) per mode against the numpy rows of
+    angular.py: whitened (theta, phi) with phi wrapped across +-pi, theta alone, and the axis
+    chart through its near-axis series (t < 1e-3), on the axis itself and behind the camera
+    (projective ray). Equal to rounding (1e-12 of the largest)."""
+    from polarref.ba import kernels
+    from polarref.ba.angular_obs import axis_chart_rows, phi_rows, theta_rows, wrap
+    rng = np.random.default_rng(5)
+    M = 600
+    Xc = np.c_[rng.normal(size=(M, 2)), rng.uniform(0.5, 3.0, M)]
+    Xc[::5, 2] *= -1.0
+    Xc[1::9, :2] *= 1e-5  # near the axis: the chart's series
+    Xc[2::31, :2] = 0.0  # on it
+    obs = np.c_[rng.uniform(0, 1, M), rng.uniform(-np.pi, np.pi, M)]
+    obs[3::11, 1] = np.pi - 1e-9  # phi - phi_obs past -pi: wrapped
+    W = rng.normal(size=(M, 2, 2)) + 3 * np.eye(2)
+    w_theta = rng.uniform(0.5, 2, M)
+    mode = rng.integers(0, 3, M).astype(np.int8)
+    mode[2::31] = kernels.CHART  # phi is undefined on the axis: only the chart goes there
+    res, J = kernels.angular_rows(Xc, obs, W, w_theta, mode, True)
+    res_nj, J_nj = kernels.angular_rows(Xc, obs, W, w_theta, mode, False)
+    theta, Jt = theta_rows(Xc, True)
+    phi, Jf = phi_rows(Xc, True)
+    e, Je = axis_chart_rows(Xc, True)
+    d_ang = np.c_[theta - obs[:, 0], wrap(phi - obs[:, 1])]
+    ref = {0: (np.c_[d_ang[:, 0] * w_theta, np.zeros(M)],
+               np.stack([Jt * w_theta[:, None], np.zeros((M, 3))], 1)),
+           1: (np.einsum("mij,mj->mi", W, d_ang), W @ np.stack([Jt, Jf], 1)),
+           2: (np.einsum("mij,mj->mi", W, e - obs), W @ Je)}
+    for md, (r0, J0) in ref.items():
+        sel = mode == md
+        np.testing.assert_allclose(res[sel], r0[sel], rtol=0, atol=1e-12 * np.abs(r0).max())
+        np.testing.assert_allclose(J[sel], J0[sel], rtol=0, atol=1e-12 * np.abs(J0[sel]).max())
+    np.testing.assert_array_equal(res_nj, res)
+    assert J_nj.shape == (0, 2, 3)
+    assert np.isfinite(res[mode == kernels.CHART]).all() and np.isfinite(J).all()
+    # near the axis the chart's q x y term is ~1e-10 of J: unwhitened, to rounding of its own
+    near = np.zeros(M, bool)
+    near[1::9] = True
+    near &= (mode == kernels.CHART) & (np.abs(Xc[:, :2]).max(1) > 0)
+    W[near] = np.eye(2)
+    J = kernels.angular_rows(Xc, obs, W, w_theta, mode, True)[1]
+    assert near.sum() > 10
+    np.testing.assert_allclose(J[near, 0, 1], Je[near, 0, 1], rtol=1e-9)
+
+
+@pytest.mark.parametrize("gated", [False, True])
+def test_angular_fused_kernel_equals_its_stages(problems, gated):
+    """The angular form's one-pass evaluation (forms_jit.angular_obs, the solver's factored
+    path) equals its rays, rows and chain rule run as separate kernels, bitwise: the same
+    operations in the same order. ``gated`` puts about a third of the rows on the axis chart
+(a few are there by default)."""
+    from polarref.ba import kernels
+    p = problems["sparse"]
+    prm = make_param(p, BAOptions(param="angular", kernels="numba",
+                                  **({"max_sigma_phi": 0.005} if gated else {})))
+    assert ((prm.mode == kernels.CHART).mean() > 0.2) == gated
+    pts = prm.init_points() + 1e-3
+    C = p.C + 0.01
+    terms = prm.point_terms_for_rows(p.R, C, pts)
+    res, Jp, Jo, Ad = prm.fused_obs(p.R, C, terms)
+    Cm, d, sw, cw, hd, dh_dw, dh_de, dv_dab = terms
+    Xc = kernels.parallax_rays(p.R, C, p.obs_cam, p.obs_pt, Cm, sw, hd)
+    r1, Jx = prm.residual_rows(Xc, True)
+    Jp1, Jo1, _, _, Ad1 = kernels.parallax_jacobians(Jx, Xc, p.R, C, p.obs_cam, p.obs_pt, Cm, d,
+                                                     sw, cw, dh_dw, dh_de, dv_dab, False)
+    for a, b in ((res, r1), (Jp, Jp1), (Jo, Jo1), (Ad, Ad1)):
+        np.testing.assert_array_equal(a, b)
+    assert np.abs(res).max() > 1e-3

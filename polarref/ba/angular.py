@@ -64,6 +64,23 @@ class Angular(Parallax):
     def set_stage(self, theta_only: bool) -> None:
         self.use_phi = np.zeros_like(self.phi_ok) if theta_only else self.phi_ok.copy()
         self.use_chart = not theta_only and len(self.chart_idx) > 0
+        self.refresh_kernel_rows()
+
+    def refresh_kernel_rows(self) -> None:
+        """The compiled rows' inputs per observation (forms_jit._angular) from the stage and
+        the observed angles: ``mode``, and the chart's observation and whitening in place of
+        (theta, phi)'s where the chart is used (``k_obs``, ``k_whiten``). Call again after
+        changing ``obs_ang`` or ``chart_obs`` (intrinsics.py does)."""
+        if not self.fast:
+            return
+        from polarref.ba import kernels
+        self.mode = np.where(self.use_phi, kernels.THETA_PHI, kernels.THETA_ONLY).astype(np.int8)
+        self.k_obs, self.k_whiten = self.obs_ang, self.whiten
+        if self.use_chart:
+            ci = self.chart_idx
+            self.mode[ci] = kernels.CHART
+            self.k_obs, self.k_whiten = self.obs_ang.copy(), self.whiten.copy()
+            self.k_obs[ci], self.k_whiten[ci] = self.chart_obs, self.chart_whiten
 
     def residual_rows(self, Xc, jac):
         if self.fast:
@@ -92,15 +109,15 @@ class Angular(Parallax):
         return res, J
 
     def _residual_rows_kernels(self, Xc, jac):
-        """:meth:`residual_rows` with the (theta, phi) rows compiled (kernels.py); the few
-        axis-chart rows stay numpy."""
+        """:meth:`residual_rows` compiled (forms_jit.angular_rows), axis-chart rows included."""
         from polarref.ba import kernels
-        res, J = kernels.angular_rows(np.ascontiguousarray(Xc), self.obs_ang, self.whiten,
-                                      self.w_theta, self.use_phi, jac)
-        if self.use_chart:
-            ci = self.chart_idx
-            e, Je = axis_chart_rows(Xc[ci], jac)
-            res[ci] = np.matmul(self.chart_whiten, (e - self.chart_obs)[:, :, None])[:, :, 0]
-            if jac:
-                J[ci] = np.matmul(self.chart_whiten, Je)
+        res, J = kernels.angular_rows(np.ascontiguousarray(Xc), self.k_obs, self.k_whiten,
+                                      self.w_theta, self.mode, jac)
         return res, (J if jac else None)
+
+    def fused_obs(self, R, C, terms):
+        from polarref.ba import kernels
+        p = self.p
+        Cm, d, sw, cw, hd, dh_dw, _, dv_dab = terms
+        return kernels.angular_obs(R, C, p.obs_cam, p.obs_pt, Cm, d, sw, cw, hd, dh_dw, dv_dab,
+                                   self.k_obs, self.k_whiten, self.w_theta, self.mode)

@@ -248,6 +248,7 @@ class SelfCalibrating:
                         e[sel], Je = axis_chart_rows(ray, True)
                         self.B[sel] = Je @ dray
                     inner.chart_obs = e
+                inner.refresh_kernel_rows()
         return cams
 
     def camera_points(self, R, C, pts) -> np.ndarray:

@@ -8,7 +8,8 @@ different order than in numpy, so results agree to rounding (tests: 1e-9 relativ
 ``BAOptions.kernels`` picks the path; "auto" uses these when numba imports. Everything runs on
 one thread (no ``parallel=True``): the bench compares against one-thread Ceres.
 
-The kernels live in kernels_jit.py and are reached as attributes of this module
+The kernels live in kernels_jit.py (normal equations, Schur) and forms_jit.py (the forms'
+residuals and Jacobians) and are reached as attributes of this module
 (``kernels.schur_dense``), so numba is imported only when a solve uses them. Compiled code is
 cached on disk (``cache=True``, numba's ``__pycache__``); the first call in a fresh
 environment compiles (seconds), so the bench calls :func:`warm_up` before timing.
@@ -60,24 +61,23 @@ def use_kernels(choice: str) -> bool:
 def __getattr__(name: str):
     if name.startswith("_"):
         raise AttributeError(name)
-    from polarref.ba import kernels_jit
-    try:
-        return getattr(kernels_jit, name)
-    except AttributeError:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+    from polarref.ba import forms_jit, kernels_jit
+    for mod in (kernels_jit, forms_jit):
+        if hasattr(mod, name):
+            return getattr(mod, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def warm_up() -> float:
     """Compile (or load from the disk cache) every kernel on tiny inputs; seconds taken."""
     if not available():
         return 0.0
-    from polarref.ba.kernels_jit import (add_cross, angular_rows, back_substitute_rhs,
-                                         build_anchored, build_observer, euclidean_jacobians,
-                                         euclidean_rays,
-                                         parallax_jacobians, parallax_points, parallax_rays,
-                                         parallax_xyz,
-                                         pixel_rows, point_sums, schur_dense,
-                                         slot_gram, slot_w_g, theta_row_into)
+    from polarref.ba.forms_jit import (angular_obs, angular_rows, euclidean_jacobians,
+                                       euclidean_rays, parallax_jacobians, parallax_points,
+                                       parallax_rays, parallax_xyz, pixel_rows, theta_row_into)
+    from polarref.ba.kernels_jit import (add_cross, back_substitute_rhs, build_anchored,
+                                         build_observer, point_sums, schur_dense, slot_gram,
+                                         slot_w_g)
     t = time.perf_counter()
     f, i = np.zeros, np.zeros
     one = np.zeros(1, np.int64)
@@ -107,8 +107,10 @@ def warm_up() -> float:
     parallax_xyz(R, x3, x3, one, one, 1e8)
     for dense in (True, False):
         parallax_jacobians(Jp, x3, R, x3, one, one, x3, x3, x1, x1, x1, x3, f((1, 3, 2)), dense)
+    i8 = np.ones(1, np.int8)
+    angular_obs(R, x3, one, one, x3, x3, x1, x1, x3, x1, f((1, 3, 2)), r, f((1, 2, 2)), x1, i8)
     for jac in (True, False):
-        angular_rows(x3, r, f((1, 2, 2)), x1, np.ones(1, bool), jac)
+        angular_rows(x3, r, f((1, 2, 2)), x1, i8, jac)
         for k in (2, 3):
             res3, J3 = pixel_rows(x3, f((1, 6)), r, k, jac)
         theta_row_into(x3, x1, x1, res3, J3, jac)

@@ -226,6 +226,10 @@ class Parallax:
         from polarref.ba import kernels
         p = self.p
         Cm, d, sw, cw, hd, dh_dw, dh_de, dv_dab = terms
+        fused = self.fused_obs(R, C, terms) if factored else None
+        if fused is not None:  # ray, rows and chain rule in one pass (forms_jit.py)
+            res, Jp, J_obs, Ad = fused
+            return res, Jp, [J_obs, AnchorJacobian(Ad, dh_de)]
         Xc = kernels.parallax_rays(R, C, p.obs_cam, p.obs_pt, Cm, sw, hd)
         res, Jx = self.residual_rows(Xc, True)
         Jp, J_obs, J_m, J_a, Ad = kernels.parallax_jacobians(
@@ -234,6 +238,11 @@ class Parallax:
         if factored:
             return res, Jp, [J_obs, AnchorJacobian(Ad, dh_de)]
         return res, Jp, [J_obs, J_m, J_a]
+
+    def fused_obs(self, R, C, terms):
+        """(res, res_D_point, res_D_obs, A d) of the factored evaluation in one compiled pass,
+        or None: the form evaluates its stages one by one (forms_jit.py says why)."""
+        return None
 
     def supports_rows(self) -> bool:
         """Whether :meth:`evaluate_rows` is available (compiled kernels, fast projector)."""

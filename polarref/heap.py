@@ -1,0 +1,57 @@
+"""glibc heap thresholds that keep the bundle adjuster's per-iteration arrays in memory.
+
+Each LM iteration allocates its residuals, Jacobians and normal-equation blocks afresh
+(on the ParallaxBA fake pile, 26,050 observations, ~7-12 MB per evaluation). glibc serves a
+block above its mmap threshold with fresh pages and, by its dynamic rule, raises that
+threshold (and the trim threshold, to twice it) only to the largest block freed so far. A BA
+process of this size settles near 4 / 8 MB: the iteration's freed arrays exceed the trim
+threshold, go back to the kernel, and are faulted in again at the next evaluation. Measured
+in solves (reports/bench-ba/notes.md, seventh pass), that costs the polar form ~0.8 ms of its
+~10 ms per iteration on the fake pile, the Euclidean form ~0.1 ms.
+
+:func:`keep_heap` sets the two thresholds to the ceilings of glibc's own dynamic rule
+(mmap 32 MiB, trim 64 MiB): the state a long-running process adapts to, so at most 64 MiB of
+freed heap is held. Process-wide, so it is called where the process is ours: the CLI, the BA
+bench (which records it) and the profiling script; a library caller of ``solve`` keeps its
+allocator as it is. A no-op (reported) where the C library is not glibc.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import logging
+import sys
+
+log = logging.getLogger(__name__)
+
+M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3  # glibc's mallopt parameters (malloc.h)
+MMAP_THRESHOLD = 32 << 20  # glibc's DEFAULT_MMAP_THRESHOLD_MAX on 64-bit
+TRIM_THRESHOLD = 2 * MMAP_THRESHOLD  # what its dynamic rule sets beside it
+
+_STATE: dict = {}
+
+
+def keep_heap() -> str:
+    """Set glibc's mmap and trim thresholds (module docstring) once per process; the state
+    as one line for the records."""
+    if "state" in _STATE:
+        return _STATE["state"]
+    state = "C library defaults (not glibc)"
+    if sys.platform.startswith("linux"):
+        try:
+            libc = ctypes.CDLL(None)
+            ok = (libc.mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD) == 1
+                  and libc.mallopt(M_TRIM_THRESHOLD, TRIM_THRESHOLD) == 1)
+        except (OSError, AttributeError):  # no mallopt: musl and other C libraries
+            ok = False
+        if ok:
+            state = (f"glibc mallopt: mmap threshold {MMAP_THRESHOLD >> 20} MiB, "
+                     f"trim threshold {TRIM_THRESHOLD >> 20} MiB")
+        log.debug("heap: %s", state)
+    _STATE["state"] = state
+    return state
+
+
+def heap_state() -> str:
+    """The heap setting in force, as :func:`keep_heap` reports it (without setting it)."""
+    return _STATE.get("state", "C library defaults (dynamic thresholds)")
