@@ -192,13 +192,13 @@ def _solves(p, opts, param=None):
     return out
 
 
-def _same(out, min_iterations=2):
+def _same(out, min_iterations=2, cost_rtol=1e-9):
     (a, qa), (b, qb) = out["cross"], out["xspace"]
     n = out["numpy"][0]
     assert a.iterations == b.iterations == n.iterations >= min_iterations
     assert b.accepted_iterations == a.accepted_iterations
     for s in (b, n):
-        assert abs(s.final_cost - a.final_cost) <= 1e-9 * a.final_cost
+        assert abs(s.final_cost - a.final_cost) <= cost_rtol * a.final_cost
     assert b.final_cost < 0.9 * b.initial_cost
     scale = np.abs(qa.C).max() + np.abs(qa.X).max()
     np.testing.assert_allclose(qb.C, qa.C, rtol=0, atol=1e-8 * scale)
@@ -227,7 +227,10 @@ def test_xspace_far_points_and_points_at_infinity(far_problem, form):
         pts[1::12, 2] = 0.0  # far points: back from infinity, or held there
         prm.init_points = lambda: pts.copy()
 
-    a, b = _same(_solves(far_problem, dict(param=form, max_iterations=40), at_infinity))
+    # condition ~2e10: the paths' rounding (numpy's matmul, the compiled point solves) moves
+    # the end point; polar's cross path stops 9.2e-9 above the other two (measured)
+    a, b = _same(_solves(far_problem, dict(param=form, max_iterations=40), at_infinity),
+                 cost_rtol=3e-8)
     assert "X-space" in b.linear_solver and "cross terms" not in b.linear_solver
     assert b.point_bounds == a.point_bounds
 

@@ -76,8 +76,8 @@ def warm_up() -> float:
                                        euclidean_rays, parallax_jacobians, parallax_points,
                                        parallax_rays, parallax_xyz, pixel_rows, theta_row_into)
     from polarref.ba.kernels_jit import (add_cross, back_substitute_rhs, build_anchored,
-                                         build_observer, point_sums, schur_dense, slot_gram,
-                                         slot_w_g)
+                                         build_observer, point_solve, point_sums, schur_dense,
+                                         slot_gram, slot_w_g)
     t = time.perf_counter()
     f, i = np.zeros, np.zeros
     one = np.zeros(1, np.int64)
@@ -97,6 +97,7 @@ def warm_up() -> float:
               np.array([0, 1], np.int64))
     point_sums(Jp, r, one, f((1, 3, 3)), f((1, 3)))
     back_substitute_rhs(W, g, one, one, i((1, 3)))
+    point_solve(f((1, 3)), f((1, 3, 3)))
     for assign in (True, False):
         build_anchored(J6, r, x3, Jp, r, z3, z3, np.array([0, 1], np.int64), W, g, U,
                        f((1, 6, 4)), f((1, 3, 3)), assign)

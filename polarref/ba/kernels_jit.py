@@ -373,3 +373,21 @@ def back_substitute_rhs(W, dc, entry_pt, entry_cam, rhs):
             for i in range(6):
                 s += W[e, i, q] * dc[c, i]
             rhs[p, q] -= s
+
+
+@_njit
+def _tri_solve(Li, p, r0, r1, r2):
+    """``V_p^-1 r = Li^T (Li r)`` with Li[p] = L^-1 lower (schur.chol_inv3): (x0, x1, x2)."""
+    u0 = Li[p, 0, 0] * r0
+    u1 = Li[p, 1, 0] * r0 + Li[p, 1, 1] * r1
+    u2 = Li[p, 2, 0] * r0 + Li[p, 2, 1] * r1 + Li[p, 2, 2] * r2
+    return (Li[p, 0, 0] * u0 + Li[p, 1, 0] * u1 + Li[p, 2, 0] * u2,
+            Li[p, 1, 1] * u1 + Li[p, 2, 1] * u2,
+            Li[p, 2, 2] * u2)
+
+
+@_njit
+def point_solve(rhs, Li):
+    """Point steps in place: rhs (P, 3) <- V^-1 rhs per point (Li (P, 3, 3) lower)."""
+    for p in range(len(rhs)):
+        rhs[p, 0], rhs[p, 1], rhs[p, 2] = _tri_solve(Li, p, rhs[p, 0], rhs[p, 1], rhs[p, 2])

@@ -517,11 +517,14 @@ class SchurStructure:
 
     def back_substitute(self, W, Li, g_p, dc: np.ndarray) -> np.ndarray:
         """Point steps dp = V^-1 (-g_p - sum_e W_e^T dc_cam(e)) -> (P, 3)."""
-        rhs = -g_p.copy()
-        if self.E and self.fast:
+        rhs = -g_p
+        if self.fast:
             from polarref.ba import kernels
-            kernels.back_substitute_rhs(_c(W), _c(dc), self.entry_pt, self.entry_cam, rhs)
-        elif self.E:
+            if self.E:
+                kernels.back_substitute_rhs(_c(W), _c(dc), self.entry_pt, self.entry_cam, rhs)
+            kernels.point_solve(rhs, _c(Li))
+            return rhs
+        if self.E:
             wtd = np.matmul(W.transpose(0, 2, 1), dc[self.entry_cam][:, :, None])[:, :, 0]
             rhs[self.pts_with_entries] -= np.add.reduceat(wtd, self.entry_pt_starts, axis=0)
         y = np.matmul(Li, rhs[:, :, None])

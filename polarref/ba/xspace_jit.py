@@ -8,7 +8,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from polarref.ba.kernels_jit import add_observer_share, observer_share
+from polarref.ba.kernels_jit import _tri_solve, add_observer_share, observer_share
 
 
 def _njit(fn):
@@ -210,15 +210,9 @@ def point_steps(rhs, Li, Bm, b, lam, dc, vm, va):
             t2 = Bm[p, 2, 0] * d3 + Bm[p, 2, 1] * d4 + Bm[p, 2, 2] * d5
         if ca >= 0:
             t2 += b[p, 0] * dc[ca, 3] + b[p, 1] * dc[ca, 4] + b[p, 2] * dc[ca, 5]
-        r0 = rhs[p, 0] + lam[p, 0] * t0
-        r1 = rhs[p, 1] + lam[p, 1] * t1
-        r2 = rhs[p, 2] + lam[p, 2] * t2
-        u0 = Li[p, 0, 0] * r0  # u = Li r, y = Li^T u (Li lower)
-        u1 = Li[p, 1, 0] * r0 + Li[p, 1, 1] * r1
-        u2 = Li[p, 2, 0] * r0 + Li[p, 2, 1] * r1 + Li[p, 2, 2] * r2
-        rhs[p, 0] = Li[p, 0, 0] * u0 + Li[p, 1, 0] * u1 + Li[p, 2, 0] * u2 - t0
-        rhs[p, 1] = Li[p, 1, 1] * u1 + Li[p, 2, 1] * u2 - t1
-        rhs[p, 2] = Li[p, 2, 2] * u2 - t2
+        y0, y1, y2 = _tri_solve(Li, p, rhs[p, 0] + lam[p, 0] * t0, rhs[p, 1] + lam[p, 1] * t1,
+                                rhs[p, 2] + lam[p, 2] * t2)
+        rhs[p, 0], rhs[p, 1], rhs[p, 2] = y0 - t0, y1 - t1, y2 - t2
 
 def warm_up() -> None:
     """Compile (or load from the disk cache) these kernels on tiny inputs (kernels.warm_up)."""
