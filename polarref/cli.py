@@ -21,7 +21,7 @@ import traceback
 import warnings
 from types import ModuleType
 
-from polarref import __version__, execution, heap, progress
+from polarref import __version__, execution, progress
 from polarref.errors import PolarrefError
 
 log = logging.getLogger("polarref")
@@ -180,7 +180,6 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)  # exits 2 with usage on bad commands/options/values
         _setup_logging(args.verbose, args.quiet)
-        heap.keep_heap()  # the solver's per-iteration arrays stay mapped (heap.py)
         progress.enable(not args.no_progress and sys.stderr.isatty())
         execution.configure(args.workers, args.scheduler)  # started on first use, closed at exit
         code = int(args._run(args) or 0)

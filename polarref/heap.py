@@ -11,9 +11,11 @@ in solves (reports/bench-ba/notes.md, seventh pass), that costs the polar form ~
 
 :func:`keep_heap` sets the two thresholds to the ceilings of glibc's own dynamic rule
 (mmap 32 MiB, trim 64 MiB): the state a long-running process adapts to, so at most 64 MiB of
-freed heap is held. Process-wide, so it is called where the process is ours: the CLI, the BA
-bench (which records it) and the profiling script; a library caller of ``solve`` keeps its
-allocator as it is. A no-op (reported) where the C library is not glibc.
+freed heap is held. It is process-wide, so it is called where the per-iteration time is the
+measurement and the process is ours: ``polarref bench ba`` (which records it in bench.json)
+and scripts/profile_ba.py. The SfM commands and a library caller of ``solve`` keep glibc's
+dynamic rule (their peak-memory figures were measured under it). A no-op (reported) where
+the C library is not glibc.
 """
 
 from __future__ import annotations

@@ -76,7 +76,7 @@ def main(argv=None) -> int:
                     help="--bench-cpu's figure for both eliminations, interleaved, with paired "
                          "ratios")
     args = ap.parse_args(argv)
-    keep_heap()  # as the CLI and the bench do (polarref/heap.py)
+    keep_heap()  # as the BA bench does (polarref/heap.py)
     if args.stages:
         return stages(args)
     if args.paired:
