@@ -441,7 +441,8 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         num_points=problem.num_points, num_observations=problem.num_observations,
         num_variable_cameras=st.Nv, gauge=problem.gauge,
         exclusions=nonzero_counts(problem.exclusions),
-        linear_solver=st.linear_solver_name() + xspace_note(builds_x, builds_ref), trace=trace, time_in=times, setup_s=setup_s,
+        linear_solver=st.linear_solver_name() + xspace_note(builds_x, builds_ref),
+        trace=trace, time_in=times, setup_s=setup_s,
         behind_camera={"initial": behind0, "final": behind_camera_xyz(
             problem.R, problem.C, problem.X, problem.obs_cam, problem.obs_pt)})
     summary.points_state = pts

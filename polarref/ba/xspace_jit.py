@@ -19,7 +19,7 @@ def _njit(fn):
 def anchor_maps(d, sw, dh_de, dv_dab, C, main, assoc):
     """``Bm = D^-1 - e_3 b^T`` and ``b = -(sin w / s) dh/de`` per point (xspace.py), with
     ``D^-1 = diag(sin w, sin w, sin^2 w) [dv/d(alpha, beta) | -s d]^-1``; d, dh_de (P, 3),
-    sw (P,), dv_dab (P, 3, 2) as kernels_jit.parallax_points returns them."""
+    sw (P,), dv_dab (P, 3, 2) as forms_jit.parallax_points returns them."""
     P = len(sw)
     Bm, b = np.empty((P, 3, 3)), np.empty((P, 3))
     M = np.empty((3, 3))
