@@ -8,7 +8,7 @@ from typing import Callable
 import numpy as np
 
 from polarref import _generated as gen
-from polarref.geometry import so3_exp
+from polarref.core.geometry import so3_exp
 
 FD_STEP = 1e-6  # central-difference step (rad or length units); error ~ h^2 f''' + eps/h
 

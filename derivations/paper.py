@@ -3,7 +3,7 @@
 Symbolic checks use SymPy on :mod:`derivations.model`; numeric checks evaluate the printed
 formulas in float64 exactly as printed (plus the stated corrections) on seeded random samples
 and on the edge cases listed in issue 3, against the angle between the landmark direction and
-the principal axis of :func:`polarref.angular.rotation_from_polar_angles` (float64 atan2 form,
+the principal axis of :func:`polarref.core.angular.rotation_from_polar_angles` (float64 atan2 form,
 itself certified against 50-digit mpmath on a subset).
 """
 
@@ -18,9 +18,9 @@ import numpy as np
 import sympy as sp
 
 from derivations import model as m
-from polarref import angular
+from polarref.core import angular
 from polarref._generated.angles import view_angle_with_jacobian
-from polarref.geometry import axis_rotation
+from polarref.core.geometry import axis_rotation
 
 N_SAMPLES = 100_000  # per case
 N_MPMATH = 200  # per case, for certifying the float64 truth
@@ -150,7 +150,7 @@ class CaseEvidence:
     corrected_eq3_max_err: float  # acos form with sigma_1 = -sigma_2, vs truth
     corrected_eq3_nan: int  # samples where the corrected form is NaN
     corrected_eq3_max_err_all: float  # same, including the near-pole samples
-    stable_max_err: float  # polarref.angular.view_angle vs float64 truth (all samples)
+    stable_max_err: float  # polarref.core.angular.view_angle vs float64 truth (all samples)
     generated_max_err: float  # polarref._generated view_angle_with_jacobian value vs truth (all)
     stable_vs_mpmath_max_err: float  # view_angle vs 50-digit mpmath on N_MPMATH samples
     stable_all_vs_mpmath_max_err: float  # same, on N_MPMATH samples including near-pole ones

@@ -105,7 +105,7 @@ def render(ev: Evidence) -> str:
         "",
         "$$ R_{cw} = R_z(e_z)\\,R_y(e_x)\\,R_x(e_y), \\qquad R_{wc} = R_{cw}^T = R_x(-e_y)\\,R_y(-e_x)\\,R_z(-e_z) $$",
         "",
-        "  with right-handed active elementary matrices. `polarref.angular.rotation_from_polar_angles` "
+        "  with right-handed active elementary matrices. `polarref.core.angular.rotation_from_polar_angles` "
         "returns $R_{wc}$ (world_from_cam); its columns are the camera x (image right), y (image down) "
         "and z (principal axis) axes, so $R_{wc}^T$ is a COLMAP `cam_from_world` rotation (camera "
         "frame x right, y down, z forward). Principal axis:",
@@ -177,7 +177,7 @@ def render(ev: Evidence) -> str:
     lines += [_row(*r) for r in rows]
     lines += [
         "",
-        f"`polarref.angular.view_angle` (stable form) vs 50-digit mpmath: max error {_e(worst_stable)} rad "
+        f"`polarref.core.angular.view_angle` (stable form) vs 50-digit mpmath: max error {_e(worst_stable)} rad "
         "over all cases, including theta -> 0 and samples exactly on the axis.",
         "",
         "## Symbolic checks (SymPy)",

@@ -21,8 +21,12 @@ import traceback
 import warnings
 from types import ModuleType
 
-from polarref import __version__, execution, progress
-from polarref.errors import PolarrefError
+from polarref import __version__
+
+from polarref.core import execution
+
+from polarref.core import progress
+from polarref.core.errors import PolarrefError
 
 log = logging.getLogger("polarref")
 

@@ -25,6 +25,7 @@ import sys
 import time
 
 import numpy as np
+from polarref.model.colmap import read_model
 
 
 def rss_mb() -> float:
@@ -52,7 +53,7 @@ def main(argv=None) -> int:
         from polarref.ba.adapter import problem_from_reconstruction
         from polarref.model.reconstruction import Reconstruction
 
-        rec = Reconstruction.read(a.model)
+        rec = read_model(a.model)
         p = problem_from_reconstruction(rec, fixed_image_ids=[a.fixed_image] if a.fixed_image else None)
         del rec
     else:

@@ -51,8 +51,8 @@ from polarref.ba.bench import _resolve
 from polarref.ba.loaders import load_problem
 from polarref.ba.options import PARAMS, BAOptions
 from polarref.ba.problem import prepare
-from polarref.ba.solver import solve
-from polarref.heap import keep_heap
+from polarref.ba.entry import solve
+from polarref.core.heap import keep_heap
 
 STAGES = ("evaluate", "normal_equations", "schur", "solve", "update")
 
@@ -76,7 +76,7 @@ def main(argv=None) -> int:
                     help="--bench-cpu's figure for both eliminations, interleaved, with paired "
                          "ratios")
     args = ap.parse_args(argv)
-    keep_heap()  # as the BA bench does (polarref/heap.py)
+    keep_heap()  # as the BA bench does (polarref/core/heap.py)
     if args.stages:
         return stages(args)
     if args.paired:

@@ -20,6 +20,7 @@ import resource
 from pathlib import Path
 
 import numpy as np
+from polarref.model.colmap import read_model
 
 
 def _cpu() -> float:
@@ -28,7 +29,7 @@ def _cpu() -> float:
 
 
 def main() -> None:
-    from polarref.reconstruction import Reconstruction
+    from polarref.model import Reconstruction
     from polarref.sfm.pipeline import PRESETS, run_sfm
     from synth.scene import load_scene
 
@@ -41,7 +42,7 @@ def main() -> None:
     a = ap.parse_args()
     root = Path(a.scene)
     scene = load_scene(root)
-    gt = Reconstruction.read(scene.gt_dir)
+    gt = read_model(scene.gt_dir)
     cfg = PRESETS["default"]
     over = {}
     for kv in a.overrides:

@@ -16,8 +16,8 @@ import sys
 from pathlib import Path
 
 from polarref.compare.twins import rerun_ours_stage
-from polarref.errors import PolarrefError
-from polarref.provenance import collect
+from polarref.core.errors import PolarrefError
+from polarref.core.provenance import collect
 
 
 def main(argv=None) -> int:

@@ -20,8 +20,8 @@ from pathlib import Path
 
 from polarref.compare.thresholds import TWIN_ROSETTA_MIN_TIES
 from polarref.compare.twins import rerun_ours_stage, score_model
-from polarref.errors import PolarrefError
-from polarref.provenance import collect
+from polarref.core.errors import PolarrefError
+from polarref.core.provenance import collect
 from polarref.sfm.pipeline import PRESETS
 
 TIE_POINT_TARGET = {"rosetta": TWIN_ROSETTA_MIN_TIES}  # issue 13's done-when (the other twins have none)

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from polarref.angular import direction_from_azimuth_elevation
-from polarref.geometry import Rigid3, so3_exp
+from polarref.core.angular import direction_from_azimuth_elevation
+from polarref.core.geometry import Rigid3, so3_exp
 from synth import meshes
 from synth.config import SceneConfig
 from synth.conventions import look_at, pinhole_params

@@ -210,7 +210,7 @@ def preset(scene: str, name: str = "default", **overrides) -> SceneConfig:
         raise ValueError(f"unknown preset {name!r} for {scene} (choose from {', '.join((*PRESETS, *twins))})")
     values = {**_PRESETS[(scene, name)], **overrides}
     if name == "rosetta" and "mesh" not in values:
-        from polarref.data import data_path
+        from polarref.core.data import data_path
 
         values["mesh"] = str(data_path(*ROSETTA_MESH))
     return SceneConfig(scene=scene, preset=name, **values)

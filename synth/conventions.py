@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from polarref.geometry import Rigid3
+from polarref.core.geometry import Rigid3
 
 _FLIP_XY = np.diag([-1.0, -1.0, 1.0])  # COLMAP camera axes expressed in Mitsuba's camera axes
 

@@ -115,8 +115,8 @@ def render_distorted_scene(scene: str, out, config, k1: float, k2: float = 0.0, 
     import time
     from pathlib import Path
 
-    from polarref import progress
-    from polarref.errors import PolarrefError
+    from polarref.core import progress
+    from polarref.core.errors import PolarrefError
     from synth.conventions import mitsuba_to_world, pinhole_params
     from synth.mitsuba_variant import load_mitsuba
     from synth.render import (WHITE_ALBEDO, SceneResult, _encode_npy, _encode_png, _is_complete,

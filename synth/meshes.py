@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref.atomic import atomic_open
-from polarref.errors import PolarrefError
+from polarref.core.atomic import atomic_open
+from polarref.core.errors import PolarrefError
 
 
 def subdivide(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

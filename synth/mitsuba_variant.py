@@ -157,7 +157,7 @@ def load_mitsuba():
     """Import Mitsuba with the selected variant set; returns ``(mi, VariantChoice)``."""
     choice = selected_variant()
     if choice.variant is None:
-        from polarref.errors import PolarrefError
+        from polarref.core.errors import PolarrefError
 
         raise PolarrefError(f"cannot render: {choice.reason}")
     if choice.llvm_path:

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from polarref.geometry import Rigid3, so3_exp
+from polarref.core.geometry import Rigid3, so3_exp
 from synth.config import SceneConfig
 
 PRIORS_FORMAT = "polarref-pose-priors/1"

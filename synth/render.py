@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref.atomic import publish_dir
-from polarref.errors import PolarrefError
+from polarref.core.atomic import publish_dir
+from polarref.core.errors import PolarrefError
 from synth import meshes
 from synth.config import SceneConfig, preset
 from synth.conventions import mitsuba_to_world, pinhole_params
@@ -239,7 +239,7 @@ def _render_views(out: Path, scene: str, cfg: SceneConfig, digest: str, geo, cam
                   names: list[str], overwrite: bool) -> tuple[list[int], float]:
     """Write scene.json, mesh, GT and every missing view into ``out``; (rendered views, start time).
 
-    One task per view through ``executor`` (polarref.execution): in this process, or on Dask workers
+    One task per view through ``executor`` (polarref.core.execution): in this process, or on Dask workers
     that each build the Mitsuba scene once.
     """
     write_scene_files(out, _scene_json(cfg, digest, geo, camera, variant, names), geo, camera, names)
@@ -298,7 +298,7 @@ def _render(scene: str, out: Path, cfg: SceneConfig, digest: str, overwrite: boo
     if same and not overwrite and _is_complete(out, cfg.views):
         return SceneResult(out, 0, cfg.views, 0.0, time.perf_counter() - t_start, None)
 
-    from polarref import execution
+    from polarref.core import execution
     from synth.mitsuba_variant import load_mitsuba, selected_variant
 
     geo = build_geometry(cfg)
@@ -322,7 +322,7 @@ def _render(scene: str, out: Path, cfg: SceneConfig, digest: str, overwrite: boo
                        variant.variant)
 
 
-# ---- one view: the task unit of polarref.execution ---------------------------------------------
+# ---- one view: the task unit of polarref.core.execution ---------------------------------------------
 @dataclass(frozen=True)
 class ViewTask:
     """Render view ``index`` of the scene ``config`` into folder ``out`` (scene.json already there)."""
@@ -346,7 +346,7 @@ class _ViewRenderer:
     def __init__(self, cfg: SceneConfig, geo=None):
         from synth.mitsuba_variant import load_mitsuba
 
-        from polarref import execution
+        from polarref.core import execution
 
         geo = geo if geo is not None else build_geometry(cfg)
         self.cfg, self.poses = cfg, geo.poses

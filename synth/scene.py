@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref.atomic import atomic_write
-from polarref.errors import PolarrefError
-from polarref.geometry import Rigid3
+from polarref.core.atomic import atomic_write
+from polarref.core.errors import PolarrefError
+from polarref.core.geometry import Rigid3
 
 SCENE_JSON = "scene.json"
 
@@ -100,7 +100,7 @@ def atomic_write_bytes(path: Path, data: bytes) -> None:
 
 def write_gt(root: Path, camera: PinholeCamera, names: list[str], poses: list[Rigid3]) -> None:
     """COLMAP text model of the exact cameras in ``root/gt`` (empty points3D.txt)."""
-    from polarref.reconstruction import Image, Reconstruction
+    from polarref.model import Image, Reconstruction
 
     rec = Reconstruction(cameras={camera.camera_id: polarref_camera(camera)})
     for i, (name, pose) in enumerate(zip(names, poses), start=1):

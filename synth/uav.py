@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from polarref.angular import direction_from_azimuth_elevation
+from polarref.core.angular import direction_from_azimuth_elevation
 from synth.comet import Geometry
 from synth.config import SceneConfig
 from synth.conventions import look_at, pinhole_params

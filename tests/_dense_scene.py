@@ -12,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from polarref.geometry import Rigid3
+from polarref.core.geometry import Rigid3
 from synth.conventions import look_at
 
 
@@ -108,7 +108,7 @@ def write_scene(root: Path, surface, poses: list[Rigid3], w: int, h: int, fov_de
                 wavelength: float, bounds: tuple, mesh_args=(), blank: bool = False) -> np.ndarray:
     """A scene folder ``load_scene`` reads (images/, depth/, gt/, mesh.ply, scene.json); returns K."""
     from polarref.camera import Camera
-    from polarref.reconstruction import Image, Reconstruction
+    from polarref.model import Image, Reconstruction
     from synth.meshes import write_ply
 
     f = 0.5 * w / np.tan(np.radians(fov_deg) / 2)

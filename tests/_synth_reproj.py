@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import map_coordinates
 
-from polarref.geometry import Rigid3
+from polarref.core.geometry import Rigid3
 from synth.conventions import pixel_rays, project
 from synth.scene import Scene
 

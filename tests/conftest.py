@@ -3,7 +3,7 @@ import shutil
 
 import pytest
 
-from polarref.data import data_root
+from polarref.core.data import data_root
 
 
 @pytest.fixture(scope="session")
@@ -25,7 +25,7 @@ def _cached_scene(scene: str, preset_name: str, seed: int = 0):
     """
     import fcntl
 
-    from polarref.data import cache_root
+    from polarref.core.data import cache_root
     from synth.config import preset
     from synth.render import code_version, render_scene
 

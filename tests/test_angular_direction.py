@@ -5,7 +5,7 @@ import warnings
 import numpy as np
 import pytest
 
-from polarref.angular import (
+from polarref.core.angular import (
     azimuth_elevation_from_direction,
     direction_from_azimuth_elevation,
     direction_jacobian,

@@ -1,4 +1,4 @@
-"""View angle, polar angle and the polar rotation convention of polarref.angular."""
+"""View angle, polar angle and the polar rotation convention of polarref.core.angular."""
 
 import warnings
 
@@ -6,8 +6,8 @@ import mpmath
 import numpy as np
 import pytest
 
-from polarref import angular as A
-from polarref.geometry import axis_rotation
+from polarref.core import angular as A
+from polarref.core.geometry import axis_rotation
 
 N = 100_000
 TOL = 1e-12

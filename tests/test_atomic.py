@@ -1,12 +1,12 @@
-"""polarref.atomic: outputs appear whole or not at all; a replaced folder never mixes two runs."""
+"""polarref.core.atomic: outputs appear whole or not at all; a replaced folder never mixes two runs."""
 
 import errno
 import os
 
 import pytest
 
-from polarref.atomic import MANIFEST, atomic_open, atomic_write, publish_dir
-from polarref.errors import PolarrefError
+from polarref.core.atomic import MANIFEST, atomic_open, atomic_write, publish_dir
+from polarref.core.errors import PolarrefError
 
 
 def _hidden(folder):

@@ -7,7 +7,7 @@ import pytest
 
 from polarref.ba import BAOptions, adjust
 from polarref.ba.synthetic import synthetic_reconstruction
-from polarref.geometry import rotation_angle_deg, umeyama
+from polarref.core.geometry import rotation_angle_deg, umeyama
 
 
 def _rotation_errors_deg(rec, truth):

@@ -74,7 +74,7 @@ def test_bench_records_settings_repeats_and_time_to_common_cost(tmp_path):
 def test_readme_bench_table_matches_bench_json():
     """README quotes only what bench.json holds: its table is readme_table(bench.json)."""
     from polarref.ba.bench_report import readme_block, readme_table
-    from polarref.data import REPO_ROOT
+    from polarref.core.data import REPO_ROOT
 
     bench = REPO_ROOT / "reports" / "bench-ba" / "bench.json"
     doc = json.loads(bench.read_text()) if bench.is_file() else None

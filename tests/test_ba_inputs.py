@@ -10,7 +10,7 @@ from polarref.ba import BAOptions, BAProblem, adjust, prepare, solve
 from polarref.ba.adapter import problem_from_reconstruction
 from polarref.ba.synthetic import synthetic_reconstruction
 from polarref.cli import main
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 from polarref.model import Observations
 
 

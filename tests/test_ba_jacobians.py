@@ -7,7 +7,7 @@ from polarref.ba import BAOptions, prepare
 from polarref.ba.adapter import problem_from_reconstruction
 from polarref.ba.solver import make_param
 from polarref.ba.synthetic import synthetic_reconstruction
-from polarref.geometry import so3_exp
+from polarref.core.geometry import so3_exp
 
 
 @pytest.fixture(scope="module")

@@ -88,7 +88,7 @@ def test_kernel_jacobians_equal_numpy(problems, param):
 
 def test_kernels_choice(monkeypatch):
     from polarref.ba import kernels
-    from polarref.errors import PolarrefError
+    from polarref.core.errors import PolarrefError
     assert kernels.use_kernels("auto") and kernels.use_kernels("numba")
     assert not kernels.use_kernels("numpy")
     monkeypatch.setattr(kernels, "available", lambda: False)

@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from polarref import bench_sfm as B
-from polarref.bench_sfm_report import growth_exponent, summarize
-from polarref.errors import PolarrefError
+from polarref.bench import sfm as B
+from polarref.bench.sfm_report import growth_exponent, summarize
+from polarref.core.errors import PolarrefError
 
 
 def test_growth_exponent_recovers_known_power_laws():

@@ -4,7 +4,7 @@ import time
 
 import pytest
 
-from polarref import records
+from polarref.core import records
 from polarref.compare import paper_tables as PT
 from polarref.peers.colmap_resume import LEDGER, MapperLedger, MapperSegment, _start_point, map_incremental_resumable
 from polarref.peers.colmap_sfm import ColmapSfMOptions, extract_and_match_sift

@@ -8,7 +8,7 @@ from test_report_build import synthetic_metrics
 
 import numpy as np
 
-from polarref import records
+from polarref.core import records
 from polarref.compare import claims, claims_experiments, schema
 from polarref.compare.experiment_records import Conditioning, DerivationEvidence, Experiments, Robustness, Timing
 

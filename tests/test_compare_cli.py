@@ -202,7 +202,7 @@ def test_default_output_is_gitignored_polarref_out(tmp_path, monkeypatch, isolat
     import subprocess
     import uuid
 
-    from polarref.data import REPO_ROOT
+    from polarref.core.data import REPO_ROOT
 
     if not (REPO_ROOT / ".git").exists():
         pytest.skip(f"{REPO_ROOT} is not a git checkout")

@@ -7,12 +7,12 @@ import time
 import numpy as np
 import pytest
 
-from polarref import records
+from polarref.core import records
 from polarref.compare.experiment_records import Experiments
 from polarref.compare import claims, experiments
 from polarref.compare.experiment_problems import (bearing_errors_deg, low_parallax_problem,
                                                   observation_geometry, relative_rotation_errors_deg)
-from polarref.geometry import Rigid3, so3_exp
+from polarref.core.geometry import Rigid3, so3_exp
 
 
 @pytest.mark.parametrize("ratio", [0.3, 0.003])

@@ -9,7 +9,7 @@ import pytest
 
 from polarref.cli import main
 from polarref.compare import schema
-from polarref.data import REPO_ROOT
+from polarref.core.data import REPO_ROOT
 
 TIMING_CLAIMS = ("C4",)        # decided by wall times: may differ between runs by design
 RUNTIME_KEYS = {"runtime_s", "stage_runtime_s", "time_s", "wall_s"}

@@ -9,7 +9,7 @@ from _dense_scene import Sphere, orbit, write_scene
 from polarref.cli import main
 from polarref.dense.meshing import MeshOptions
 from polarref.dense.pipeline import DenseConfig, run_dense  # noqa: F401
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 
 SPHERE = Sphere([0, 0, 0], 3.0)
 # Small enough for the default suite: a coarse Poisson grid and few GT samples.
@@ -104,7 +104,7 @@ def test_compare_report_dense_section(sphere_run, tmp_path):
     from polarref.compare import schema
     from polarref.compare.dense_section import DenseRun, DenseSection
     from polarref.compare.report import build_report
-    from polarref.data import REPO_ROOT
+    from polarref.core.data import REPO_ROOT
 
     _, out, m = sphere_run
     metrics = schema.load(REPO_ROOT / "reports" / "comet-small" / "metrics.json")

@@ -9,8 +9,8 @@ import sympy as sp
 from derivations import codegen, specs
 from derivations.numeric_checks import GENERATED, random_inputs
 from polarref import _generated as gen
-from polarref import angular
-from polarref.geometry import so3_exp
+from polarref.core import angular
+from polarref.core.geometry import so3_exp
 
 ALL_SPECS = {s.name: s for make in (specs.angle_specs, specs.pose_specs, specs.parallax_specs) for s in make()}
 

@@ -1,4 +1,4 @@
-"""polarref.execution: serial vs Dask (LocalCluster and real dask scheduler/worker processes).
+"""polarref.core.execution: serial vs Dask (LocalCluster and real dask scheduler/worker processes).
 
 Every cluster run is compared with the serial run byte for byte (images, depth maps, models) or
 entry for entry (metrics.json, timings left out). The killed-worker test kills a worker process
@@ -16,8 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from polarref import execution
-from polarref.errors import PolarrefError
+from polarref.core import execution
+from polarref.core.errors import PolarrefError
 from synth.config import preset
 from synth.render import render_scene
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from polarref.camera import Camera
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 from polarref.sfm import feature_cache as FC
 from polarref.sfm import features as F
 from polarref.sfm.pipeline import SfMConfig, ensure_descriptors, load_images_and_features, match_and_verify

@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from polarref.geometry import (Rigid3, quat_from_rotmat, rotation_angle_deg, rotmat_from_quat,
+from polarref.core.geometry import (Rigid3, quat_from_rotmat, rotation_angle_deg, rotmat_from_quat,
                                skew, so3_exp, so3_log, umeyama)
 
 

@@ -1,4 +1,4 @@
-"""polarref.heap: glibc's thresholds set once, and the page faults they remove.
+"""polarref.core.heap: glibc's thresholds set once, and the page faults they remove.
 
 The fault count runs in fresh interpreters (the allocator's state is per process): a loop
 shaped like an LM iteration (one large array freed, then several smaller ones allocated,
@@ -11,13 +11,13 @@ import sys
 
 import pytest
 
-from polarref import heap
+from polarref.core import heap
 
 _LOOP = """
 import resource, sys
 import numpy as np
 if sys.argv[1] == "keep":
-    from polarref.heap import keep_heap
+    from polarref.core.heap import keep_heap
     keep_heap()
 def rnd():
     a = np.ones(4 << 17)  # 4 MiB: raises the dynamic mmap threshold to 4 MiB when freed

@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from polarref.cli import main
-from polarref.data import REPO_ROOT
+from polarref.core.data import REPO_ROOT
 
 GOOD_BAL = "1 1 1\n0 0 1.0 2.0\n" + "\n".join(["0"] * 5 + ["-5", "100", "0", "0", "1", "2", "-3"]) + "\n"
 EXAMPLE_METRICS = REPO_ROOT / "reports" / "comet-small" / "metrics.json"

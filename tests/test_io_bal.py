@@ -32,7 +32,7 @@ def test_mapping_to_colmap_conventions_reproduces_bal_residuals(shared_data, nam
         X = np.array([rec.points3D[int(pid)].xyz for pid in img.point3D_ids]).reshape(-1, 3)
         err[sel] = np.linalg.norm(camera.project(img.cam_from_world.apply(X)) - img.keypoints, axis=1)
     # observations behind their camera (BAL frame P_z >= 0) are NaN through a COLMAP camera
-    from polarref.geometry import so3_exp
+    from polarref.core.geometry import so3_exp
     P_z = (np.einsum("kij,kj->ki", so3_exp(problem.rotvec)[problem.obs.image],
                      problem.points[problem.obs.point]) + problem.t[problem.obs.image])[:, 2]
     np.testing.assert_array_equal(np.isnan(err), P_z >= 0)

@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from polarref.geometry import axis_rotation, so3_exp
+from polarref.core.geometry import axis_rotation, so3_exp
 from polarref.io import FormatError
 from polarref.io.parallaxba import (cam_from_world_rotation, euler_from_cam_from_world,
                                     read_parallaxba, reprojection_errors, triangulate_dlt,
@@ -181,7 +181,7 @@ def test_loader_and_cli_accept_the_distributed_naming(tmp_path):
      "several ParallaxBA problems"),
 ])
 def test_distributed_naming_incomplete_or_ambiguous(tmp_path, files, match):
-    from polarref.errors import PolarrefError
+    from polarref.core.errors import PolarrefError
     from polarref.io.parallaxba import find_parallaxba_files
     for name, text in files.items():
         (tmp_path / name).write_text(text)

@@ -5,10 +5,11 @@ import xml.etree.ElementTree as ET
 import numpy as np
 import pytest
 
-from polarref.geometry import so3_exp
+from polarref.core.geometry import so3_exp
 from polarref.io import FormatError
 from polarref.io.pvlba import (BrownDistortion, pvl_euler_from_rotation, read_blocks_exchange,
                                read_pvlba, rotation_from_pvl_euler, write_pvlba)
+from polarref.model.colmap import to_pycolmap
 
 
 @pytest.fixture(scope="module")
@@ -86,7 +87,7 @@ def test_pvl_rotation_is_a_rotation_and_round_trips():
     # the spec's angles: ex alone tilts about the camera x axis (R[7] = -sin ex)
     assert rotation_from_pvl_euler([0, 0.3, 0])[2, 1] == pytest.approx(-np.sin(0.3))
     # characterization: R = Rz(-ez) Rx(-ex) Ry(ey) (phi-omega-kappa, documented in the module)
-    from polarref.geometry import axis_rotation
+    from polarref.core.geometry import axis_rotation
     ey, ex, ez = rng.uniform(-3, 3, (3, 20))
     np.testing.assert_allclose(rotation_from_pvl_euler(np.stack([ey, ex, ez], -1)),
                                axis_rotation(2, -ez) @ axis_rotation(0, -ex)
@@ -168,5 +169,5 @@ def test_to_reconstruction_reprojects_the_same(sample_xml):
     assert len(rec.images) == 8 and len(rec.points3D) == 30 and rec.num_observations == 105
     np.testing.assert_allclose(np.sort(rec.reprojection_errors()),
                                np.sort(p.reprojection_errors()), rtol=1e-9)
-    pc = rec.to_pycolmap()  # and pycolmap accepts it
+    pc = to_pycolmap(rec)  # and pycolmap accepts it
     assert pc.num_points3D() == 30

@@ -5,7 +5,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from polarref.geometry import Rigid3
+from polarref.core.geometry import Rigid3
 from polarref.io import FormatError
 from polarref.io.strecha import (fundamental_matrix, read_strecha_camera, read_strecha_folder,
                                  sampson_error)

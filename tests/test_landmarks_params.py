@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from polarref.geometry import so3_exp
-from polarref.landmarks import (choose_associate_anchor, homogeneous_from_inverse_depth,
+from polarref.core.geometry import so3_exp
+from polarref.core.landmarks import (choose_associate_anchor, homogeneous_from_inverse_depth,
                                 homogeneous_from_inverse_distance, homogeneous_from_parallax,
                                 inverse_depth_from_xyz, inverse_distance_from_xyz,
                                 parallax_from_xyz, parallax_ray, xyz_from_inverse_depth,

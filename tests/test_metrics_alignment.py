@@ -5,8 +5,8 @@ import pytest
 
 from polarref import metrics as M
 from polarref.camera import Camera
-from polarref.geometry import Rigid3, Sim3, so3_exp
-from polarref.reconstruction import Image, Point3D, Reconstruction
+from polarref.core.geometry import Rigid3, Sim3, so3_exp
+from polarref.model import Image, Point3D, Reconstruction
 
 
 def _gt(rng, n=8, collinear=False):
@@ -68,7 +68,7 @@ def test_collinear_centres_use_rotation_alignment():
     assert e.rotation_error_deg_max < 1e-9 and e.center_error_rel_max < 1e-9
     # umeyama alone refuses this configuration
     with pytest.raises(ValueError, match="collinear"):
-        from polarref.geometry import umeyama
+        from polarref.core.geometry import umeyama
         umeyama(gt.centers(), gt.centers() * 2)
 
 

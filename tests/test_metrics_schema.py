@@ -8,11 +8,11 @@ import pytest
 from test_report_build import synthetic_metrics
 
 from polarref import metrics as M
-from polarref import records
+from polarref.core import records
 from polarref.compare import schema
-from polarref.data import REPO_ROOT
+from polarref.core.data import REPO_ROOT
 from polarref.metrics import GTErrors, ImageGTErrors, ReconstructionMetrics, SurfaceErrors
-from polarref.provenance import Provenance
+from polarref.core.provenance import Provenance
 from polarref.sfm.pipeline import SfMConfig
 from polarref.sfm.report import SfMReport
 

@@ -65,7 +65,7 @@ def test_child_process_reports_the_choice_of_its_parent(monkeypatch):
     """load_mitsuba hands DRJIT_LIBLLVM_PATH to child processes (Dask workers, isolated methods);
     their scene.json must still name the origin the parent saw, or a render's metadata depends on
     the process that wrote it (seen: serial vs Dask renders differing in scene.json only)."""
-    from polarref.data import REPO_ROOT
+    from polarref.core.data import REPO_ROOT
 
     monkeypatch.delenv("POLARREF_MITSUBA_VARIANT", raising=False)
     monkeypatch.delenv("DRJIT_LIBLLVM_PATH", raising=False)

@@ -14,9 +14,10 @@ from polarref.ba.parameterization import (FORMS, PARAMS, SFM_BA_NAMES, AnchoredJ
 from polarref.ba.problem import prepare
 from polarref.ba.synthetic import synthetic_reconstruction
 from polarref.camera import Camera
-from polarref.geometry import Rigid3
+from polarref.core.geometry import Rigid3
 from polarref.model import (Image, Observations, ObservationsError, Point3D, Reconstruction,
                             build_reconstruction)
+from polarref.model.colmap import from_pycolmap, read_model, to_pycolmap
 
 
 def _obs(m=6):
@@ -167,7 +168,7 @@ def test_synth_ground_truth_holds_polarref_cameras(tmp_path):
 
     pin = PinholeCamera(64, 48, np.array([50.0, 51.0, 32.0, 24.0]))
     write_gt(tmp_path, pin, ["a.png"], [Rigid3.identity()])
-    back = Reconstruction.read(tmp_path / "gt")
+    back = read_model(tmp_path / "gt")
     assert back.cameras[1] == Camera("PINHOLE", 64, 48, [50.0, 51.0, 32.0, 24.0])
     text = (tmp_path / "gt" / "cameras.txt").read_text().splitlines()[1]
     assert text == "1 PINHOLE 64 48 50.0 51.0 32.0 24.0"
@@ -231,7 +232,7 @@ def test_bundle_adjustment_options_carry_loss_scale_and_stopping_rules(loss, sca
 
 def test_pycolmap_round_trip_keeps_ids_and_poses(synthetic):
     rec = synthetic
-    back = Reconstruction.from_pycolmap(rec.to_pycolmap())
+    back = from_pycolmap(to_pycolmap(rec))
     assert sorted(back.images) == sorted(rec.images) and sorted(back.points3D) == sorted(rec.points3D)
     for i, im in rec.images.items():
         np.testing.assert_allclose(back.images[i].cam_from_world.R, im.cam_from_world.R, atol=1e-12)

@@ -9,8 +9,8 @@ from itertools import combinations
 import numpy as np
 import pytest
 
-from polarref.errors import PolarrefError
-from polarref.pairing import (PairingConfig, PosePriors, priors_from_scene, read_pairs, select,
+from polarref.core.errors import PolarrefError
+from polarref.sfm.pairing import (PairingConfig, PosePriors, priors_from_scene, read_pairs, select,
                               sequential_pairs, write_pairs)
 from synth.config import twin
 from synth.conventions import pixel_rays, project

@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from polarref.compare import paper_scale as PS
+from polarref.compare import paper_readme as PR
 from polarref.compare import paper_tables as PT
 
 
@@ -65,7 +66,7 @@ def test_difference_column_is_not_tested_without_both_sides_and_detects_a_real_c
 def test_readme_puts_the_papers_tables_beside_the_twins(tmp_path):
     t = _table(**{PT.BASELINE: _ok(PT.BASELINE, 0.4, 50.0, 100_000, 500_000, 600.0)})
     PT.write_table(tmp_path / "rosetta", t)
-    text = PT.write_readme(tmp_path).read_text()
+    text = PR.write_readme(tmp_path).read_text()
     table1 = text.split("## Table 1")[1].split("## Table 2")[0]
     assert "| Accuracy (px) | 0.482 | 0.481 | 0.400 | not run | not tested |" in table1
     assert "| #Tie point | 200,355 | 200,708 | 100,000 | not run | not tested |" in table1

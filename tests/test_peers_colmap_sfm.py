@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from polarref.camera import Camera
-from polarref.errors import PolarrefError
-from polarref.geometry import Rigid3, so3_exp
+from polarref.core.errors import PolarrefError
+from polarref.core.geometry import Rigid3, so3_exp
 from polarref.peers import colmap_sfm as C
 
 CAM = Camera("PINHOLE", 320, 240, [386.27, 386.27, 160.0, 120.0])

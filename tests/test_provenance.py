@@ -4,8 +4,8 @@ import re
 import subprocess
 import sys
 
-from polarref import provenance
-from polarref.data import REPO_ROOT
+from polarref.core import provenance
+from polarref.core.data import REPO_ROOT
 
 
 def test_collect_matches_git_and_the_machine():
@@ -30,8 +30,8 @@ def test_outside_a_checkout_is_unknown_not_an_error(tmp_path):
 
 
 def test_library_does_not_import_the_cli():
-    code = ("import sys, polarref.provenance, polarref.compare.pipeline, polarref.ba.bench, polarref.sfm.pipeline;"
-            "polarref.provenance.collect(); assert 'polarref.cli' not in sys.modules, 'cli imported'")
+    code = ("import sys, polarref.core.provenance, polarref.compare.pipeline, polarref.ba.bench, polarref.sfm.pipeline;"
+            "polarref.core.provenance.collect(); assert 'polarref.cli' not in sys.modules, 'cli imported'")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO_ROOT)
     assert proc.returncode == 0, proc.stderr
 
@@ -43,7 +43,7 @@ def test_sfm_metrics_json_records_the_environment(tmp_path):
     import pytest
 
     from polarref.camera import Camera
-    from polarref.errors import PolarrefError
+    from polarref.core.errors import PolarrefError
     from polarref.sfm import run_sfm
 
     (tmp_path / "images").mkdir()

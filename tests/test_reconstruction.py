@@ -2,9 +2,10 @@ import numpy as np
 import pytest
 
 from polarref.camera import Camera
-from polarref.errors import PolarrefError
-from polarref.geometry import Rigid3, so3_exp
-from polarref.reconstruction import Image, Point3D, Reconstruction
+from polarref.core.errors import PolarrefError
+from polarref.core.geometry import Rigid3, so3_exp
+from polarref.model import Image, Point3D, Reconstruction
+from polarref.model.colmap import read_model, to_pycolmap
 
 
 def small_reconstruction(seed=0):
@@ -35,7 +36,7 @@ def test_reprojection_errors_zero_for_exact_data():
 def test_text_roundtrip_through_pycolmap(tmp_path):
     rec = small_reconstruction()
     rec.write_text(tmp_path / "model")
-    back = Reconstruction.read(tmp_path / "model")
+    back = read_model(tmp_path / "model")
     assert sorted(back.images) == [1, 2, 3] and len(back.points3D) == 30
     for i in rec.images:
         assert np.abs(back.images[i].cam_from_world.R - rec.images[i].cam_from_world.R).max() < 1e-12
@@ -50,7 +51,7 @@ def test_pycolmap_agrees_on_reprojection_error():
     rng = np.random.default_rng(1)
     for p in rec.points3D.values():
         p.xyz = p.xyz + rng.normal(scale=0.01, size=3)
-    prec = rec.to_pycolmap()
+    prec = to_pycolmap(rec)
     prec.update_point_3d_errors()
     ours = rec.reprojection_errors()
     # pycolmap averages per point; ours is per observation: compare like with like.
@@ -60,6 +61,6 @@ def test_pycolmap_agrees_on_reprojection_error():
 
 def test_read_rejects_non_model(tmp_path):
     with pytest.raises(PolarrefError, match="not found"):
-        Reconstruction.read(tmp_path / "absent")
+        read_model(tmp_path / "absent")
     with pytest.raises(PolarrefError, match="not a COLMAP model"):
-        Reconstruction.read(tmp_path)
+        read_model(tmp_path)

@@ -1,4 +1,4 @@
-"""polarref.records: strict typed records (unknown/missing keys, wrong types, NaN, versions)."""
+"""polarref.core.records: strict typed records (unknown/missing keys, wrong types, NaN, versions)."""
 
 import enum
 import json
@@ -8,8 +8,8 @@ from typing import ClassVar
 
 import pytest
 
-from polarref import records
-from polarref.records import RecordError
+from polarref.core import records
+from polarref.core.records import RecordError
 
 
 class Kind(enum.Enum):

@@ -48,7 +48,7 @@ def test_gt_names_mismatch_keeps_model_and_names_failure(small_copy, tmp_path, m
 
 # ---- cases 6 and 12: a failing rerun never loses or mixes with an earlier result -------------
 def test_full_disk_during_export_keeps_earlier_result(small_copy, tmp_path, monkeypatch, capsys):
-    from polarref.reconstruction import Reconstruction
+    from polarref.model import Reconstruction
 
     monkeypatch.setenv("POLARREF_CACHE", str(tmp_path / "cache"))
     out = tmp_path / "out"
@@ -88,7 +88,7 @@ def test_failing_overwrite_leaves_no_stale_model(small_copy, tmp_path, monkeypat
 
 
 def test_ba_full_disk_writes_nothing(tmp_path, monkeypatch, capsys):
-    import polarref.atomic as atomic
+    import polarref.core.atomic as atomic
 
     real_open = open
 
@@ -258,8 +258,8 @@ def test_ba_options_reject_non_finite_loss_scale(scale):
 
 # ---- library errors never spell CLI flags ----------------------------------------------------
 def test_library_error_names_option_cli_adds_flag(tmp_path, capsys):
-    from polarref.atomic import publish_dir
-    from polarref.errors import PolarrefError
+    from polarref.core.atomic import publish_dir
+    from polarref.core.errors import PolarrefError
 
     (tmp_path / "o").mkdir()
     (tmp_path / "o" / "x").write_text("1")

@@ -13,7 +13,7 @@ import pytest
 from polarref.compare import schema, view3d
 from polarref.compare.browser import check_page, find_chromium
 from polarref.compare.report import build_report
-from polarref.data import REPO_ROOT
+from polarref.core.data import REPO_ROOT
 
 EXAMPLE = REPO_ROOT / "reports" / "comet-small"
 

@@ -13,8 +13,8 @@ from polarref.cli import main
 from polarref.compare import schema
 from polarref.compare.report import (REPORT_LAYOUT, build_report, improving_accuracy, improving_count,
                                      improving_runtime)
-from polarref.data import REPO_ROOT
-from polarref.errors import PolarrefError
+from polarref.core.data import REPO_ROOT
+from polarref.core.errors import PolarrefError
 
 EXAMPLE = REPO_ROOT / "reports" / "comet-small"
 

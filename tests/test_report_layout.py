@@ -15,7 +15,7 @@ from polarref.cli import main
 from polarref.compare import schema, view3d
 from polarref.compare.report import (SHORT_LINE_CHARS, build_report, commit_text, first_clause,
                                      short_line)
-from polarref.geometry import Sim3, so3_exp
+from polarref.core.geometry import Sim3, so3_exp
 
 LONG = ("Success rate per form -- outliers 10%: initial RMS 12.99 px, euclidean 1.0 (0.04 deg, 10 it); "
         "outliers 30%: " + "x " * 200)

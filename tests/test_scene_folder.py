@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from polarref.cli import main
-from polarref.geometry import Rigid3
-from polarref.scene_folder import IMAGE_SUFFIXES, discover
+from polarref.core.geometry import Rigid3
+from polarref.model.scene_folder import IMAGE_SUFFIXES, discover
 
 
 def _rotation(seed: int) -> np.ndarray:

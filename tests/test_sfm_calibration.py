@@ -8,8 +8,9 @@ import pytest
 from PIL import Image
 
 from polarref.cli import main
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 from polarref.sfm.calibration import DEFAULT_FOCAL_FACTOR, cameras_from_exif, read_exif
+from polarref.model.colmap import read_model
 
 DIAG_35MM = 43.27  # COLMAP: f_px = f35 / 43.27 mm (the 36x24 mm diagonal) * image diagonal
 
@@ -64,9 +65,9 @@ def jpeg_scene(request, tmp_path):
         src = request.getfixturevalue("comet_small_scene")
     except (ImportError, ModuleNotFoundError) as exc:
         pytest.skip(f"comet_small_scene unavailable: {exc}")
-    from polarref.reconstruction import Reconstruction
+    from polarref.model import Reconstruction
 
-    gt = Reconstruction.read(src / "gt")
+    gt = read_model(src / "gt")
     dst = tmp_path / "photos"
     dst.mkdir()
     for k, p in enumerate(sorted((src / "images").iterdir())):

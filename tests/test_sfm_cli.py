@@ -7,12 +7,13 @@ import numpy as np
 import pytest
 
 from polarref.cli import main
+from polarref.model.colmap import read_model
 
 
 def _cam_arg(scene):
-    from polarref.reconstruction import Reconstruction
+    from polarref.model import Reconstruction
 
-    cam = next(iter(Reconstruction.read(scene / "gt").cameras.values()))
+    cam = next(iter(read_model(scene / "gt").cameras.values()))
     return f"{cam.model}:" + ",".join(repr(float(v)) for v in cam.params)
 
 

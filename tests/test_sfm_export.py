@@ -3,11 +3,12 @@
 import pytest
 
 from polarref import metrics as M
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 from polarref.peers.colmap_sfm import run_mapper
-from polarref.reconstruction import Reconstruction
+from polarref.model import Reconstruction
 from polarref.sfm.export import compute_matches, write_colmap_database
 from polarref.sfm.pipeline import PRESETS
+from polarref.model.colmap import from_pycolmap, read_model
 
 
 def test_pycolmap_maps_our_matches_with_fixed_intrinsics(request, tmp_path, monkeypatch):
@@ -19,7 +20,7 @@ def test_pycolmap_maps_our_matches_with_fixed_intrinsics(request, tmp_path, monk
         scene = request.getfixturevalue("comet_small_scene")
     except (ImportError, ModuleNotFoundError) as exc:
         pytest.skip(f"comet_small_scene unavailable: {exc}")
-    gt = Reconstruction.read(scene / "gt")
+    gt = read_model(scene / "gt")
     cfg = dataclasses.replace(PRESETS["small"], cache_dir=str(tmp_path / "cache"))
     matches, cams, idx, _ = compute_matches(scene / "images", cfg, gt=gt)
     ids = write_colmap_database(tmp_path / "db.db", matches, cams, idx)
@@ -32,7 +33,7 @@ def test_pycolmap_maps_our_matches_with_fixed_intrinsics(request, tmp_path, monk
     finally:
         pdb.close()
     run = run_mapper(tmp_path / "db.db", scene / "images", tmp_path / "sparse", "incremental")
-    rec = Reconstruction.from_pycolmap(run.reconstruction)
+    rec = from_pycolmap(run.reconstruction)
     m = M.evaluate(rec, gt)
     # measured: 12/12, 1076 points, 0.19 px, 0.18 deg (focal held at GT 386.27; 369 and 0.74 deg
     # when the database camera lacks has_prior_focal_length)

@@ -12,8 +12,9 @@ import pytest
 
 from polarref import metrics as M
 from polarref.peers.colmap_sfm import ColmapSfMOptions, run_sift_sfm
-from polarref.reconstruction import Image, Reconstruction
+from polarref.model import Image, Reconstruction
 from polarref.sfm.pipeline import PRESETS, run_sfm, with_ba
+from polarref.model.colmap import from_pycolmap
 
 
 def _fountain_gt(root):
@@ -36,7 +37,7 @@ def test_fountain_all_registered_and_accurate(shared_data, tmp_path):
     ours = run_sfm(root / "images", tmp_path / "ours", cfg, gt=gt).metrics
     run = run_sift_sfm(root / "images", gt.cameras[1], tmp_path / "colmap",
                        ColmapSfMOptions(max_num_features=8192, max_image_size=1024))
-    ref = Reconstruction.from_pycolmap(run.reconstruction)
+    ref = from_pycolmap(run.reconstruction)
     ref_m = M.evaluate(ref, gt, num_images=11)
     print("ours", ours["metrics"]["registered_images"], ours["metrics"]["tie_points"], ours["metrics"]["reprojected_px"],
           ours["metrics"]["mean_reprojection_error_px"], ours["metrics"]["gt"]["rotation_error_deg_mean"],

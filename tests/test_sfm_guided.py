@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from polarref.camera import Camera
-from polarref.geometry import Rigid3, so3_exp
+from polarref.core.geometry import Rigid3, so3_exp
 from polarref.sfm import features as F
 from polarref.sfm import rays as R_
 from polarref.sfm.guided import GuidedConfig, guided_extend

@@ -5,7 +5,7 @@ import numpy as np
 from polarref.ba import prepare, problem_from_reconstruction, solve
 from polarref.ba.options import BAOptions
 from polarref.camera import Camera
-from polarref.geometry import Rigid3, so3_exp
+from polarref.core.geometry import Rigid3, so3_exp
 from polarref.sfm import bundle
 from polarref.sfm import rays as R_
 from polarref.sfm.state import MapState, TriangulationConfig

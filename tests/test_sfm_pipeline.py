@@ -10,8 +10,9 @@ import pytest
 
 from polarref import metrics as M
 from polarref.peers.colmap_sfm import ColmapSfMOptions, run_sift_sfm
-from polarref.reconstruction import Reconstruction
+from polarref.model import Reconstruction
 from polarref.sfm.pipeline import PRESETS, run_sfm, with_ba
+from polarref.model.colmap import from_pycolmap, read_model
 
 
 def _scene(request, name):
@@ -25,14 +26,14 @@ def _run_both(scene_dir, tmp_path):
     from synth.scene import load_scene
 
     scene = load_scene(scene_dir)
-    gt = Reconstruction.read(scene_dir / "gt")
+    gt = read_model(scene_dir / "gt")
     mesh = scene.mesh()
     cfg = dataclasses.replace(with_ba(PRESETS["small"], "euclidean"), cache_dir=str(tmp_path / "cache"))
     ours = run_sfm(scene_dir / "images", tmp_path / "ours", cfg, gt=gt, mesh=mesh)
     run = run_sift_sfm(scene_dir / "images", scene.polarref_camera(), tmp_path / "colmap",
                        ColmapSfMOptions(max_num_features=2048))
     assert run.reconstruction is not None
-    ref = Reconstruction.from_pycolmap(run.reconstruction)
+    ref = from_pycolmap(run.reconstruction)
     ref_m = M.evaluate(ref, gt, mesh, num_images=len(scene.views))
     return ours, ref_m, len(scene.views)
 
@@ -89,7 +90,7 @@ def test_small_uav_vs_pycolmap(request, tmp_path):
 
 def test_cache_reused_and_results_identical(request, tmp_path):
     scene_dir = _scene(request, "comet_small_scene")
-    gt = Reconstruction.read(scene_dir / "gt")
+    gt = read_model(scene_dir / "gt")
     cfg = dataclasses.replace(with_ba(PRESETS["small"], "colmap"), cache_dir=str(tmp_path / "cache"))
     a = run_sfm(scene_dir / "images", None, cfg, gt=gt)
     b = run_sfm(scene_dir / "images", None, cfg, gt=gt)

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from polarref.errors import PolarrefError
-from polarref.geometry import Rigid3, rotation_angle_deg, skew, so3_exp
+from polarref.core.errors import PolarrefError
+from polarref.core.geometry import Rigid3, rotation_angle_deg, skew, so3_exp
 from polarref.sfm import features as F
 from polarref.sfm.matching import MatchConfig, match_descriptors, select_pairs
 from polarref.sfm.registration import RegisterConfig, estimate_pose

@@ -113,7 +113,7 @@ def test_nview_degenerate_flags():
 
 def test_dlt_noise_free_exact_and_behind():
     rng = np.random.default_rng(7)
-    from polarref.geometry import so3_exp
+    from polarref.core.geometry import so3_exp
 
     X = rng.normal(size=(100, 3))
     n_cam = 3

@@ -9,7 +9,7 @@ closed form below (tau / delta when the interval lies inside [-1, 1]).
 import numpy as np
 import pytest
 
-from polarref.surface_metrics import mesh_diameter, sample_mesh, score_cloud, score_mesh
+from polarref.metrics.surface import mesh_diameter, sample_mesh, score_cloud, score_mesh
 from synth.meshes import icosphere
 
 

@@ -50,7 +50,7 @@ def _distorted_scene(scene: str):
     import dataclasses
     import fcntl
 
-    from polarref.data import cache_root
+    from polarref.core.data import cache_root
     from synth.config import preset
     from synth.distort import _digest, render_distorted_scene
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from polarref.cli import main
-from polarref.geometry import Rigid3, rotation_angle_deg, umeyama
+from polarref.core.geometry import Rigid3, rotation_angle_deg, umeyama
 from polarref.peers.colmap_sfm import ColmapSfMOptions, run_sift_sfm
 from synth.config import preset
 from synth.conventions import cam_from_world_from_mitsuba, look_at, mitsuba_to_world, project

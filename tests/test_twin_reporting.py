@@ -13,11 +13,12 @@ import pytest
 from test_report_build import _method, synthetic_metrics
 
 from polarref.compare import paper_scale as PS
+from polarref.compare import paper_readme as PR
 from polarref.compare import paper_tables as PT
 from polarref.sfm.feature_cache import mean_keypoints
 from polarref.compare import twins
 from polarref.compare.index import build_index
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 
 
 def _ok(name, minutes, ties, obs, registered=631, rot=0.1, images=631):
@@ -55,7 +56,7 @@ def _reports(tmp_path, tables: dict, small: dict | None = None):
         (root / name / "metrics.json").write_text(json.dumps(data))
     for t in tables.values():
         PT.write_table(root / "paper-tables" / t.twin, t)
-    PT.write_readme(root / "paper-tables")
+    PR.write_readme(root / "paper-tables")
     return root
 
 
@@ -170,7 +171,7 @@ def test_done_when_lines_are_met_not_met_or_not_tested():
 def test_stage_records_name_their_commit_and_old_records_still_resume(tmp_path, monkeypatch):
     from polarref.compare import runner
     from polarref.compare.runner import JobOutcome
-    from polarref.provenance import git_state
+    from polarref.core.provenance import git_state
 
     calls = []
 
@@ -252,7 +253,7 @@ def test_readme_lists_variants_with_their_own_verdict_and_keeps_the_tables_check
     twin = root / "paper-tables" / "rosetta"
     (twin / "variant-a-split.json").write_text(json.dumps(_variant(119_860)))
     (twin / "variant-b-split.json").write_text(json.dumps(_variant(99_999)))
-    PT.write_readme(root / "paper-tables")
+    PR.write_readme(root / "paper-tables")
     ros = (root / "paper-tables" / "README.md").read_text().split("### `rosetta`")[1]
     assert "- ours yields >= 100,000 tie points: ours-euclidean 99,321, ours-polar 99,277: **not met**" in ros
     lines = [x for x in ros.splitlines() if x.startswith("- variant of ")]

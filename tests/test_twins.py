@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from polarref.geometry import Rigid3, rotation_angle_deg
+from polarref.core.geometry import Rigid3, rotation_angle_deg
 from synth.config import TWINS, twin
 from synth.conventions import look_at
 from synth.priors import draw_priors

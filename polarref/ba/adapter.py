@@ -6,9 +6,10 @@ import numpy as np
 
 from polarref.ba.options import BAOptions, BASummary
 from polarref.ba.problem import BAProblem, prepare
-from polarref.ba.solver import solve
-from polarref.errors import PolarrefError
-from polarref.geometry import Rigid3
+from polarref.ba.entry import solve
+from polarref.ba.intrinsics import default_groups
+from polarref.core.errors import PolarrefError
+from polarref.core.geometry import Rigid3
 from polarref.model import build_reconstruction
 
 
@@ -90,7 +91,6 @@ def problem_to_reconstruction(problem: BAProblem, shared_cameras: bool = False):
     N = problem.num_cameras
     groups = np.arange(N)
     if shared_cameras:
-        from polarref.ba.intrinsics import default_groups
         groups = (default_groups(problem.cameras) if problem.camera_group is None
                   else np.asarray(problem.camera_group))
     cameras = {int(g): problem.cameras[i] for i, g in enumerate(groups)}

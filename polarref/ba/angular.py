@@ -25,7 +25,7 @@ from polarref.ba.options import BAOptions
 from polarref.ba.parallax import Parallax
 from polarref.ba.projection import camera_groups
 from polarref.camera.noise import phi_sigma
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 
 
 class Angular(Parallax):

@@ -28,11 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref.atomic import atomic_write
+from polarref.core.atomic import atomic_write
 from polarref.ba.options import PARAMS, BAOptions
 from polarref.ba.problem import prepare
-from polarref.ba.solver import solve
-from polarref.errors import PolarrefError
+from polarref.ba.entry import solve
+from polarref.core.errors import PolarrefError
 
 log = logging.getLogger(__name__)
 
@@ -50,8 +50,8 @@ def _resolve(spec: str) -> str:
     """A path that exists, ``synth-*``, or an item of the reference data (``bal/...``)."""
     if spec.startswith("synth-") or Path(spec).exists():
         return spec
-    from polarref.data import data_path
-    from polarref.errors import DataNotFoundError
+    from polarref.core.data import data_path
+    from polarref.core.errors import DataNotFoundError
     if Path(spec).is_absolute() or spec.startswith((".", "~")):
         raise PolarrefError(f"BA problem not found: {spec}")
     try:
@@ -283,8 +283,8 @@ def run_bench(problems, out_dir: Path, options: BAOptions = BAOptions(),
     "problems"}."""
     from polarref.ba import kernels
     from polarref.ba.bench_report import markdown
-    from polarref.heap import keep_heap
-    from polarref.provenance import collect
+    from polarref.core.heap import keep_heap
+    from polarref.core.provenance import collect
 
     # compile (or load) the kernels before any timed solve; the time is recorded, not hidden
     fast = kernels.use_kernels(options.kernels)

@@ -32,32 +32,15 @@ import numpy as np
 
 from polarref.ba.angular_obs import axis_chart_rows
 from polarref.ba.parameterization import BoundedPoints, Staged
-from polarref.ba.problem import BAProblem
+from polarref.ba.parameterization import make_param
+from polarref.ba.problem import BAProblem, prepare
+from polarref.ba.refine import REFINE_GROUPS, parse_refine  # noqa: F401 (REFINE_GROUPS re-exported)
+from polarref.ba.solver import solve
 from polarref.ba.projection import Projector, radial_params
 from polarref.camera import Camera, ray_from_angular
 from polarref.camera.models import MODELS
 
 log = logging.getLogger(__name__)
-
-REFINE_GROUPS = ("focal", "pp", "dist")
-
-
-def parse_refine(value) -> tuple[str, ...]:
-    """``"focal,pp"`` / sequence -> ordered tuple of groups; "" / "none" / None -> ()."""
-    if value is None:
-        return ()
-    items = value.split(",") if isinstance(value, str) else list(value)
-    items = [s.strip().lower() for s in items if s and s.strip()]
-    if items in (["none"], []):
-        return ()
-    if items == ["all"]:
-        return REFINE_GROUPS
-    bad = [s for s in items if s not in REFINE_GROUPS]
-    if bad:
-        raise ValueError(f"unknown intrinsics group(s) {', '.join(bad)}; choose from "
-                         f"{', '.join(REFINE_GROUPS)} (comma-separated), all or none")
-    return tuple(g for g in REFINE_GROUPS if g in items)
-
 
 def free_indices(model: str, refine: tuple[str, ...]) -> np.ndarray:
     """Indices into the model's parameter vector refined for the groups ``refine``.
@@ -346,9 +329,6 @@ def augmented_problem(problem: BAProblem, blocks: IntrinsicsBlocks) -> BAProblem
 def solve_calibrating(problem: BAProblem, options, *, prepared: bool = False):
     """LM over poses, points and the free intrinsics (``options.refine``); updates ``problem``
     in place (R, C, X and ``cameras``) and returns the BASummary with ``intrinsics`` filled."""
-    from polarref.ba.problem import prepare
-    from polarref.ba.solver import make_param, solve
-
     if not prepared:
         prepare(problem)
     refine = parse_refine(options.refine)

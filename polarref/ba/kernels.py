@@ -52,7 +52,7 @@ def use_kernels(choice: str) -> bool:
     if choice == "numpy":
         return False
     if choice == "numba" and not available():
-        from polarref.errors import PolarrefError
+        from polarref.core.errors import PolarrefError
         raise PolarrefError("BA kernels 'numba' requested but numba does not import "
                             "(pip install numba, or use kernels='numpy')")
     return available()

@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 
 from polarref.ba.problem import BAProblem
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
+from polarref.model.colmap import read_model
 
 
 def load_problem(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]:
@@ -58,8 +59,8 @@ def _load(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]:
         pvl = read_pvlba(path) if path.is_dir() else read_blocks_exchange(path)
         return problem_from_reconstruction(pvl.to_reconstruction()), None
     if path.is_dir():
-        from polarref.reconstruction import Reconstruction
-        return problem_from_reconstruction(Reconstruction.read(path)), None
+        from polarref.model import Reconstruction
+        return problem_from_reconstruction(read_model(path)), None
     from polarref.io.bal import bal_to_reconstruction, read_bal
     try:
         bal = read_bal(path)

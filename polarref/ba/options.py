@@ -9,6 +9,7 @@ from typing import Any
 from polarref.ba.losses import LOSSES
 
 from polarref.ba.parameterization import PARAMS  # the one registry of form names (re-exported)
+from polarref.ba.refine import parse_refine
 SOLVERS = ("lm", "gn")  # Levenberg-Marquardt | Gauss-Newton (every step taken, no damping)
 DAMPINGS = ("ceres", "nielsen")
 # LM strategy per form where BAOptions leaves it None, measured (reports/bench-ba/
@@ -94,7 +95,6 @@ class BAOptions:
         if self.blas_threads is not None and self.blas_threads < 1:
             raise ValueError(f"blas_threads must be >= 1 or None, got {self.blas_threads}")
         if self.refine:
-            from polarref.ba.intrinsics import parse_refine
             object.__setattr__(self, "refine", parse_refine(self.refine))
         if self.max_iterations < 0:
             raise ValueError(f"max_iterations must be >= 0, got {self.max_iterations}")

@@ -30,14 +30,14 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from polarref.angular import (azimuth_elevation_from_direction, direction_from_azimuth_elevation,
+from polarref.core.angular import (azimuth_elevation_from_direction, direction_from_azimuth_elevation,
                               direction_jacobian)
 from polarref.ba.anchor_terms import AnchorJacobian
 from polarref.ba.euclidean import rot_columns
 from polarref.ba.kernels import use_kernels
 from polarref.ba.problem import BAProblem
 from polarref.ba.projection import Projector
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 
 FAR = 1e8  # points at infinity are written back this many baselines from the main anchor
 # w = pi is the point at infinity along -d (behind the main anchor): stop just short of it

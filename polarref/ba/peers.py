@@ -17,8 +17,9 @@ from polarref.ba.euclidean import Euclidean
 from polarref.ba.options import BAOptions
 from polarref.ba.problem import BAProblem
 from polarref.ba.solver import behind_camera_xyz, pixel_cost
-from polarref.geometry import so3_exp
+from polarref.core.geometry import so3_exp
 from polarref.model.colmap import CeresSettings
+from polarref.model.colmap import to_pycolmap
 
 
 @dataclass
@@ -69,7 +70,7 @@ def run_pycolmap(problem: BAProblem, options: BAOptions, ceres: CeresSettings = 
                                        rigid_from_pycolmap)
 
     # image id = camera index + 1, point id = point index + 1 (kept by to_pycolmap)
-    rec = problem_to_reconstruction(problem, shared_cameras=bool(options.refine)).to_pycolmap()
+    rec = to_pycolmap(problem_to_reconstruction(problem, shared_cameras=bool(options.refine)))
     # the same intrinsics groups as ours (options.refine, issue 19); none by default
     opts = bundle_adjustment_options(ceres, options.loss, options.loss_scale, tuple(options.refine))
     so = opts.ceres.solver_options
@@ -107,7 +108,7 @@ def run_pycolmap(problem: BAProblem, options: BAOptions, ceres: CeresSettings = 
 
 def _left_jacobian(w: np.ndarray) -> np.ndarray:
     """Left Jacobian of SO(3), (N, 3) -> (N, 3, 3)."""
-    from polarref.geometry import skew
+    from polarref.core.geometry import skew
     th = np.linalg.norm(w, axis=1)[:, None, None]
     small = th < 1e-6
     t = np.where(small, 1.0, th)

@@ -13,7 +13,7 @@ import numpy as np
 
 from polarref.ba.angular_obs import observed_angles, theta_rows
 from polarref.ba.parallax import Parallax
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 
 
 class Polar(Parallax):

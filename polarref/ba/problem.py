@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 from polarref.model.observations import Observations
 
 log = logging.getLogger(__name__)

@@ -52,7 +52,7 @@ from polarref.ba import chunked
 from polarref.ba.kernels import use_kernels
 from polarref.ba.schur import SchurStructure
 from polarref.ba.xspace import AnchorElimination, xspace_note
-from polarref.geometry import so3_exp
+from polarref.core.geometry import so3_exp
 
 log = logging.getLogger(__name__)
 
@@ -116,9 +116,9 @@ def _clipped_model(a_lin, q_damp, g_p, dp, delta, D_p, V, mu) -> float:
 def solve(problem: BAProblem, options: BAOptions, *, prepared: bool = False,
           param: Parameterization | None = None) -> BASummary:
     """Run LM on ``problem`` (updated in place: R, C, X). See module docstring."""
-    if options.refine:  # self-calibration: intrinsics blocks join the camera system
-        from polarref.ba.intrinsics import solve_calibrating
-        return solve_calibrating(problem, options, prepared=prepared)
+    if options.refine:  # self-calibration wraps this solver: polarref.ba.entry.solve
+        raise ValueError("solver.solve holds intrinsics fixed; use polarref.ba.solve to refine "
+                         f"{','.join(options.refine)}")
     if options.blas_threads is None:
         return _solve(problem, options, prepared, param)
     from threadpoolctl import threadpool_limits
@@ -219,7 +219,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     r, Jp, Jc = param.evaluate(R, C, pts, jac=not lazy, factored=factored)
     times["evaluate"] += time.perf_counter() - tic
     if not np.isfinite(r).all():
-        from polarref.errors import PolarrefError
+        from polarref.core.errors import PolarrefError
         raise PolarrefError(f"bundle adjustment ({options.param}): non-finite residuals at the "
                             "initial estimate (degenerate geometry?)")
     cost, w = _robust(r, param.groups, loss, scale)

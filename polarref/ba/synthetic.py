@@ -6,7 +6,8 @@ import copy
 
 import numpy as np
 
-from polarref.geometry import Rigid3, so3_exp
+from polarref.core.geometry import Rigid3, so3_exp
+from polarref.model.colmap import from_pycolmap
 
 # Sizes used by the benchmark (issue 6): cameras, points; every point is seen by every camera.
 SIZES = {"synth-20": (20, 600), "synth-60": (60, 1000), "synth-200": (200, 1500)}
@@ -32,7 +33,7 @@ def synthetic_reconstruction(num_cameras: int, num_points: int, *, seed: int = 0
     """
     import pycolmap
 
-    from polarref.reconstruction import Reconstruction
+    from polarref.model import Reconstruction
 
     pycolmap.set_random_seed(seed)
     o = pycolmap.SyntheticDatasetOptions()
@@ -46,8 +47,8 @@ def synthetic_reconstruction(num_cameras: int, num_points: int, *, seed: int = 0
         no = pycolmap.SyntheticNoiseOptions()
         no.point2D_stddev = noise_px
         pycolmap.synthesize_noise(no, noisy)
-    truth = Reconstruction.from_pycolmap(gt_pc)
-    init = Reconstruction.from_pycolmap(noisy)
+    truth = from_pycolmap(gt_pc)
+    init = from_pycolmap(noisy)
     rng = np.random.default_rng(seed)
     ids, xyz = truth.points_array()
     size = float(np.linalg.norm(xyz.std(0))) or 1.0
@@ -85,7 +86,7 @@ def ring_problem(num_cameras: int, num_points: int, mean_track: float, seed: int
     fast at a million observations."""
     from polarref.ba import BAProblem
     from polarref.camera import Camera
-    from polarref.geometry import so3_exp
+    from polarref.core.geometry import so3_exp
     from polarref.model.observations import Observations
 
     rng = np.random.default_rng(seed)

@@ -23,8 +23,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from polarref.angular import last_axis as _last
-from polarref.angular import ray_angles
+from polarref.core.angular import last_axis as _last
+from polarref.core.angular import ray_angles
 from polarref.camera import opencv
 from polarref.camera.models import MODELS, ModelSpec, radial_map
 from polarref.camera.radial import RadialMap
@@ -408,7 +408,7 @@ def ray_from_angular(theta, phi) -> Array:
 def angular_from_ray(X_cam) -> tuple[Array, Array, Array]:
     """``(theta, phi, angular_D_X)`` of camera-frame vectors (..., 3) of any length > 0.
 
-    theta and phi are :func:`polarref.angular.ray_angles` (phi = 0 on the principal axis).
+    theta and phi are :func:`polarref.core.angular.ray_angles` (phi = 0 on the principal axis).
 
     The Jacobian (..., 2, 3) has rows (theta, phi); it is NaN on the principal axis (phi
     undefined) and for a zero vector.

@@ -8,7 +8,7 @@ import math
 from pathlib import Path
 
 from polarref.commands._types import float_range, positive_int
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 
 NAME = "ba"
 HELP = "bundle-adjust a BAL / ParallaxBA / PVL-BA / COLMAP problem with one parameterization"
@@ -40,7 +40,7 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    from polarref.atomic import atomic_write, check_writable_parent
+    from polarref.core.atomic import atomic_write, check_writable_parent
     from polarref.ba import BAOptions, solve
     from polarref.ba.loaders import load_problem
 

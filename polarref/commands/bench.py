@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from polarref.atomic import check_writable_parent
+from polarref.core.atomic import check_writable_parent
 from polarref.commands._types import int_range, nonneg_int, positive_int
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 
 NAME = "bench"
 HELP = "benchmarks: ba (bundle adjustment vs pycolmap and scipy), sfm (our SfM vs pycolmap vs views)"
@@ -66,7 +66,7 @@ def run(args) -> int:
 
 def _run_sfm(args) -> int:
     """Finished cells in OUT/cells are reused (resume); --overwrite reruns every cell."""
-    from polarref.bench_sfm import BenchSfMSettings, run_bench
+    from polarref.bench.sfm import BenchSfMSettings, run_bench
 
     out = Path(args.out)
     if out.exists() and not out.is_dir():

@@ -7,7 +7,7 @@ import logging
 from pathlib import Path
 
 from polarref.commands._types import SEED, float_range, positive_float
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 
 NAME = "compare"
 HELP = ("run our SfM (euclidean/parallax/polar/angular BA) and pycolmap (incremental, global; its "
@@ -59,7 +59,7 @@ def _run_twin(args: argparse.Namespace) -> int:
     from polarref.compare import paper_tables as PT
     from polarref.compare.twins import DEFAULT_TIMEOUT_S, TwinRun, run_twin
 
-    from polarref.atomic import check_writable_parent
+    from polarref.core.atomic import check_writable_parent
 
     out = args.out or Path("polarref-out") / args.scene
     check_writable_parent(out / "paper-table.json")
@@ -99,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
     from polarref.compare.schema import STATUS_OK
 
     if args.out is not None:  # before rendering, not after it
-        from polarref.atomic import check_writable_parent
+        from polarref.core.atomic import check_writable_parent
 
         if args.out.exists() and not args.out.is_dir():
             raise PolarrefError(f"{args.out} exists and is not a folder (choose another report folder)")

@@ -20,8 +20,8 @@ import time
 from pathlib import Path
 
 import polarref
-from polarref.atomic import atomic_write, check_writable_parent
-from polarref.errors import PolarrefError
+from polarref.core.atomic import atomic_write, check_writable_parent
+from polarref.core.errors import PolarrefError
 
 NAME = "derive"
 HELP = "regenerate polarref/_generated from derivations/ (SymPy) and write reports/derivations.md"

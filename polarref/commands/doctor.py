@@ -39,7 +39,7 @@ def collect() -> dict[str, object]:
     """Everything doctor reports, as plain data (also recorded in reports)."""
     from polarref import __version__
     from polarref.cli import command_modules
-    from polarref.data import data_root
+    from polarref.core.data import data_root
 
     report: dict[str, object] = {
         "polarref": __version__,
@@ -47,7 +47,7 @@ def collect() -> dict[str, object]:
         "platform": platform.platform(),
         "cpu_count": os.cpu_count(),
     }
-    from polarref.provenance import cpu_model, git_state
+    from polarref.core.provenance import cpu_model, git_state
 
     report["cpu_model"] = cpu_model()
     report["git_commit"], report["git_dirty"] = git_state()
@@ -82,7 +82,7 @@ def execution_info() -> dict[str, object]:
     """
     import dataclasses
 
-    from polarref import execution
+    from polarref.core import execution
 
     desc = execution.current().describe()
     return {"execution": desc.mode, "execution_detail": desc.detail,

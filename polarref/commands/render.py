@@ -40,7 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from polarref.errors import PolarrefError
+    from polarref.core.errors import PolarrefError
     from synth.config import preset
     from synth.render import render_scene
 

@@ -6,7 +6,7 @@ import argparse
 import logging
 from pathlib import Path
 
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 
 NAME = "report"
 HELP = ("rebuild report.md/report.html and figures of compare runs from their metrics.json (no recomputation); "

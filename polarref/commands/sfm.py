@@ -7,7 +7,7 @@ import dataclasses
 from pathlib import Path
 
 from polarref.commands._types import MAX_IMAGE_SIDE, SEED, int_range
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 
 NAME = "sfm"
 HELP = "incremental SfM (SIFT, MOCI triangulation, PnP, bundle adjustment) -> COLMAP model + metrics"
@@ -85,7 +85,7 @@ def _config(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from polarref.scene_folder import discover
+    from polarref.model.scene_folder import discover
     from polarref.sfm import features as F
     from polarref.sfm.pipeline import parse_camera, run_sfm
 

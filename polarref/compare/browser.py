@@ -22,8 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from polarref.atomic import atomic_write
-from polarref.errors import PolarrefError
+from polarref.core.atomic import atomic_write
+from polarref.core.errors import PolarrefError
 
 FLAGS = ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
          "--disable-component-update", "--disable-sync", "--no-first-run", "--no-default-browser-check",

@@ -48,7 +48,7 @@ class DenseSection:
 def run_dense_stage(scene_root: Path, model_dirs: dict[str, str | None], out: Path) -> DenseSection:
     """Dense stage per source in :data:`DENSE_SOURCES`; ``model_dirs``: method name -> model folder."""
     from polarref.dense.pipeline import DenseConfig, run_dense
-    from polarref.errors import PolarrefError
+    from polarref.core.errors import PolarrefError
 
     section = DenseSection()
     for name in DENSE_SOURCES:

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from polarref.geometry import Rigid3, rotation_angle_deg, so3_exp
+from polarref.core.geometry import Rigid3, rotation_angle_deg, so3_exp
 
 FOCAL_PX = 1280.0
 WIDTH, HEIGHT = 1024, 768
@@ -48,7 +48,7 @@ def low_parallax_problem(num_cameras: int, num_points: int, ratio: float, *, see
         look_deg: spread of the true viewing directions about +z (per axis, Gaussian).
     """
     from polarref.camera import Camera
-    from polarref.reconstruction import Image, Point3D, Reconstruction
+    from polarref.model import Image, Point3D, Reconstruction
 
     if num_cameras < 2 or num_points < 1 or not ratio > 0:
         raise ValueError(f"need >= 2 cameras, >= 1 point and ratio > 0; got {num_cameras}, "

@@ -2,7 +2,7 @@
 derivation evidence (:func:`polarref.compare.jobs.derivation_evidence`).
 
 The field names are the JSON keys of ``runs/claims/experiments.json`` and ``derivations.json``;
-the files are written with :func:`polarref.records.save`. A section that raised keeps only its
+the files are written with :func:`polarref.core.records.save`. A section that raised keeps only its
 ``error`` (every other field at its default). Figures that are undefined (NaN, or an infinite
 condition number) are ``None`` once recorded, as everywhere in polarref's JSON.
 """

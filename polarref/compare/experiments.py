@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref import records
+from polarref.core import records
 from polarref.compare.experiment_problems import (bearing_errors_deg, low_parallax_problem,
                                                   relative_rotation_errors_deg)
 from polarref.compare.experiment_records import Conditioning, ConditioningRow, Experiments, Robustness, Timing
@@ -182,7 +182,7 @@ def conditioning_one(truth, param: str) -> tuple[ConditioningRow, str]:
 def rescaled(rec, factor: float):
     """Copy of ``rec`` with every length (centres, points) times ``factor``: a change of units."""
     from polarref.ba.synthetic import clone
-    from polarref.geometry import Rigid3
+    from polarref.core.geometry import Rigid3
 
     out = clone(rec)
     for im in out.images.values():

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref.atomic import atomic_open
+from polarref.core.atomic import atomic_open
 from polarref.compare.schema import STATUS_OK, Histogram, MetricsFile
 
 log = logging.getLogger(__name__)

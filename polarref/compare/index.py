@@ -14,7 +14,7 @@ from pathlib import Path
 from polarref.compare.report import commit_text, fmt, fmt_s, improving_runtime
 from polarref.compare.report_render import Heading, Para, Table, to_html, to_markdown
 from polarref.compare.schema import STATUS_OK, MetricsFile, load, write_text_atomic
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 
 log = logging.getLogger(__name__)
 

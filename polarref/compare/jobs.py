@@ -2,47 +2,22 @@
 
 Every job is a module-level function (passed to the runner as the callable itself) that takes
 JSON-able keyword arguments (paths as ``str``) and returns one of the typed records below; the
-runner stores it as ``<tag>.result.json`` and reads it back strictly (``polarref.records``).
+runner stores it as ``<tag>.result.json`` and reads it back strictly (``polarref.core.records``).
 Models are written to disk in COLMAP text format and scored by the parent with
 ``polarref.metrics``, the same code for every method.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
 from pathlib import Path
 
-from polarref import records
+from polarref.core import records
 from polarref.camera import Camera
 from polarref.compare.experiment_records import DerivationEvidence, Experiments
-from polarref.compare.schema import TracePoint
-from polarref.scene_folder import SkippedImage
+from polarref.compare import ours
+from polarref.compare.job_results import MethodJobResult, SharedStageResult  # noqa: F401 (re-exported)
 from polarref.peers.colmap_sfm import (ColmapSfMOptions, copy_database, count_verified_pairs,
                                        extract_and_match_sift, run_mapper)
-
-
-@dataclass
-class SharedStageResult:
-    """A stage several methods share (feature extraction/matching, a feature database)."""
-
-    stage_runtime_s: dict[str, float]
-    verified_pairs: int
-    skipped_images: list[SkippedImage] = field(default_factory=list)
-
-
-@dataclass
-class MethodJobResult:
-    """One reconstruction method's run: its model folder and timed stages."""
-
-    model_dir: str                       # COLMAP text model
-    stage_runtime_s: dict[str, float]
-    wall_s: float | None = None          # the job's own wall time (ours only)
-    num_ba_runs: int | None = None       # ours only
-    num_models: int | None = None        # pycolmap only
-    verified_pairs: int | None = None    # pycolmap only
-    registered: int | None = None        # pycolmap only
-    # ours: [iteration, wall_s, cost] of the accepted steps of the final global BA, from the initial cost
-    final_ba_trace: list[TracePoint] | None = None
 
 
 def camera_to_json(cam: Camera) -> dict:
@@ -66,15 +41,11 @@ def pycolmap_sift_db(image_dir: str, image_names: list[str], camera: dict, db_pa
 
 def ours_features(image_dir: str, camera: dict, preset: str, cache_dir: str) -> SharedStageResult:
     """Our features and verified matches, computed once per comparison into ``cache_dir``."""
-    from polarref.compare import ours
-
     return ours.prepare_features(Path(image_dir), _camera(camera), preset, Path(cache_dir))
 
 
 def ours_db(image_dir: str, camera: dict, preset: str, cache_dir: str, db_path: str) -> SharedStageResult:
     """Our keypoints and verified matches (from the shared cache) as a pycolmap database."""
-    from polarref.compare import ours
-
     return ours.import_into_database(Path(image_dir), _camera(camera), preset, Path(cache_dir), Path(db_path))
 
 
@@ -105,8 +76,6 @@ def write_largest_model(run, work: Path, mapper: str) -> Path:
 
 def ours_sfm(image_dir: str, camera: dict, ba: str, work_dir: str, preset: str, cache_dir: str) -> MethodJobResult:
     """Our incremental SfM (``polarref.sfm``) with one BA parameterization."""
-    from polarref.compare import ours
-
     return ours.run(Path(image_dir), _camera(camera), ba, Path(work_dir), preset, Path(cache_dir))
 
 

@@ -17,7 +17,7 @@ from polarref.compare import paper_tables as PT
 from polarref.compare import single_run
 from polarref.compare.schema import STATUS_OK, MetricsFile, load
 from polarref.compare.thresholds import TWIN_REGISTERED_MIN, TWIN_ROSETTA_MIN_TIES, TWIN_RUNTIME_TARGET_MIN
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 
 NOT_TESTED = PT.NOT_TESTED
 PYCOLMAP = "pycolmap-incremental-sift"

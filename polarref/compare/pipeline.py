@@ -21,7 +21,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
-from polarref import execution
+from polarref.core import execution
 from polarref.compare import claims as claims_mod
 from polarref.compare import scenes, view3d
 from polarref.compare import jobs
@@ -30,12 +30,13 @@ from polarref.compare.methods import METHOD_NAMES, PAIRS, RUN_ORDER, MethodSpec,
 from polarref.compare.runner import JobOutcome, has_finished_result, run_isolated, run_isolated_with
 from polarref.compare.schema import (SCHEMA_VERSION, STATUS_FAILED, STATUS_OK, STATUS_TIMEOUT, BATrace,
                                      Environment, MethodResult, MetricsFile, SceneInfo, save)
-from polarref.errors import PolarrefError
-from polarref.progress import track
-from polarref.provenance import Provenance, collect_record
+from polarref.core.errors import PolarrefError
+from polarref.core.progress import track
+from polarref.core.provenance import Provenance, collect_record
+from polarref.model.colmap import read_model
 
 if TYPE_CHECKING:
-    from polarref.reconstruction import Reconstruction
+    from polarref.model import Reconstruction
 
 log = logging.getLogger(__name__)
 
@@ -133,7 +134,7 @@ def _shared_once(ctx: _Context, key: str):
 
 def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodResult, Reconstruction | None, MethodJobResult | None]:
     """Run one method; returns (result with status/timings, Reconstruction or None, job result)."""
-    from polarref.reconstruction import Reconstruction
+    from polarref.model import Reconstruction
 
     res = MethodResult(name=spec.name, label=spec.label, family=spec.family, features=spec.features,
                        mapper=spec.mapper, ba=spec.ba, status=STATUS_FAILED, timeout_s=ctx.timeout,
@@ -169,7 +170,7 @@ def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodResult, Reconstr
     res.stage_runtime_s = {k: float(v) for k, v in stages.items()}
     res.runtime_s = float(sum(res.stage_runtime_s.values()))
     try:
-        rec = Reconstruction.read(outcome.result.model_dir)
+        rec = read_model(outcome.result.model_dir)
     except PolarrefError as exc:
         res.status, res.reason = STATUS_FAILED, f"cannot read the method's model: {exc}"
         return res, None, outcome.result

@@ -3,7 +3,7 @@
 A comparison must survive any one method failing: an exception, a crash inside C++ (pycolmap),
 or a run that never ends. Each job therefore runs in a fresh ``spawn`` process whose stdout and
 stderr (including glog output from COLMAP) go to a log file; the job (a module-level function)
-returns a typed record (a dataclass, see ``polarref.records``) written to a result file. The
+returns a typed record (a dataclass, see ``polarref.core.records``) written to a result file. The
 parent sees one of: ok (the record), failed (exception text or exit code plus the last log
 line), timeout (process killed after ``timeout_s``).
 
@@ -27,8 +27,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable, Generic, TypeVar
 
-from polarref import records
-from polarref.atomic import atomic_write
+from polarref.core import records
+from polarref.core.atomic import atomic_write
 from polarref.compare.schema import STATUS_FAILED, STATUS_OK, STATUS_TIMEOUT
 
 log = logging.getLogger(__name__)
@@ -169,7 +169,7 @@ def run_isolated(job: Callable[..., R], kwargs: dict, timeout_s: float, work_dir
     return JobOutcome(STATUS_OK, "", wall, result)
 
 
-# ---- one isolated job as a task of polarref.execution -----------------------------------------
+# ---- one isolated job as a task of polarref.core.execution -----------------------------------------
 @dataclass(frozen=True)
 class IsolatedTask:
     """:func:`run_isolated` arguments as a small picklable record (paths as str)."""
@@ -196,7 +196,7 @@ def isolated_task(task: IsolatedTask) -> JobOutcome:
 
 def run_isolated_with(executor, job: Callable[..., R], kwargs: dict, timeout_s: float, work_dir: Path, tag: str,
                       reuse: bool = False) -> JobOutcome[R]:
-    """:func:`run_isolated` through ``executor`` (a polarref.execution executor); blocks until done."""
+    """:func:`run_isolated` through ``executor`` (a polarref.core.execution executor); blocks until done."""
     if executor.in_process:
         return run_isolated(job, kwargs, timeout_s, work_dir, tag, reuse)
     return executor.map(isolated_task, [IsolatedTask(job, kwargs, timeout_s, str(work_dir), tag, reuse)],

@@ -1,7 +1,7 @@
 """Resolve ``polarref compare``'s SCENE|DIR argument into images, fixed camera and ground truth.
 
 * ``comet`` / ``uav`` (or nothing): a synthetic scene rendered by ``synth`` into the cache
-  (``polarref.data.cache_root()/scenes/...``) and reused on later runs.
+  (``polarref.core.data.cache_root()/scenes/...``) and reused on later runs.
 * a rendered scene folder (``scene.json``, ``images/``, ``gt/``, ``mesh.ply``).
 * a real image set with ground truth: Strecha ``*.camera`` files (``gt_dense_cameras/``) or a
   COLMAP model in ``gt/``. Large images are downscaled by an integer factor (INTER_AREA) into
@@ -16,14 +16,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from polarref.atomic import atomic_write
+from polarref.core.atomic import atomic_write
 from polarref.camera import Camera
-from polarref.data import cache_root
-from polarref.errors import PolarrefError
-from polarref.scene_folder import IMAGE_SUFFIXES, discover
+from polarref.core.data import cache_root
+from polarref.core.errors import PolarrefError
+from polarref.model.scene_folder import IMAGE_SUFFIXES, discover
+from polarref.model.colmap import read_model
 
 if TYPE_CHECKING:
-    from polarref.reconstruction import Reconstruction
+    from polarref.model import Reconstruction
 
 log = logging.getLogger(__name__)
 
@@ -81,9 +82,9 @@ def _synthetic(scene: str, preset: str, seed: int, name: str | None = None) -> P
 
 
 def _from_rendered(loaded, name: str, source: str, preset: str, seed: int, render_s: float) -> PreparedScene:
-    from polarref.reconstruction import Reconstruction
+    from polarref.model import Reconstruction
 
-    gt = Reconstruction.read(loaded.gt_dir) if loaded.gt_dir.is_dir() else None
+    gt = read_model(loaded.gt_dir) if loaded.gt_dir.is_dir() else None
     return PreparedScene(
         name=name, kind="synthetic", source=source, root=loaded.root, image_dir=loaded.root / "images",
         image_names=[v.name for v in loaded.views], camera=loaded.polarref_camera(),
@@ -122,7 +123,7 @@ def _downscale(src_dir: Path, names: list[str], factor: int, dst_dir: Path) -> N
 
 
 def _real(folder: Path, source: str, preset: str) -> PreparedScene:
-    from polarref.reconstruction import Image, Reconstruction
+    from polarref.model import Image, Reconstruction
 
     found = discover(folder)
     image_dir, names = found.image_dir, found.image_names

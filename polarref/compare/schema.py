@@ -12,10 +12,10 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import ClassVar
 
-from polarref import records
-from polarref.atomic import atomic_write
+from polarref.core import records
+from polarref.core.atomic import atomic_write
 from polarref.compare.dense_section import DenseSection
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 from polarref.metrics import SCHEMA_VERSION, ReconstructionMetrics
 
 _METRIC_FIELDS = frozenset(f.name for f in fields(ReconstructionMetrics))
@@ -188,7 +188,7 @@ class Environment:
     method_timeout_s: float
     total_runtime_s: float
     run_budget_s: float | None = None   # whole-run limit (None = unlimited)
-    # Provenance (polarref.provenance.collect), taken when the run starts:
+    # Provenance (polarref.core.provenance.collect), taken when the run starts:
     git_commit: str = ""                # HEAD, 40 hex digits ("" outside a git checkout)
     git_dirty: bool | None = None       # tracked files differ from HEAD (None: unknown)
     cpu_model: str = ""
@@ -254,7 +254,7 @@ class MetricsFile:
         return next((m for m in self.methods if m.name == name), None)
 
 
-# ---- (de)serialisation: polarref.records, labelled "metrics.json" ------------------------------
+# ---- (de)serialisation: polarref.core.records, labelled "metrics.json" ------------------------------
 
 def to_dict(obj) -> dict:
     return records.to_dict(obj)

@@ -1,7 +1,7 @@
 """``polarref compare rosetta|poets-park|mappilot``: the paper's Tables 1-3 redone on the twins.
 
 Four methods on the same images and the same image pairs (chosen once from the pose priors,
-:mod:`polarref.pairing`): ours with the Euclidean BA (the OpenMVG column), ours with the polar BA
+:mod:`polarref.sfm.pairing`): ours with the Euclidean BA (the OpenMVG column), ours with the polar BA
 ("ours"), pycolmap incremental and global (its SIFT, matched on exactly our pairs). Every stage
 runs in its own process (:func:`polarref.compare.runner.run_isolated`: log file, timeout, peak
 memory) and leaves ``stages/<stage>.json`` when it succeeds, so a rerun after an interruption
@@ -19,10 +19,12 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from polarref.atomic import atomic_write
+from polarref.core.atomic import atomic_write
+from polarref.compare import paper_readme as PR
 from polarref.compare import paper_tables as PT
-from polarref.errors import PolarrefError
-from polarref.pairing import PairingConfig, pairs_file_name, priors_from_scene, read_pairs, select, write_pairs
+from polarref.core.errors import PolarrefError
+from polarref.sfm.pairing import PairingConfig, pairs_file_name, priors_from_scene, read_pairs, select, write_pairs
+from polarref.model.colmap import read_model
 
 log = logging.getLogger(__name__)
 
@@ -223,8 +225,8 @@ class _Stages:
         from polarref.compare.runner import run_isolated
 
         log.info("stage %s: started (log %s)", name, self.dir / f"{name}.log")
-        from polarref import records
-        from polarref.provenance import git_state
+        from polarref.core import records
+        from polarref.core.provenance import git_state
 
         commit, dirty = git_state()  # the code that runs the stage (its process imports this checkout)
         outcome = run_isolated(JOBS[func], kwargs, self.timeout_s, self.dir, name)
@@ -315,9 +317,9 @@ class ModelScore:
 def score_model(model_dir: str | Path, gt) -> ModelScore:
     """The tables' scores of the COLMAP model in ``model_dir`` against ``gt``."""
     from polarref.compare.scoring import score
-    from polarref.reconstruction import Reconstruction
+    from polarref.model import Reconstruction
 
-    s = score(Reconstruction.read(Path(model_dir)), gt, None)
+    s = score(read_model(Path(model_dir)), gt, None)
     m, g = s.metrics, s.gt
     return ModelScore(int(m.registered_images), int(m.tie_points), int(m.reprojected_px),
                       float(m.mean_reprojection_error_px),
@@ -348,7 +350,7 @@ def _method_result(name: str, recs: list[dict], scene, gt) -> PT.MethodResult:
 def run_twin(run: TwinRun) -> PT.TwinTable:
     """Run (or resume) the comparison and write the paper table into ``run.out``."""
     from polarref.compare.jobs import camera_to_json
-    from polarref.provenance import collect
+    from polarref.core.provenance import collect
 
     if run.twin not in PT.PAPER:
         raise PolarrefError(f"unknown twin {run.twin!r} (choose from {', '.join(PT.PAPER)})")
@@ -402,5 +404,5 @@ def run_twin(run: TwinRun) -> PT.TwinTable:
     PT.write_table(out, table)
     if run.tables_dir:  # the small committed copy (the run folder holds models, databases, caches)
         PT.write_table(Path(run.tables_dir) / run.twin, table)
-        PT.write_readme(run.tables_dir)
+        PR.write_readme(run.tables_dir)
     return table

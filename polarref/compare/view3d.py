@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from polarref.compare.schema import View3D, ViewCameras, ViewCloud, to_dict
-from polarref.geometry import quat_from_rotmat
+from polarref.core.geometry import quat_from_rotmat
 
 MAX_POINTS = 2000          # per sparse cloud (one per method)
 MAX_DENSE_POINTS = 30000   # per dense cloud
@@ -74,7 +74,7 @@ def _poses(items) -> list[list[float]]:
 
 
 def camera_layer(key: str, label: str, rec, sim=None) -> ViewCameras:
-    """Registered cameras of ``rec``; ``sim`` (polarref.geometry.Sim3, GT <- rec) maps them to the GT frame."""
+    """Registered cameras of ``rec``; ``sim`` (polarref.core.geometry.Sim3, GT <- rec) maps them to the GT frame."""
     items = []
     for im in sorted(rec.images.values(), key=lambda i: i.name):
         pose = im.cam_from_world if sim is None else sim.transform_pose(im.cam_from_world)

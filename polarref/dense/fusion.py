@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref.atomic import atomic_open
+from polarref.core.atomic import atomic_open
 from polarref.dense.consistency import FilteredView
 
 
@@ -29,7 +29,7 @@ class PointCloud:
         return len(self.points)
 
     def transformed(self, sim) -> "PointCloud":
-        """Copy mapped by a :class:`polarref.geometry.Sim3` (normals rotated)."""
+        """Copy mapped by a :class:`polarref.core.geometry.Sim3` (normals rotated)."""
         return PointCloud(sim.apply(self.points), self.normals @ sim.R.T, self.colors)
 
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from polarref.dense.fusion import PointCloud
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 
 
 @dataclass(frozen=True)

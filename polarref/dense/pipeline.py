@@ -16,11 +16,12 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref.atomic import atomic_open
+from polarref.core.atomic import atomic_open
 from polarref.dense import consistency, depth as depth_mod, fusion, meshing, scoring, views as views_mod
 from polarref.dense.provenance import Provenance, collect
-from polarref.errors import PolarrefError
-from polarref.progress import track
+from polarref.core.errors import PolarrefError
+from polarref.core.progress import track
+from polarref.model.colmap import read_model
 
 log = logging.getLogger(__name__)
 
@@ -117,8 +118,8 @@ def _timed(m: DenseMetrics, stage: str, t0: tuple[float, float]) -> tuple[float,
 
 def _load(scene_dir: Path, model: str):
     """(image_dir, rec, gt or None, loaded synthetic scene or None)."""
-    from polarref.reconstruction import Reconstruction
-    from polarref.scene_folder import discover
+    from polarref.model import Reconstruction
+    from polarref.model.scene_folder import discover
 
     found = discover(scene_dir)
     image_dir = found.image_dir
@@ -134,7 +135,7 @@ def _load(scene_dir: Path, model: str):
                                 "the poses from")
         rec = gt
     else:
-        rec = Reconstruction.read(Path(model))
+        rec = read_model(Path(model))
     return image_dir, rec, gt, synth_scene
 
 
@@ -215,7 +216,7 @@ def _run(scene_dir: Path, model: str, out: Path, cfg: DenseConfig, m: DenseMetri
 
 
 def _score_gt(rec, gt, synth_scene, views, filtered, cloud, mesh, model, out, cfg, m) -> None:
-    from polarref.geometry import Sim3
+    from polarref.core.geometry import Sim3
     from polarref.metrics import align_to_gt
     from synth.meshes import write_ply
 

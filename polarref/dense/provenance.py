@@ -1,4 +1,4 @@
-"""The dense stage's provenance record: :func:`polarref.provenance.collect` as a typed record."""
+"""The dense stage's provenance record: :func:`polarref.core.provenance.collect` as a typed record."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ class Provenance:
 
 
 def collect(command: str = "", seeds: dict[str, int] | None = None, threads: dict[str, int] | None = None) -> Provenance:
-    from polarref.provenance import collect as collect_env
+    from polarref.core.provenance import collect as collect_env
 
     env = collect_env(seeds, threads)
     for dist in ("open3d-cpu", "open3d"):  # the dense stage's one extra dependency

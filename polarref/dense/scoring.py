@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from polarref.surface_metrics import SurfaceScore, mesh_diameter, sample_mesh, score_cloud, score_mesh
+from polarref.metrics.surface import SurfaceScore, mesh_diameter, sample_mesh, score_cloud, score_mesh
 
 
 @dataclass

@@ -18,8 +18,8 @@ import cv2
 import numpy as np
 
 from polarref.camera import Camera
-from polarref.errors import PolarrefError
-from polarref.geometry import Rigid3
+from polarref.core.errors import PolarrefError
+from polarref.core.geometry import Rigid3
 
 log = logging.getLogger(__name__)
 

@@ -1,6 +1,6 @@
 """Readers and writers for bundle-adjustment and ground-truth camera files.
 
-Every reader raises :class:`FormatError` (a :class:`polarref.errors.PolarrefError`) naming the
+Every reader raises :class:`FormatError` (a :class:`polarref.core.errors.PolarrefError`) naming the
 file and the 1-based line of the first problem found.
 
 Modules: :mod:`polarref.io.bal` (Bundle Adjustment in the Large), :mod:`polarref.io.parallaxba`
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 from polarref.model.observations import Observations
 
 

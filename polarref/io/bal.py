@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from polarref.camera import Camera
-from polarref.geometry import Rigid3, so3_exp
+from polarref.core.geometry import Rigid3, so3_exp
 from polarref.io import FormatError, parse_numbers, read_lines
 from polarref.model import Observations, build_reconstruction
 
@@ -174,7 +174,7 @@ def bal_principal_point(problem: BALProblem) -> tuple[int, int, float, float]:
 
 
 def bal_to_reconstruction(problem: BALProblem):
-    """The BAL problem as a :class:`polarref.reconstruction.Reconstruction` (exact mapping).
+    """The BAL problem as a :class:`polarref.model.Reconstruction` (exact mapping).
 
     Image and camera ids are ``camera_index + 1``; point ids are ``point_index + 1``; each
     image's keypoints are its observations in file order, converted to COLMAP pixels

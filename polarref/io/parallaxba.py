@@ -34,8 +34,8 @@ import re
 import numpy as np
 
 from polarref.camera import Camera
-from polarref.errors import PolarrefError
-from polarref.geometry import Rigid3, axis_rotation
+from polarref.core.errors import PolarrefError
+from polarref.core.geometry import Rigid3, axis_rotation
 from polarref.io import FormatError, parse_numbers, read_lines, read_tracks
 from polarref.model import Observations, build_reconstruction
 
@@ -115,7 +115,7 @@ class ParallaxBAProblem:
 
 
 def parallaxba_to_reconstruction(problem: ParallaxBAProblem, points: np.ndarray | None = None):
-    """The problem as a :class:`polarref.reconstruction.Reconstruction` (one shared PINHOLE
+    """The problem as a :class:`polarref.model.Reconstruction` (one shared PINHOLE
     camera, id 1; image ids camera index + 1; point ids point index + 1). ``points`` (M, 3)
     default to :func:`triangulate_dlt`. Pixels are used as stored (see module docstring)."""
     points = triangulate_dlt(problem) if points is None else np.asarray(points, dtype=np.float64)

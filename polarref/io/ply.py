@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref.atomic import atomic_open
+from polarref.core.atomic import atomic_open
 
 _VERTEX = np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
                     ("red", "u1"), ("green", "u1"), ("blue", "u1")])

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from polarref.camera import Camera
-from polarref.geometry import Rigid3
+from polarref.core.geometry import Rigid3
 from polarref.io import FormatError, parse_numbers, read_lines, read_tracks
 from polarref.model import Observations, build_reconstruction
 
@@ -111,7 +111,7 @@ class PVLBAProblem:
         return np.linalg.norm(self.project() - self.obs.uv, axis=1)
 
     def to_reconstruction(self, width: int | None = None, height: int | None = None):
-        """As a :class:`polarref.reconstruction.Reconstruction`: one PINHOLE camera per group
+        """As a :class:`polarref.model.Reconstruction`: one PINHOLE camera per group
         (id group + 1; skew must be 0), image ids index + 1, point ids index + 1. Image size
         defaults to twice the principal point (the four files do not store it)."""
         cams = []

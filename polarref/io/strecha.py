@@ -25,9 +25,9 @@ from pathlib import Path
 import numpy as np
 
 from polarref.camera import Camera
-from polarref.geometry import Rigid3, skew
+from polarref.core.geometry import Rigid3, skew
 from polarref.io import FormatError, parse_numbers, read_lines
-from polarref.reconstruction import Image, Reconstruction
+from polarref.model import Image, Reconstruction
 
 
 @dataclass(frozen=True)
@@ -37,7 +37,7 @@ class StrechaView:
     Attributes:
         name: image file name (the ``.camera`` file name without that suffix).
         camera: PINHOLE :class:`polarref.camera.Camera` (full resolution).
-        cam_from_world: :class:`polarref.geometry.Rigid3`.
+        cam_from_world: :class:`polarref.core.geometry.Rigid3`.
         distortion: (3,) the stored row 4 (zeros in the published data).
     """
 
@@ -88,7 +88,7 @@ def read_strecha_folder(folder, pixel_offset: float = 0.5) -> list[StrechaView]:
 
 
 def read_ground_truth(folder, names=None, pixel_offset: float = 0.5):
-    """Ground truth as a :class:`polarref.reconstruction.Reconstruction` (no points).
+    """Ground truth as a :class:`polarref.model.Reconstruction` (no points).
 
     Args:
         folder: folder with ``<name>.camera`` files.

@@ -8,8 +8,9 @@
 * :mod:`polarref.model.colmap`: Reconstruction <-> pycolmap, and pycolmap option builders.
 """
 
+from polarref.model.colmap import from_pycolmap, read_model, to_pycolmap
 from polarref.model.observations import Observations, ObservationsError
 from polarref.model.reconstruction import Image, Point3D, Reconstruction, build_reconstruction
 
 __all__ = ["Image", "Observations", "ObservationsError", "Point3D", "Reconstruction",
-           "build_reconstruction"]
+           "build_reconstruction", "from_pycolmap", "read_model", "to_pycolmap"]

@@ -20,20 +20,22 @@ when a caller sets another scale.) "trivial" is set explicitly rather than left 
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 from dataclasses import dataclass
 
 import numpy as np
 
 from polarref.camera import Camera
-from polarref.errors import PolarrefError
-from polarref.geometry import Rigid3
+from polarref.core.errors import PolarrefError
+from polarref.core.geometry import Rigid3
+from polarref.model.reconstruction import Image, Point3D, Reconstruction
 
 LOSS_TYPES = ("trivial", "huber", "cauchy")
 
 
 # ---- poses and reconstructions ----------------------------------------------------------------
 def rigid_to_pycolmap(pose: Rigid3):
-    """``pycolmap.Rigid3d`` of a :class:`polarref.geometry.Rigid3`."""
+    """``pycolmap.Rigid3d`` of a :class:`polarref.core.geometry.Rigid3`."""
     import pycolmap
 
     return pycolmap.Rigid3d(pycolmap.Rotation3d(np.asarray(pose.R, np.float64)),
@@ -41,7 +43,7 @@ def rigid_to_pycolmap(pose: Rigid3):
 
 
 def rigid_from_pycolmap(pose) -> Rigid3:
-    """:class:`polarref.geometry.Rigid3` of a ``pycolmap.Rigid3d``."""
+    """:class:`polarref.core.geometry.Rigid3` of a ``pycolmap.Rigid3d``."""
     return Rigid3(pose.rotation.matrix(), pose.translation)
 
 
@@ -72,8 +74,6 @@ def to_pycolmap(rec):
 
 def from_pycolmap(rec):
     """Copy a ``pycolmap.Reconstruction`` into a Reconstruction; only posed images are kept."""
-    from polarref.model.reconstruction import Image, Point3D, Reconstruction
-
     out = Reconstruction()
     for cam_id, c in rec.cameras.items():
         try:
@@ -101,7 +101,7 @@ def two_view_geometry(inliers: np.ndarray, cam2_from_cam1: Rigid3 | None):
     relative pose (pycolmap's initial-pair choice and triangulation-angle checks read it)."""
     import pycolmap
 
-    from polarref.geometry import skew
+    from polarref.core.geometry import skew
 
     g = pycolmap.TwoViewGeometry()
     g.config = pycolmap.TwoViewGeometryConfiguration.CALIBRATED
@@ -223,3 +223,21 @@ def global_options(opts):
     ba.ceres.use_gpu = False
     o.mapper.global_positioning.use_gpu = False
     return o
+
+
+def read_model(path: str | Path) -> Reconstruction:
+    """Read a COLMAP model folder (text or binary) into a Reconstruction."""
+    import pycolmap
+
+    path = Path(path)
+    if not path.is_dir():
+        raise PolarrefError(f"COLMAP model folder not found: {path}")
+    names = {p.name for p in path.iterdir()}
+    if not ({"cameras.txt", "images.txt"} <= names or {"cameras.bin", "images.bin"} <= names):
+        raise PolarrefError(f"not a COLMAP model (no cameras/images .txt or .bin): {path}")
+    try:
+        rec = pycolmap.Reconstruction(str(path))
+        # inside the try: names that are not UTF-8 fail only when converted
+        return from_pycolmap(rec)
+    except Exception as exc:  # pycolmap raises generic errors on malformed files
+        raise PolarrefError(f"cannot read COLMAP model {path}: {exc}") from exc

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 
 
 class ObservationsError(PolarrefError):

@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from polarref.camera import Camera
-from polarref.errors import PolarrefError
-from polarref.geometry import Rigid3
+from polarref.core.errors import PolarrefError
+from polarref.core.geometry import Rigid3
 from polarref.model.observations import Observations
 
 
@@ -127,39 +127,7 @@ class Reconstruction:
         behind-camera rule (``inf``) of :meth:`observation_errors`."""
         return self.observation_errors()[0]
 
-    # ---- pycolmap ----------------------------------------------------------------------
-    def to_pycolmap(self):
-        """A ``pycolmap.Reconstruction`` (see :func:`polarref.model.colmap.to_pycolmap`)."""
-        from polarref.model.colmap import to_pycolmap
-
-        return to_pycolmap(self)
-
-    @staticmethod
-    def from_pycolmap(rec) -> "Reconstruction":
-        """Copy a ``pycolmap.Reconstruction`` (:func:`polarref.model.colmap.from_pycolmap`)."""
-        from polarref.model.colmap import from_pycolmap
-
-        return from_pycolmap(rec)
-
     # ---- files ---------------------------------------------------------------------------
-    @staticmethod
-    def read(path: str | Path) -> "Reconstruction":
-        """Read a COLMAP model folder (text or binary)."""
-        import pycolmap
-
-        path = Path(path)
-        if not path.is_dir():
-            raise PolarrefError(f"COLMAP model folder not found: {path}")
-        names = {p.name for p in path.iterdir()}
-        if not ({"cameras.txt", "images.txt"} <= names or {"cameras.bin", "images.bin"} <= names):
-            raise PolarrefError(f"not a COLMAP model (no cameras/images .txt or .bin): {path}")
-        try:
-            rec = pycolmap.Reconstruction(str(path))
-            # inside the try: names that are not UTF-8 fail only when converted
-            return Reconstruction.from_pycolmap(rec)
-        except Exception as exc:  # pycolmap raises generic errors on malformed files
-            raise PolarrefError(f"cannot read COLMAP model {path}: {exc}") from exc
-
     def write_text(self, path: str | Path) -> None:
         """Write cameras.txt, images.txt and points3D.txt (COLMAP text format) atomically per file."""
         path = Path(path)
@@ -183,7 +151,7 @@ class Reconstruction:
             rgb = " ".join(str(int(v)) for v in p.color)
             track = " ".join(f"{int(a)} {int(b)}" for a, b in p.track)
             pts.append(f"{pid} {xyz} {rgb} {float(p.error)!r} {track}")
-        from polarref.atomic import atomic_write
+        from polarref.core.atomic import atomic_write
 
         for name, lines in (("cameras.txt", cams), ("images.txt", imgs), ("points3D.txt", pts)):
             atomic_write(path / name, "\n".join(lines) + "\n")
@@ -196,7 +164,7 @@ def build_reconstruction(cameras, camera_of_image, cam_from_world, names, obs: O
     Args:
         cameras: list of :class:`polarref.camera.Camera`; camera id = list index + 1.
         camera_of_image: (N,) 0-based index into ``cameras`` per image.
-        cam_from_world: list of N :class:`polarref.geometry.Rigid3`.
+        cam_from_world: list of N :class:`polarref.core.geometry.Rigid3`.
         names: N image names.
         obs: :class:`Observations` with 0-based image / point indices, pixels in COLMAP's
             convention.

@@ -24,7 +24,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from polarref import records
+from polarref.core import records
 from polarref.peers.colmap_sfm import ColmapSfMOptions, ColmapSfMRun, _pycolmap, copy_database, largest_model
 from polarref.model.colmap import incremental_options
 

@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 # the pipeline option builders live with every other pycolmap conversion
 from polarref.model.colmap import global_options, incremental_options, two_view_geometry
 
@@ -127,7 +127,7 @@ def extract_and_match_sift(image_dir: Path, camera, db_path: Path, opts: ColmapS
                            image_names: Sequence[str] | None = None, overwrite: bool = False,
                            pairs_file: Path | None = None) -> dict[str, float]:
     """pycolmap SIFT, exhaustive matching (or the pairs of ``pairs_file``, a COLMAP match list,
-    e.g. from :mod:`polarref.pairing`, via ``match_image_pairs``) and verification into a new database.
+    e.g. from :mod:`polarref.sfm.pairing`, via ``match_image_pairs``) and verification into a new database.
 
     Args:
         image_dir: folder of the images.

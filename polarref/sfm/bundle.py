@@ -14,9 +14,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from polarref.errors import PolarrefError
-from polarref.geometry import Rigid3
-from polarref.reconstruction import Image, Point3D, Reconstruction
+from polarref.core.errors import PolarrefError
+from polarref.core.geometry import Rigid3
+from polarref.model import Image, Point3D, Reconstruction
 
 if TYPE_CHECKING:
     from polarref.sfm.report import BARun, ColmapBARun
@@ -24,6 +24,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 from polarref.ba.parameterization import SFM_BA_NAMES as BA_NAMES  # noqa: E402  (the one registry)
+from polarref.model.colmap import to_pycolmap
 
 
 def to_reconstruction(state, image_ids=None, track_ids=None, colors=None) -> Reconstruction:
@@ -83,7 +84,7 @@ def _colmap_adjust(rec: Reconstruction, variable: list[int], fixed: list[int], m
 
     from polarref.model.colmap import CeresSettings, bundle_adjustment_config, bundle_adjustment_options
 
-    prec = rec.to_pycolmap()
+    prec = to_pycolmap(rec)
     cfg = bundle_adjustment_config(prec, [i + 1 for i in variable + fixed], [i + 1 for i in fixed],
                                    constant_intrinsics=not refine)
     opts = bundle_adjustment_options(CeresSettings("sfm", function_tolerance=1e-6, max_num_iterations=max_iterations,

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from polarref.camera import Camera
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 
 log = logging.getLogger(__name__)
 

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref.errors import PolarrefError
-from polarref.reconstruction import Reconstruction
+from polarref.core.errors import PolarrefError
+from polarref.model import Reconstruction
 from polarref.sfm.pipeline import (Matches, SfMConfig, cameras_for_images, load_images_and_features,
                                    match_and_verify)
 

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 from polarref.sfm.triangulation import midpoint_two_view
 from polarref.sfm.verification import TwoViewGeometry
 

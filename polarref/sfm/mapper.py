@@ -7,9 +7,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from polarref.errors import PolarrefError
-from polarref.geometry import Rigid3
-from polarref.progress import track
+from polarref.core.errors import PolarrefError
+from polarref.core.geometry import Rigid3
+from polarref.core.progress import track
 from polarref.sfm import bundle
 from polarref.sfm import rays as R_
 from polarref.sfm.guided import GuidedConfig, guided_extend

@@ -12,8 +12,8 @@ from typing import Literal
 
 import numpy as np
 
-from polarref.errors import PolarrefError
-from polarref.progress import track
+from polarref.core.errors import PolarrefError
+from polarref.core.progress import track
 
 CHUNK_ELEMENTS = 1 << 19  # similarity entries per row block (2 MiB of float32)
 SINGLE_THREAD_BELOW = 3000 * 3000  # pairs with fewer similarity entries match with single-threaded BLAS
@@ -30,7 +30,7 @@ class MatchConfig:
     sequential_overlap: int = 10       # sequential: match each image with the next N (by name order)
     spatial_neighbors: int = 10        # spatial: match each image with its N nearest pose priors
     exhaustive_max_images: int = 200   # refuse exhaustive beyond this (quadratic cost)
-    pairs_file: str = ""               # file: a match list (polarref.pairing; content-addressed name)
+    pairs_file: str = ""               # file: a match list (polarref.sfm.pairing; content-addressed name)
 
 
 def select_pairs(num_images: int, config: MatchConfig,
@@ -44,7 +44,7 @@ def select_pairs(num_images: int, config: MatchConfig,
     """
     n = num_images
     if config.pairing == "file":
-        from polarref.pairing import read_pairs
+        from polarref.sfm.pairing import read_pairs
 
         if names is None or len(names) != n:
             raise PolarrefError("pairing from a file needs the image names")

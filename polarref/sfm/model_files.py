@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from polarref.io.ply import write_points_ply
-from polarref.reconstruction import Reconstruction
+from polarref.model import Reconstruction
+from polarref.model.colmap import to_pycolmap
 
 FORMATS = ("text", "binary", "both")
 BINARY_FILES = ("cameras.bin", "images.bin", "points3D.bin", "rigs.bin", "frames.bin")
@@ -24,7 +25,7 @@ def write_binary(rec: Reconstruction, model_dir: Path) -> None:
     """COLMAP binary files via pycolmap, written to a scratch folder and moved in file by file."""
     model_dir.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=model_dir, prefix=".bin-") as tmp:
-        rec.to_pycolmap().write_binary(tmp)
+        to_pycolmap(rec).write_binary(tmp)
         for p in sorted(Path(tmp).iterdir()):
             shutil.move(str(p), model_dir / p.name)
 

@@ -17,12 +17,12 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref import execution
-from polarref.atomic import atomic_open, atomic_write, check_dir_target, check_writable_parent, publish_dir
-from polarref.data import cache_root
-from polarref.errors import PolarrefError
-from polarref.geometry import Rigid3
-from polarref.reconstruction import Reconstruction
+from polarref.core import execution
+from polarref.core.atomic import atomic_open, atomic_write, check_dir_target, check_writable_parent, publish_dir
+from polarref.core.data import cache_root
+from polarref.core.errors import PolarrefError
+from polarref.core.geometry import Rigid3
+from polarref.model import Reconstruction
 from polarref.sfm import features as F
 from polarref.sfm import feature_cache as FC
 from polarref.sfm import rays as R_
@@ -50,7 +50,7 @@ class SfMConfig:
     #                                 split: more points, rotations within +-0.005 deg of drop on our scenes
     use_cache: bool = True          # reuse features/matches from cache_dir
     camera_mode: str = "per-model"  # EXIF cameras (no camera given): per-model | single | per-image
-    cache_dir: str = ""             # "" = polarref.data.cache_root() / "sfm"
+    cache_dir: str = ""             # "" = polarref.core.data.cache_root() / "sfm"
 
 
 PRESETS: dict[str, SfMConfig] = {
@@ -377,8 +377,8 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         check_writable_parent(target)
     t_start = time.perf_counter()
     timings: dict[str, float | bool] = {}
-    from polarref.provenance import collect_record
-    from polarref.scene_folder import SkippedImage
+    from polarref.core.provenance import collect_record
+    from polarref.model.scene_folder import SkippedImage
 
     report = SfMReport(str(image_dir), config, collect_record(seeds={
         "verification": config.verification.seed, "registration": config.mapper.register.seed}))

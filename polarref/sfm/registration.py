@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from polarref.geometry import Rigid3, so3_exp
+from polarref.core.geometry import Rigid3, so3_exp
 
 
 @dataclass(frozen=True)

@@ -15,11 +15,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from polarref import records
+from polarref.core import records
 from polarref.ba.options import BASummary, IterationRecord
 from polarref.metrics import SCHEMA_VERSION, ReconstructionMetrics
-from polarref.provenance import Provenance
-from polarref.scene_folder import SkippedImage
+from polarref.core.provenance import Provenance
+from polarref.model.scene_folder import SkippedImage
 
 if TYPE_CHECKING:
     from polarref.sfm.pipeline import SfMConfig

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from polarref.geometry import Rigid3
+from polarref.core.geometry import Rigid3
 from polarref.sfm import rays as R_
 from polarref.sfm.tracks import Tracks
 from polarref.sfm.triangulation import (dlt, midpoint_two_view, nview_least_squares,

@@ -1,4 +1,4 @@
-"""The SfM front end as independent tasks for :mod:`polarref.execution`.
+"""The SfM front end as independent tasks for :mod:`polarref.core.execution`.
 
 * :func:`extract_image`: the SIFT features of one image.
 * :func:`match_chunk`: putative matching and geometric verification of a chunk of pairs.

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 
 PARALLEL_SIN = 1e-9  # |v0 x v1| / (|v0| |v1|) below this: rays treated as parallel
 

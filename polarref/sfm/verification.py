@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from polarref.geometry import Rigid3
-from polarref.progress import track
+from polarref.core.geometry import Rigid3
+from polarref.core.progress import track
 
 
 @dataclass(frozen=True)

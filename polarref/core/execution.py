@@ -31,8 +31,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Callable, Iterator, Sequence, TypeVar
 
-from polarref.errors import PolarrefError
-from polarref.progress import track
+from polarref.core.errors import PolarrefError
+from polarref.core.progress import track
 
 log = logging.getLogger(__name__)
 

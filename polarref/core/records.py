@@ -22,8 +22,8 @@ import typing
 from pathlib import Path
 from typing import Any, TypeVar
 
-from polarref.atomic import atomic_write
-from polarref.errors import PolarrefError
+from polarref.core.atomic import atomic_write
+from polarref.core.errors import PolarrefError
 
 T = TypeVar("T")
 

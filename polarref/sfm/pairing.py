@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref.atomic import atomic_write
-from polarref.errors import PolarrefError
+from polarref.core.atomic import atomic_write
+from polarref.core.errors import PolarrefError
 
 PAIRS_FORMAT = "polarref-pairs/1"
 LOOK_MODES = ("ground", "object")
@@ -83,7 +83,7 @@ def priors_from_scene(meta: dict) -> PosePriors:
     pri = meta.get("priors")
     if not pri or not pri.get("views"):
         raise PolarrefError("the scene has no pose priors (scene.json 'priors'); render a twin preset")
-    from polarref.geometry import rotmat_from_quat
+    from polarref.core.geometry import rotmat_from_quat
 
     names = [v["name"] for v in meta["views"]]
     if len(pri["views"]) != len(names):

@@ -14,7 +14,7 @@ All functions are vectorized over leading axes (anchors broadcast against the la
   ``|C_a - C_m| sin(omega + phi_a) / sin(omega)`` (law of sines) and the unnormalized ray from
   any centre C_i is ``sin(omega) (C_m - C_i) + |C_a - C_m| sin(omega + phi_a) d``.
 
-``d(alpha, beta)`` is :func:`polarref.angular.direction_from_azimuth_elevation`.
+``d(alpha, beta)`` is :func:`polarref.core.angular.direction_from_azimuth_elevation`.
 
 Points at infinity (rho = 0, omega = 0) are representable. The ``xyz_from_*`` functions return
 ``(X, X_D_params, at_infinity)``: X and its Jacobian are NaN where ``at_infinity`` is True (or
@@ -27,9 +27,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from polarref.angular import (azimuth_elevation_from_direction, direction_from_azimuth_elevation,
+from polarref.core.angular import (azimuth_elevation_from_direction, direction_from_azimuth_elevation,
                               direction_jacobian)
-from polarref.angular import last_axis as _last
+from polarref.core.angular import last_axis as _last
 
 Array = np.ndarray
 _ERR = dict(invalid="ignore", divide="ignore", over="ignore")

@@ -14,10 +14,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
+from polarref.model.colmap import read_model
 
 if TYPE_CHECKING:
-    from polarref.reconstruction import Reconstruction
+    from polarref.model import Reconstruction
 
 # Image files every stage reads. No ".exr": OpenCV decodes EXR only with OPENCV_IO_ENABLE_OPENEXR.
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
@@ -53,10 +54,10 @@ class SceneFolder:
         Strecha ``.camera`` files give the principal point with a +0.5 shift to COLMAP's
         corner pixel origin (see ``polarref.io.strecha``).
         """
-        from polarref.reconstruction import Reconstruction
+        from polarref.model import Reconstruction
 
         if self.gt_kind == "colmap":
-            return Reconstruction.read(self.root / "gt")
+            return read_model(self.root / "gt")
         if self.gt_kind == "strecha":
             from polarref.io import strecha
 

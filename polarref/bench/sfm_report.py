@@ -12,7 +12,21 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref.atomic import atomic_open, atomic_write
+from polarref.core.atomic import atomic_open, atomic_write
+
+# the stages each method's wall time is split into (bench.json and the tables)
+STAGES = {"ours": ("features", "matching", "verification", "tracks", "mapping"),
+          "pycolmap": ("features", "matching", "mapping")}
+
+
+def json_default(obj):
+    """numpy scalars as numbers; paths, enums and sets of pycolmap's option dicts as text."""
+    if hasattr(obj, "item") and callable(obj.item):
+        return obj.item()
+    if isinstance(obj, (set, frozenset, tuple)):
+        return sorted(map(str, obj))
+    return str(obj)
+
 
 TARGET_VIEWS = 168            # issue 14: ours <= 1.0x pycolmap's total time on the 168-view comet
 TARGET_TIME_RATIO = 1.0
@@ -54,8 +68,6 @@ def _series(cells: list[dict], method: str, key) -> tuple[list[int], list[float]
 
 def summarize(cells: list[dict]) -> dict:
     """Exponents per method and stage, and the done-when checks that the cells allow."""
-    from polarref.bench_sfm import STAGES
-
     growth, mem = {}, {}
     for method, stages in STAGES.items():
         g = {}
@@ -101,8 +113,6 @@ def _fmt(x, spec=".1f") -> str:
 
 
 def markdown(bench: dict) -> str:
-    from polarref.bench_sfm import STAGES
-
     env = bench["environment"]
     lines = ["# `polarref bench sfm`", "",
              f"Scene {bench['settings']['scene']} ({bench['settings']['preset']} preset), pairs: "
@@ -152,8 +162,6 @@ def plot(bench: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from polarref.bench_sfm import STAGES
-
     fig, (ax, am) = plt.subplots(1, 2, figsize=(11, 4.2))
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     names = list(dict.fromkeys([s for st in STAGES.values() for s in st] + ["total"]))
@@ -186,13 +194,12 @@ def plot(bench: dict, path: Path) -> None:
 
 
 def write_outputs(out: Path, cells: list[dict], failed: list[dict], settings) -> dict:
-    from polarref.bench_sfm import _json_default
-    from polarref.provenance import collect
+    from polarref.core.provenance import collect
 
     bench = {"settings": dataclasses.asdict(settings), "environment": collect(seeds={"seed": settings.seed}),
              "cells": sorted(cells, key=lambda c: (c["views"], c["method"])), "failed": failed,
              **summarize(cells)}
-    atomic_write(out / "bench.json", json.dumps(bench, indent=1, default=_json_default))
+    atomic_write(out / "bench.json", json.dumps(bench, indent=1, default=json_default))
     atomic_write(out / "bench.md", markdown(bench))
     if cells:
         plot(bench, out / "bench.png")

@@ -17,7 +17,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
 
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 
 
 def temp_sibling(path: str | os.PathLike, tag: str = "tmp") -> Path:

@@ -38,7 +38,7 @@ def git_state(repo: Path | None = None) -> tuple[str, bool | None]:
     outputs) do not count, nor do the committed example reports: regenerating them one after
     another rewrites tracked files, which says nothing about the code that produced the numbers.
     """
-    from polarref.data import REPO_ROOT
+    from polarref.core.data import REPO_ROOT
 
     repo = Path(repo or REPO_ROOT)
     head = (_git(repo, "rev-parse", "HEAD") or "").strip()

@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from polarref.metrics.distance import point_to_mesh_distance
+
 
 @dataclass
 class SurfaceScore:
@@ -85,8 +87,6 @@ def score_cloud(points: np.ndarray, gt_vertices: np.ndarray, gt_faces: np.ndarra
     """Score a point cloud (P, 3) (subsampled to ``max_points``, seeded, for accuracy)."""
     from scipy.spatial import cKDTree
 
-    from polarref.metrics import point_to_mesh_distance
-
     P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     if not len(P):
         return _summary("cloud", tau, diameter, np.zeros(0), np.full(len(gt_samples), np.inf))
@@ -100,8 +100,6 @@ def score_mesh(vertices: np.ndarray, faces: np.ndarray, gt_vertices: np.ndarray,
                gt_samples: np.ndarray, tau: float, diameter: float, num_samples: int | None = None,
                seed: int = 0) -> SurfaceScore:
     """Score a triangle mesh: its area-uniform samples vs GT, GT samples vs its surface."""
-    from polarref.metrics import point_to_mesh_distance
-
     V = np.asarray(vertices, dtype=np.float64)
     F = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     # Zero-area triangles (Poisson output has a few) have no closest point; they add no surface.

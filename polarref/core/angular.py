@@ -32,7 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from polarref._generated.angles import polar_angle_with_jacobian, view_angle_with_jacobian
-from polarref.geometry import axis_rotation
+from polarref.core.geometry import axis_rotation
 
 Array = NDArray[np.float64]
 

@@ -6,7 +6,7 @@ and ``VmHWM`` of the child) belongs to that method alone, and writes ``OUT/cells
 with its stage times, peak memory, tie points, GT errors and every setting. A finished cell is
 reused on the next run (resume after an interruption); a cell made with other settings is
 refused unless ``--overwrite``. ``bench.json``, ``bench.md`` and ``bench.png`` are rebuilt from
-the cells (:mod:`polarref.bench_sfm_report`).
+the cells (:mod:`polarref.bench.sfm_report`).
 
 Same input for both: the rendered images, the fixed GT intrinsics and the image pairs our
 pairing selects (default sequential, overlap 10), which pycolmap imports as its pair list
@@ -28,15 +28,15 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from polarref.atomic import atomic_write
-from polarref.errors import PolarrefError
+from polarref.bench.sfm_report import STAGES, json_default, write_outputs  # noqa: F401 (STAGES re-exported)
+from polarref.core.atomic import atomic_write
+from polarref.core.errors import PolarrefError
+from polarref.model.colmap import from_pycolmap, read_model
 
 log = logging.getLogger(__name__)
 
 METHODS = ("ours", "pycolmap")
 # pipeline stages timed per method (scoring against GT and writing files are not counted)
-STAGES = {"ours": ("features", "matching", "verification", "tracks", "mapping"),
-          "pycolmap": ("features", "matching", "mapping")}
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
@@ -59,7 +59,7 @@ def scene_root(settings: BenchSfMSettings, views: int) -> Path:
         from synth.render import code_version, render_scene
     except ImportError as exc:
         raise PolarrefError(f"cannot render the {settings.scene} scene: synth is not available ({exc})") from exc
-    from polarref.data import cache_root
+    from polarref.core.data import cache_root
 
     cfg = preset(settings.scene, settings.preset, seed=settings.seed, views=int(views))
     # the name polarref compare and the tests use: the digest covers the view count
@@ -78,15 +78,6 @@ def pairs_for(num_images: int, settings: BenchSfMSettings) -> list[tuple[int, in
 
 def _pairs_digest(names: list[str], pairs) -> str:
     return hashlib.sha256("".join(f"{names[i]} {names[j]}\n" for i, j in pairs).encode()).hexdigest()
-
-
-def _json_default(obj):
-    """numpy scalars as numbers; paths, enums and sets of pycolmap's option dicts as text."""
-    if hasattr(obj, "item") and callable(obj.item):
-        return obj.item()
-    if isinstance(obj, (set, frozenset, tuple)):
-        return sorted(map(str, obj))
-    return str(obj)
 
 
 def _cpu_seconds() -> float:
@@ -108,13 +99,13 @@ def peak_memory_mb() -> dict:
 
 # ---- one cell (child process) ------------------------------------------------------------------
 def _scene(root: Path):
-    from polarref.reconstruction import Reconstruction
+    from polarref.model import Reconstruction
     from polarref.sfm import features as F
     from synth.scene import load_scene
 
     loaded = load_scene(root)
     names = [p.name for p in F.list_images(root / "images")]
-    return names, loaded.polarref_camera(), Reconstruction.read(loaded.gt_dir)
+    return names, loaded.polarref_camera(), read_model(loaded.gt_dir)
 
 
 def _ours_config(settings: BenchSfMSettings):
@@ -143,7 +134,7 @@ def _run_ours(root: Path, settings: BenchSfMSettings) -> dict:
 def _run_pycolmap(root: Path, settings: BenchSfMSettings, work: Path) -> dict:
     from polarref.peers.colmap_sfm import (ColmapSfMOptions, extract_and_match_sift, incremental_options,
                                            run_mapper, sift_options)
-    from polarref.reconstruction import Reconstruction
+    from polarref.model import Reconstruction
 
     names, camera, gt = _scene(root)
     pairs = pairs_for(len(names), settings)
@@ -163,7 +154,7 @@ def _run_pycolmap(root: Path, settings: BenchSfMSettings, work: Path) -> dict:
                     "incremental_options": incremental_options(opts).todict(),
                     "extraction_options": extraction.todict(), "matching_options": matching.todict(),
                     "pairing": f"imported pair list ({settings.pairing}, overlap {settings.overlap})"}
-    return {"stages_s": stages, "rec": Reconstruction.from_pycolmap(run.reconstruction), "gt": gt,
+    return {"stages_s": stages, "rec": from_pycolmap(run.reconstruction), "gt": gt,
             "num_images": len(names), "pairs": len(pairs), "pairs_sha256": _pairs_digest(names, pairs),
             "settings": settings_out}
 
@@ -171,7 +162,7 @@ def _run_pycolmap(root: Path, settings: BenchSfMSettings, work: Path) -> dict:
 def run_cell(method: str, root: Path, settings: BenchSfMSettings, work: Path) -> dict:
     """Run one method on one scene here and return the cell record (JSON-ready)."""
     from polarref import metrics as M
-    from polarref.provenance import collect
+    from polarref.core.provenance import collect
 
     t0 = time.perf_counter()
     got = _run_ours(root, settings) if method == "ours" else _run_pycolmap(root, settings, work)
@@ -198,7 +189,7 @@ def run_cell(method: str, root: Path, settings: BenchSfMSettings, work: Path) ->
 
 
 def _child(argv: list[str]) -> int:
-    """``python -m polarref.bench_sfm METHOD SCENE_ROOT SETTINGS_JSON OUT_JSON`` (one cell)."""
+    """``python -m polarref.bench.sfm METHOD SCENE_ROOT SETTINGS_JSON OUT_JSON`` (one cell)."""
     import tempfile
 
     import cv2
@@ -208,7 +199,7 @@ def _child(argv: list[str]) -> int:
     settings = BenchSfMSettings(**json.loads(settings_json))
     with tempfile.TemporaryDirectory(prefix="bench-sfm-") as work:
         cell = run_cell(method, Path(root), settings, Path(work))
-    atomic_write(Path(out), json.dumps(cell, indent=1, default=_json_default))
+    atomic_write(Path(out), json.dumps(cell, indent=1, default=json_default))
     return 0
 
 
@@ -239,7 +230,7 @@ def _log_line(out: Path, text: str) -> None:
 
 def _spawn(method: str, root: Path, settings: BenchSfMSettings, path: Path, timeout_s: float | None) -> None:
     env = dict(os.environ, **{v: str(settings.threads) for v in THREAD_VARS})
-    cmd = [sys.executable, "-m", "polarref.bench_sfm", method, str(root),
+    cmd = [sys.executable, "-m", "polarref.bench.sfm", method, str(root),
            json.dumps(dataclasses.asdict(settings)), str(path)]
     try:
         r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout_s)
@@ -254,7 +245,6 @@ def run_bench(views: list[int], out: Path, settings: BenchSfMSettings = BenchSfM
               methods: tuple[str, ...] = METHODS, overwrite: bool = False,
               cell_timeout_s: float | None = None) -> dict:
     """Run every (method, views) cell not finished yet, then write bench.json/md/png from all cells."""
-    from polarref.bench_sfm_report import write_outputs
 
     out.mkdir(parents=True, exist_ok=True)
     (out / "cells").mkdir(exist_ok=True)

@@ -1,7 +1,7 @@
-"""Benchmark of :mod:`polarref.execution`: render + feature extraction of an N-view comet with
+"""Benchmark of :mod:`polarref.core.execution`: render + feature extraction of an N-view comet with
 1 and 2 local Dask workers (and serial, in-process), and the scheduler's overhead per task.
 
-    python -m polarref.bench_exec --views 168 --out reports/bench-exec [--modes serial 1 2]
+    python -m polarref.bench.executor --views 168 --out reports/bench-exec [--modes serial 1 2]
 
 Writes ``OUT/bench.json``: per mode the wall time of cluster start, rendering (per-worker scene
 build included) and feature extraction (per-image tasks, files in and out), the per-task
@@ -24,9 +24,9 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
-from polarref.atomic import atomic_write
-from polarref import execution
-from polarref.data import REPO_ROOT
+from polarref.core.atomic import atomic_write
+from polarref.core import execution
+from polarref.core.data import REPO_ROOT
 
 
 def _noop(x: int) -> int:
@@ -95,7 +95,7 @@ def run_mode(mode: str, views: int, noop_tasks: int, work: Path) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m polarref.bench_exec", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(prog="python -m polarref.bench.executor", description=__doc__.splitlines()[0])
     parser.add_argument("--views", type=int, default=168, help="comet views (default preset otherwise: 640x480, 16 spp)")
     parser.add_argument("--modes", nargs="+", default=["serial", "1", "2"],
                         help="serial and/or numbers of local workers (default: serial 1 2)")
@@ -119,8 +119,8 @@ def main(argv: list[str] | None = None) -> int:
     if "1" in by and "2" in by:
         speedup = {k: by["1"][k] / by["2"][k] for k in ("render_s", "features_s")}
     report = {
-        "benchmark": "polarref.execution: render + features of a comet scene, per-task overhead",
-        "command": " ".join(["python -m polarref.bench_exec", *(argv if argv is not None else sys.argv[1:])]),
+        "benchmark": "polarref.core.execution: render + features of a comet scene, per-task overhead",
+        "command": " ".join(["python -m polarref.bench.executor", *(argv if argv is not None else sys.argv[1:])]),
         "created": started, "results": results, "speedup_2_vs_1_worker": speedup,
         "provenance": {"git": _git(), "machine": {"platform": platform.platform(), "node": platform.node(),
                                                   "cpu_count": os.cpu_count()},
