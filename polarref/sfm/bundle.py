@@ -10,16 +10,13 @@ from __future__ import annotations
 
 import logging
 import time
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from polarref.core.errors import PolarrefError
 from polarref.core.geometry import Rigid3
 from polarref.model import Image, Point3D, Reconstruction
-
-if TYPE_CHECKING:
-    from polarref.sfm.report import BARun, ColmapBARun
+from polarref.sfm.ba_runs import BARun, ColmapBARun
 
 log = logging.getLogger(__name__)
 
@@ -104,8 +101,6 @@ def _colmap_adjust(rec: Reconstruction, variable: list[int], fixed: list[int], m
 
         for cid in rec.cameras:
             rec.cameras[cid] = Camera.from_pycolmap(prec.cameras[cid])
-    from polarref.sfm.report import ColmapBARun
-
     return ColmapBARun(loss, wall, list(refine), **{
         key: float(getattr(cs, key)) for key in ("initial_cost", "final_cost", "num_successful_steps",
                                                  "num_unsuccessful_steps") if hasattr(cs, key)})
@@ -174,8 +169,6 @@ def adjust(state, variable: list[int], fixed: list[int], ba: str, max_iterations
     observations are gathered); pycolmap's goes through a Reconstruction.
     Returns the typed record of the run (the adjuster's summary with its iteration trace).
     """
-    from polarref.sfm.report import BARun
-
     if ba not in BA_NAMES:
         raise PolarrefError(f"unknown bundle adjuster {ba!r}; choose one of {', '.join(BA_NAMES)}")
     if ba == "colmap":

@@ -15,7 +15,7 @@ from polarref.sfm import rays as R_
 from polarref.sfm.guided import GuidedConfig, guided_extend
 from polarref.sfm.initial_pair import InitConfig, choose_initial_pair
 from polarref.sfm.registration import RegisterConfig, estimate_pose
-from polarref.sfm.report import BARun
+from polarref.sfm.ba_runs import BARun
 from polarref.sfm.state import MapState
 from polarref.sfm.verification import TwoViewGeometry
 

@@ -12,60 +12,29 @@ import json
 import logging
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from polarref.core import execution
-from polarref.core.atomic import atomic_open, atomic_write, check_dir_target, check_writable_parent, publish_dir
-from polarref.core.data import cache_root
+from polarref.core.atomic import atomic_write, check_dir_target, check_writable_parent, publish_dir
 from polarref.core.errors import PolarrefError
-from polarref.core.geometry import Rigid3
 from polarref.model import Reconstruction
 from polarref.sfm import features as F
+from polarref.sfm.cache import cache_dir_for, cache_valid, code_digest, hash_parts, load_matches, save_matches, seal
+from polarref.sfm.config import PRESETS, SfMConfig, with_ba  # noqa: F401 (re-exported)
 from polarref.sfm import feature_cache as FC
 from polarref.sfm import rays as R_
 from polarref.sfm.bundle import to_reconstruction
-from polarref.sfm.mapper import MapperConfig, run_mapper
+from polarref.sfm.mapper import run_mapper
 from polarref.sfm.report import STATUS_FAILED, STATUS_OK, SfMReport
-from polarref.sfm.matching import MatchConfig, match_pairs, select_pairs
-from polarref.sfm.state import MapState, TriangulationConfig
+from polarref.sfm.matching import match_pairs, select_pairs
+from polarref.sfm.state import MapState
 from polarref.sfm.tracks import build_tracks
-from polarref.sfm.verification import TwoViewGeometry, VerifyConfig, verify_pairs
+from polarref.sfm.verification import TwoViewGeometry, verify_pairs
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class SfMConfig:
-    """Every setting of the pipeline; change with ``dataclasses.replace``."""
-
-    features: F.FeatureConfig = field(default_factory=F.FeatureConfig)
-    matching: MatchConfig = field(default_factory=MatchConfig)
-    verification: VerifyConfig = field(default_factory=VerifyConfig)
-    triangulation: TriangulationConfig = field(default_factory=TriangulationConfig)
-    mapper: MapperConfig = field(default_factory=MapperConfig)
-    track_conflicts: str = "drop"   # track with 2 keypoints of one image: "drop" it or "split" it (tracks.py);
-    #                                 split: more points, rotations within +-0.005 deg of drop on our scenes
-    use_cache: bool = True          # reuse features/matches from cache_dir
-    camera_mode: str = "per-model"  # EXIF cameras (no camera given): per-model | single | per-image
-    cache_dir: str = ""             # "" = polarref.core.data.cache_root() / "sfm"
-
-
-PRESETS: dict[str, SfMConfig] = {
-    "default": SfMConfig(),
-    # 12-view 320x240 test scenes: fewer features is plenty.
-    # (contrast 0.02: 0.01 gave 0.153 vs 0.132 deg on the small comet, though 0.012 vs 0.018 on the small UAV)
-    "small": SfMConfig(features=F.FeatureConfig(max_num_features=2048, contrast_threshold=0.02)),
-    # Strecha fountain (3072x2048): detect at 1024 px (keypoints rescaled to full resolution).
-    "fountain": SfMConfig(features=F.FeatureConfig(max_num_features=8192, contrast_threshold=0.02,
-                                                   max_image_size=1024)),
-}
-
-
-def with_ba(config: SfMConfig, ba: str) -> SfMConfig:
-    return dataclasses.replace(config, mapper=dataclasses.replace(config.mapper, ba=ba))
 
 
 @dataclass
@@ -133,78 +102,6 @@ def cameras_for_images(names: list[str], sizes: list[tuple[int, int]], camera=No
 
 
 # ---- cache ------------------------------------------------------------------------------------
-# Every cache entry has a sidecar ``<entry>.sha256`` written after it; an entry whose bytes do not
-# match (disk error, killed writer of an older version, hand edit) is reported once, deleted and
-# recomputed instead of breaking every later run.
-def _checksum(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def seal(path: Path) -> None:
-    """Record the checksum of the cache entry ``path`` (call after writing it)."""
-    atomic_write(path.with_name(path.name + ".sha256"), _checksum(path) + "\n")
-
-
-def cache_valid(path: Path) -> bool:
-    """True when ``path`` and its checksum exist and agree; a corrupt entry is removed (warned once)."""
-    side = path.with_name(path.name + ".sha256")
-    if not (path.is_file() and side.is_file()):
-        return False
-    try:
-        ok = side.read_text().strip() == _checksum(path)
-    except (OSError, UnicodeDecodeError):
-        ok = False
-    if not ok:
-        log.warning("cache entry %s is corrupt (checksum mismatch); recomputing it", path)
-        for p in (path, side):
-            p.unlink(missing_ok=True)
-    return ok
-
-
-def _hash(*parts) -> str:
-    h = hashlib.sha256()
-    for p in parts:
-        h.update(p if isinstance(p, bytes) else repr(p).encode())
-    return h.hexdigest()[:24]
-
-
-def _code_digest(*modules) -> str:
-    """Hash of the source of the stage modules, so a code change invalidates cached results."""
-    return _hash(*[Path(m.__file__).read_bytes() for m in modules])
-
-
-def _cache_dir(config: SfMConfig) -> Path:
-    d = Path(config.cache_dir) if config.cache_dir else cache_root() / "sfm"
-    d.mkdir(parents=True, exist_ok=True)
-    return d
-
-
-def _save_matches(path: Path, m: dict[tuple[int, int], np.ndarray], g: dict[tuple[int, int], TwoViewGeometry]) -> None:
-    arrays = {}
-    for (i, j), v in m.items():
-        arrays[f"m_{i}_{j}"] = v
-    for (i, j), v in g.items():
-        arrays[f"g_{i}_{j}"] = v.inliers
-        arrays[f"p_{i}_{j}"] = np.concatenate([v.cam2_from_cam1.R.ravel(), v.cam2_from_cam1.t, [v.num_matches]])
-    with atomic_open(path) as fh:
-        np.savez(fh, **arrays)
-    seal(path)
-
-
-def _load_matches(path: Path):
-    m, g = {}, {}
-    with np.load(path) as z:
-        for k in z.files:
-            kind, i, j = k.split("_")
-            key = (int(i), int(j))
-            if kind == "m":
-                m[key] = z[k]
-            elif kind == "g":
-                p = z[f"p_{i}_{j}"]
-                g[key] = TwoViewGeometry(key, z[k], Rigid3(p[:9].reshape(3, 3), p[9:12]), int(p[12]))
-    return m, g
-
-
 # ---- stages -----------------------------------------------------------------------------------
 def load_images_and_features(image_dir: Path, config: SfMConfig, timings: dict) -> tuple[list[F.Features], list[dict], str]:
     """Features of every readable image (cached); (features, skipped [{name, reason}], cache key)."""
@@ -213,8 +110,8 @@ def load_images_and_features(image_dir: Path, config: SfMConfig, timings: dict) 
     if not paths:
         raise PolarrefError(f"no images found in {image_dir} (suffixes {', '.join(F.IMAGE_SUFFIXES)})")
     digests = [hashlib.sha256(p.read_bytes()).hexdigest() for p in paths]
-    key = _hash("features", _code_digest(F), [p.name for p in paths], digests, config.features)
-    cache = _cache_dir(config) / f"features-{key}.npz"
+    key = hash_parts("features", code_digest(F), [p.name for p in paths], digests, config.features)
+    cache = cache_dir_for(config) / f"features-{key}.npz"
     skipped_file = cache.with_suffix(".skipped.json")
     if config.use_cache and cache_valid(cache) and cache_valid(skipped_file):
         # descriptors stay on disk until matching needs them (ensure_descriptors): with the
@@ -240,7 +137,7 @@ def ensure_descriptors(feats: list[F.Features], config: SfMConfig, feature_key: 
     """Load the descriptors that :func:`load_images_and_features` left on disk (in place)."""
     if all(f.descriptors is not None for f in feats):
         return
-    cache = _cache_dir(config) / f"features-{feature_key}.npz"
+    cache = cache_dir_for(config) / f"features-{feature_key}.npz"
     if not cache_valid(cache):
         raise PolarrefError(f"feature cache {cache} changed or vanished while in use; rerun")
     FC.load_descriptors(cache, feats)
@@ -253,11 +150,11 @@ def match_and_verify(feats: list[F.Features], cameras: list, camera_of_image: np
     cam_key = [(c.model, c.width, c.height, np.asarray(c.params).tolist()) for c in cameras]
     from polarref.sfm import matching, verification
 
-    key = _hash("matches", _code_digest(matching, verification), feature_key, config.matching, config.verification, cam_key,
+    key = hash_parts("matches", code_digest(matching, verification), feature_key, config.matching, config.verification, cam_key,
                 camera_of_image.tolist(), None if centers is None else np.round(centers, 9).tolist())
-    cache = _cache_dir(config) / f"matches-{key}.npz"
+    cache = cache_dir_for(config) / f"matches-{key}.npz"
     if config.use_cache and cache_valid(cache):
-        putative, geoms = _load_matches(cache)
+        putative, geoms = load_matches(cache)
         timings["matching"] = time.perf_counter() - t0
         timings["verification"] = 0.0
         timings["matches_cached"] = True
@@ -277,7 +174,7 @@ def match_and_verify(feats: list[F.Features], cameras: list, camera_of_image: np
             putative, geoms = _match_on_cluster(executor, feats, pairs, cameras, camera_of_image, focal, config,
                                                 key, timings, t0)
         if config.use_cache:
-            _save_matches(cache, putative, geoms)
+            save_matches(cache, putative, geoms)
         timings["matches_cached"] = False
     return Matches([f.name for f in feats], feats, putative, geoms)
 
@@ -287,7 +184,7 @@ def _extract_all(paths: list[Path], config: SfMConfig, key: str) -> tuple[list[F
     from polarref.sfm.tasks import ExtractTask, extract_image
 
     executor = execution.current()
-    parts = None if executor.in_process else _cache_dir(config) / "parts"
+    parts = None if executor.in_process else cache_dir_for(config) / "parts"
     if parts is not None:
         parts.mkdir(parents=True, exist_ok=True)
     tasks = [ExtractTask(str(p), config.features, None if parts is None else str(parts / f"features-{key}-{os.getpid()}-{i:05d}.npz"))
@@ -310,7 +207,7 @@ def _match_on_cluster(executor, feats: list[F.Features], pairs: list[tuple[int, 
     """Matching + verification as chunk tasks exchanging files; merged in pair order."""
     from polarref.sfm.tasks import MatchTask, chunks, match_chunk
 
-    parts = _cache_dir(config) / "parts"
+    parts = cache_dir_for(config) / "parts"
     parts.mkdir(parents=True, exist_ok=True)
     feat_file = parts / f"features-for-{key}-{os.getpid()}.npz"
     F.save(feat_file, feats)
@@ -324,7 +221,7 @@ def _match_on_cluster(executor, feats: list[F.Features], pairs: list[tuple[int, 
         if not cache_valid(path):  # written and sealed by the worker: a bad copy on a shared disk
             raise PolarrefError(f"match chunk {path} is missing or corrupt on this machine; "
                                 "the workers and this client need one shared folder")
-        m, g = _load_matches(path)
+        m, g = load_matches(path)
         putative_all.update(m)
         geoms_all.update(g)
         for p in (path, path.with_name(path.name + ".sha256")):

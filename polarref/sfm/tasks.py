@@ -20,6 +20,7 @@ import numpy as np
 
 from polarref.camera import Camera
 from polarref.sfm import features as F
+from polarref.sfm.cache import save_matches
 from polarref.sfm.matching import MatchConfig
 from polarref.sfm.verification import VerifyConfig
 
@@ -90,7 +91,6 @@ def _features(path: str) -> list[F.Features]:
 def match_chunk(task: MatchTask) -> MatchDone:
     from polarref.sfm import rays as R_
     from polarref.sfm.matching import match_pairs
-    from polarref.sfm.pipeline import _save_matches
     from polarref.sfm.verification import verify_pairs
 
     feats = _features(task.features)
@@ -105,7 +105,7 @@ def match_chunk(task: MatchTask) -> MatchDone:
         xy[i] = R_.normalized(R_.bearings(cam, feats[i].keypoints))
     geoms = verify_pairs(xy, putative, task.focal, task.verification)
     t2 = time.perf_counter()
-    _save_matches(Path(task.out), putative, geoms)
+    save_matches(Path(task.out), putative, geoms)
     return MatchDone(task.out, t1 - t0, t2 - t1, os.getpid())
 
 
