@@ -9,8 +9,10 @@ progress bars are set up here and nowhere else.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
 import importlib
+import io
 import logging
 import os
 import pkgutil
@@ -26,7 +28,7 @@ from polarref import __version__
 from polarref.core import execution
 
 from polarref.core import progress
-from polarref.core.errors import PolarrefError
+from polarref.core.errors import PolarrefError, UsageError, is_out_of_memory
 
 log = logging.getLogger("polarref")
 
@@ -146,7 +148,7 @@ def describe(exc: BaseException, args: argparse.Namespace) -> str:
         if exc.option:
             text += f" (use --{exc.option.replace('_', '-')})"
         return text
-    if isinstance(exc, MemoryError):
+    if is_out_of_memory(exc):
         where = _primary_input(args)
         return (f"{where + ': ' if where else ''}out of memory"
                 " (use a smaller input or preset, or free memory)")
@@ -169,6 +171,26 @@ def describe(exc: BaseException, args: argparse.Namespace) -> str:
             f"(rerun with -v for the traceback and report it)")
 
 
+def _quiet_opencv() -> None:
+    """OpenCV prints ``[ WARN ]`` lines straight to stderr (an unreadable image); our one line
+    says it instead. The variable is read when cv2 loads; a loaded cv2 is told directly."""
+    os.environ.setdefault("OPENCV_LOG_LEVEL", "ERROR")
+    cv2 = sys.modules.get("cv2")
+    with contextlib.suppress(AttributeError):
+        if cv2 is not None:
+            cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so that the interpreter's final flush does not fail again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError, io.UnsupportedOperation):
+        pass
+
+
 def _exit_now(code: int) -> None:
     logging.shutdown()
     sys.stdout.flush()
@@ -181,17 +203,25 @@ def main(argv: list[str] | None = None) -> int:
     1 for errors, 2 for usage (argparse), 130 for Ctrl-C; tracebacks only with -v."""
     interrupts = _Interrupts()  # first: Ctrl-C while the commands are still importing counts too
     args = argparse.Namespace(command=None, verbose=0)
+    _quiet_opencv()
     try:
         args = build_parser().parse_args(argv)  # exits 2 with usage on bad commands/options/values
         _setup_logging(args.verbose, args.quiet)
         progress.enable(not args.no_progress and sys.stderr.isatty())
-        execution.configure(args.workers, args.scheduler)  # started on first use, closed at exit
+        spec = execution.configure(args.workers, args.scheduler)  # started on first use, closed at exit
+        if args.command != "doctor":  # doctor reports an unreachable scheduler instead of failing
+            execution.check_reachable(spec)  # before any output exists
         code = int(args._run(args) or 0)
         if interrupts.seen:  # an extension swallowed the KeyboardInterrupt; Ctrl-C still wins
             raise KeyboardInterrupt
         return code
     except SystemExit:
         raise
+    except BrokenPipeError:
+        # stdout closed early (``| head -1``): the reader has what it wanted and the outputs on
+        # disk are complete (commands print their summary after writing), so exit quietly
+        _silence_stdout()
+        return 0
     except BaseException as exc:  # the one boundary: nothing escapes as a traceback
         name = f"polarref {args.command}" if args.command else "polarref"
         if args.verbose:
@@ -201,6 +231,9 @@ def main(argv: list[str] | None = None) -> int:
             if argv is None:  # a real process: skip finalization, where an interrupted drjit/LLVM
                 _exit_now(130)  # can abort (SIGABRT) after the line above; every output is closed
             return 130
+        if isinstance(exc, UsageError):  # as argparse reports a bad option: "<prog>: error: ..."
+            print(f"{name}: error: {_one_line(exc)}", file=sys.stderr)
+            return 2
         print(f"{name}: {describe(exc, args)}", file=sys.stderr)
         return 1
     finally:

@@ -26,7 +26,7 @@ def _scene(root, n=6, blank=False, poses=None):
 @pytest.fixture(scope="module")
 def sphere_run(tmp_path_factory):
     root = _scene(tmp_path_factory.mktemp("sphere"))
-    out = root / "dense"
+    out = tmp_path_factory.mktemp("sphere_out") / "dense"  # outputs never inside the scene
     return root, out, run_dense(root, "gt", out, FAST)
 
 

@@ -115,7 +115,7 @@ def default_groups(cameras: list) -> np.ndarray:
 class IntrinsicsBlocks:
     """The pseudo-camera layout of the free intrinsics (see the module docstring)."""
 
-    def __init__(self, cameras: list, groups: np.ndarray, refine: tuple[str, ...]):
+    def __init__(self, cameras: list, groups: np.ndarray, refine: tuple[str, ...], force_pp: bool = False):
         self.groups = np.asarray(groups, np.int64)
         G = int(self.groups.max()) + 1
         self.cams0: list[Camera] = []
@@ -127,6 +127,8 @@ class IntrinsicsBlocks:
                             "using those of its first image", g)
             self.cams0.append(first)
         self.free = [free_indices(c.model, refine) for c in self.cams0]
+        if "pp" in refine and not force_pp:
+            self._hold_single_image_pp(refine)
         self.scale = [np.where(np.isin(f, list(MODELS[c.model].extra)), 1.0, c.fx)
                       for c, f in zip(self.cams0, self.free)]
         # chunks: (group, first free index, count) -> pseudo camera N + j
@@ -134,6 +136,18 @@ class IntrinsicsBlocks:
                        for a in range(0, len(f), 3)]
         self.num_slots = max((sum(1 for c in self.chunks if c[0] == g) for g in range(G)),
                              default=0)
+
+    def _hold_single_image_pp(self, refine: tuple[str, ...]) -> None:
+        # One image does not separate the principal point from its own rotation (a BAL solve
+        # moved it by 80 px): groups of one image keep theirs unless the caller forces it.
+        single = [g for g in range(len(self.cams0)) if int((self.groups == g).sum()) == 1]
+        if not single:
+            return
+        held = tuple(r for r in refine if r != "pp")
+        for g in single:
+            self.free[g] = free_indices(self.cams0[g].model, held)
+        log.warning("principal point held on %d of %d intrinsics groups that hold one image each "
+                    "(it is not constrained there; force it with refine_pp_single)", len(single), len(self.cams0))
 
     @property
     def num_pseudo(self) -> int:
@@ -334,7 +348,7 @@ def solve_calibrating(problem: BAProblem, options, *, prepared: bool = False):
     refine = parse_refine(options.refine)
     groups = (default_groups(problem.cameras) if problem.camera_group is None
               else np.asarray(problem.camera_group, np.int64))
-    blocks = IntrinsicsBlocks(problem.cameras, groups, refine)
+    blocks = IntrinsicsBlocks(problem.cameras, groups, refine, force_pp=options.refine_pp_single)
     inner_options = dataclasses.replace(options, refine=())
     inner = make_param(problem, inner_options)
     aug = augmented_problem(problem, blocks)

@@ -15,11 +15,26 @@ def load_problem(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]
     """See :func:`_load`; numeric failures of a parsed but degenerate problem (singular
     triangulation, a value that breaks a conversion) become a PolarrefError naming it."""
     try:
-        return _load(spec, seed=seed)
+        problem, truth = _load(spec, seed=seed)
     except PolarrefError:
         raise
     except (ValueError, ArithmeticError, np.linalg.LinAlgError, UnicodeError) as exc:
         raise PolarrefError(f"{spec}: not a usable BA problem ({type(exc).__name__}: {exc})") from exc
+    _check_in_front(spec, problem)
+    return problem, truth
+
+
+def _check_in_front(spec: str, problem: BAProblem) -> None:
+    """PolarrefError when no observed point lies in front of its camera: such a problem is
+    physically impossible (a sign or axis convention error), and LM would "solve" it silently."""
+    cam, pt = problem.obs.image, problem.obs.point
+    if len(cam) == 0:
+        return
+    depth = np.einsum("mj,mj->m", problem.R[cam][:, 2, :], problem.X[pt] - problem.C[cam])
+    if not (depth > 0).any():
+        raise PolarrefError(f"{spec}: every point is behind every camera that observes it ({len(cam)} "
+                            "observations, none at positive depth); check the file's camera convention "
+                            "(BAL cameras look down -z)")
 
 
 def _load(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]:

@@ -70,6 +70,9 @@ class BAOptions:
     # self-calibration (intrinsics.py): intrinsics groups refined, subset of ("focal", "pp",
     # "dist"); () holds the intrinsics fixed (the solve is then exactly the fixed-camera one)
     refine: tuple = ()
+    # refine the principal point of an intrinsics group of one image too (else held, with a
+    # warning: one image does not separate it from the rotation)
+    refine_pp_single: bool = False
 
     def __post_init__(self) -> None:
         if self.param not in PARAMS:

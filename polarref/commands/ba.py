@@ -7,7 +7,7 @@ import json
 import math
 from pathlib import Path
 
-from polarref.commands._types import float_range, positive_int
+from polarref.commands._types import float_range, positive_int, refine_groups
 from polarref.core.errors import PolarrefError
 
 NAME = "ba"
@@ -33,18 +33,23 @@ def add_arguments(parser) -> None:
                         help="LM: release the 7 gauge DoF during the solve (result mapped back) "
                         "or hold them; default: the form's measured best")
     parser.add_argument("--staged", action="store_true", help="angular: theta first, then joint")
-    parser.add_argument("--refine", default="", metavar="GROUPS",
-                        help="self-calibration: refine intrinsics groups focal,pp,dist (default none)")
+    parser.add_argument("--refine", type=refine_groups, default=(), metavar="GROUPS",
+                        help="self-calibration: refine intrinsics groups focal,pp,dist (default none); the "
+                        "principal point of a camera seen by one image only is held unless --refine-pp-single")
+    parser.add_argument("--refine-pp-single", action="store_true",
+                        help="with --refine pp: refine it on cameras seen by one image too (poorly constrained)")
     parser.add_argument("--out", required=True, help="output JSON path")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing --out")
 
 
 def run(args) -> int:
-    from polarref.core.atomic import atomic_write, check_writable_parent
+    from polarref.core.atomic import atomic_write, check_writable_parent, refuse_inside_inputs
     from polarref.ba import BAOptions, solve
     from polarref.ba.loaders import load_problem
 
     out = Path(args.out)
+    if not str(args.problem).startswith("synth-"):
+        refuse_inside_inputs(out, [args.problem])
     if out.is_dir():
         raise PolarrefError(f"{out} is a folder; --out takes a JSON file path")
     if out.exists() and not args.overwrite:
@@ -54,7 +59,7 @@ def run(args) -> int:
         options = BAOptions(param=args.param, loss=args.loss, loss_scale=args.loss_scale,
                             max_iterations=args.max_iterations, staged=args.staged,
                             solver=args.solver, damping=args.damping, lm_gauge=args.lm_gauge,
-                            refine=args.refine)
+                            refine=args.refine, refine_pp_single=args.refine_pp_single)
     except ValueError as exc:
         raise PolarrefError(str(exc)) from exc
     problem, _ = load_problem(args.problem)

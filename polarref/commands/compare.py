@@ -7,7 +7,7 @@ import logging
 from pathlib import Path
 
 from polarref.commands._types import SEED, float_range, positive_float
-from polarref.core.errors import PolarrefError
+from polarref.core.errors import PolarrefError, UsageError
 
 NAME = "compare"
 HELP = ("run our SfM (euclidean/parallax/polar/angular BA) and pycolmap (incremental, global; its "
@@ -88,11 +88,25 @@ def _run_twin(args: argparse.Namespace) -> int:
     return 0
 
 
+def _check_twin_options(args: argparse.Namespace, twin: bool) -> None:
+    """Options of the other kind of run are refused, not ignored (a twin renders hundreds of
+    views: ``--preset small --budget 5`` must not start that silently)."""
+    if twin:
+        given = [flag for flag, on in (("--preset", args.preset != "default"), ("--budget", args.budget != -1.0),
+                                       ("--no-claims", args.no_claims), ("--dense", args.dense)) if on]
+        if given:
+            raise UsageError(f"{', '.join(given)} do(es) not apply to the twin {args.scene} (its views, size and "
+                             "stages are fixed); drop them or compare a scene")
+    elif args.tables is not None:
+        raise UsageError("--tables applies to the twins (rosetta, poets-park, mappilot) only")
+
+
 def run(args: argparse.Namespace) -> int:
     import time
 
     from synth.config import TWINS
 
+    _check_twin_options(args, args.scene in TWINS)
     if args.scene in TWINS:
         return _run_twin(args)
     from polarref.compare.pipeline import CompareConfig, command_line, run_compare
@@ -121,4 +135,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {m.name}: {m.status}: {m.reason}")
     for c in metrics.claims:
         print(f"  {c.claim_id} {c.verdict:<13} {c.claim}")
+    if metrics.methods and not ok:
+        raise PolarrefError(f"{out}: every method failed ({len(metrics.methods)} of {len(metrics.methods)}); "
+                            "the report names each failure")
     return 0

@@ -6,7 +6,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from polarref.commands._types import MAX_IMAGE_SIDE, SEED, int_range
+from polarref.commands._types import MAX_IMAGE_SIDE, SEED, camera_spec, int_range, refine_groups
 from polarref.core.errors import PolarrefError
 
 NAME = "sfm"
@@ -21,9 +21,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", type=Path, required=True, help="output folder (model/, metrics.json)")
     parser.add_argument("--ba", choices=BA_NAMES, default="euclidean",
                         help="bundle adjuster (colmap = pycolmap's Ceres, for reference)")
-    parser.add_argument("--camera", metavar="MODEL:params",
+    parser.add_argument("--camera", metavar="MODEL:params", type=camera_spec,
                         help="known intrinsics in COLMAP order, e.g. PINHOLE:fx,fy,cx,cy (default: from gt/)")
-    parser.add_argument("--refine", metavar="GROUPS",
+    parser.add_argument("--refine", metavar="GROUPS", type=refine_groups,
                         help="intrinsics refined in global BA: focal,pp,dist or none (default: focal,dist "
                              "for EXIF cameras, none for --camera / gt/)")
     cams = parser.add_mutually_exclusive_group()
@@ -73,23 +73,20 @@ def _config(args: argparse.Namespace):
     if args.no_cache:
         cfg = rep(cfg, use_cache=False)
     if args.refine is not None:
-        from polarref.ba.intrinsics import parse_refine
-
-        try:
-            cfg = rep(cfg, mapper=rep(cfg.mapper, refine=parse_refine(args.refine)))
-        except ValueError as exc:
-            raise PolarrefError(f"--refine: {exc}") from exc
+        cfg = rep(cfg, mapper=rep(cfg.mapper, refine=args.refine))
     if args.single_camera or args.camera_per_image:
         cfg = rep(cfg, camera_mode="single" if args.single_camera else "per-image")
     return cfg
 
 
 def run(args: argparse.Namespace) -> int:
+    from polarref.core.atomic import refuse_inside_inputs
     from polarref.model.scene_folder import discover
     from polarref.sfm import features as F
     from polarref.sfm.pipeline import parse_camera, run_sfm
 
     root: Path = args.dir
+    refuse_inside_inputs(args.out, [root])
     found = discover(root)
     image_dir = found.image_dir
     gt = found.read_ground_truth()

@@ -162,7 +162,8 @@ def prepare(arg: str | None, preset: str, seed: int) -> PreparedScene:
         return _synthetic(TWINS[arg], arg, seed, name=arg)
     path = Path(arg).expanduser()
     if not path.exists():
-        raise PolarrefError(f"unknown scene {arg!r}: not one of {', '.join(SYNTHETIC)} and no such directory")
+        raise PolarrefError(f"unknown scene {arg!r}: not a scene ({', '.join(SYNTHETIC)}), not a twin "
+                            f"({', '.join(TWINS)}) and no such directory")
     if not path.is_dir():
         raise PolarrefError(f"{arg} is not a directory (give a scene name or an image folder)")
     if (path / "scene.json").is_file():

@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import json
 import os
 import shutil
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import IO
 
@@ -130,11 +131,54 @@ def publish_dir(target: str | os.PathLike, *, overwrite: bool = False,
 
 
 def check_dir_target(target: Path, overwrite: bool) -> None:
-    """PolarrefError unless ``target`` is absent, an empty folder, or a folder we may replace."""
+    """PolarrefError unless ``target`` is absent, an empty folder, a folder holding only a failed
+    run of ours (a corrected rerun needs no flag), or a folder we may replace."""
     if target.exists() and not target.is_dir():
         raise PolarrefError(f"{target} exists and is not a folder (choose another output path)")
-    if target.is_dir() and any(target.iterdir()) and not overwrite:
+    if target.is_dir() and any(target.iterdir()) and not overwrite and not holds_failed_run(target):
         raise PolarrefError(f"output folder {target} exists and is not empty", option="overwrite")
+
+
+def _run_status(target: Path) -> str | None:
+    """The ``status`` of ``target/metrics.json`` (None: absent or unreadable)."""
+    try:
+        data = json.loads((Path(target) / "metrics.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    status = data.get("status") if isinstance(data, dict) else None
+    return status if isinstance(status, str) else None
+
+
+def holds_failed_run(target: Path) -> bool:
+    """True when every entry of ``target`` was written by one of our runs (its manifest) and
+    that run's metrics.json says it failed: nothing in it is worth keeping."""
+    target = Path(target)
+    if _run_status(target) != "failed" or not (target / MANIFEST).is_file():
+        return False
+    ours = set((target / MANIFEST).read_text(encoding="utf-8", errors="replace").split("\n")) | {MANIFEST}
+    return all(p.name in ours for p in target.iterdir())
+
+
+def holds_finished_result(target: Path) -> bool:
+    """True when ``target/metrics.json`` records a run that did not fail: a failing rerun must
+    leave such a folder as it is rather than replace it by its failure."""
+    status = _run_status(Path(target))
+    return status is not None and status != "failed"
+
+
+def refuse_inside_inputs(out: str | os.PathLike, inputs: Sequence[str | os.PathLike]) -> None:
+    """PolarrefError when the output path ``out`` is one of ``inputs``, lies inside one, or
+    contains one: writing (or swapping a folder) there would replace the inputs themselves.
+
+    Paths are compared after resolving symbolic links and ``..``.
+    """
+    target = Path(out).resolve()
+    for given in inputs:
+        src = Path(given).resolve()
+        if target == src or src in target.parents or target in src.parents:
+            relation = ("is" if target == src else "lies inside" if src in target.parents else "contains")
+            raise PolarrefError(f"{out}: the output {relation} the input {given}; outputs are never "
+                                "written into their inputs (choose another output path)")
 
 
 def _swap_into_place(tmp: Path, target: Path, ours: set[str]) -> None:

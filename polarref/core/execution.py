@@ -26,6 +26,7 @@ import atexit
 import functools
 import logging
 import os
+import socket
 import uuid
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -64,6 +65,12 @@ def resolve(workers: int | None = None, scheduler: str | None = None,
     if workers is not None and workers < 1:
         raise PolarrefError(f"the number of workers must be >= 1, got {workers}", option="workers")
     if workers:
+        cores = available_cores()
+        if workers > cores:
+            # one single-threaded process per core is the most this machine can use; ~1,000
+            # processes on 2 cores stalled it for minutes
+            log.warning("%d workers requested on %d available core(s): using %d", workers, cores, cores)
+            workers = cores
         return ExecutionSpec("local", workers=int(workers))
     address = scheduler or env.get(ENV_SCHEDULER, "").strip() or None
     return ExecutionSpec("remote", address=address) if address else ExecutionSpec()
@@ -270,6 +277,30 @@ def _in_worker(fn: Callable[[T], R], item: T) -> R:
 # ---- the executor of this process --------------------------------------------------------------
 _SPEC = ExecutionSpec()
 _CURRENT: SerialExecutor | DaskExecutor | None = None
+
+
+def available_cores() -> int:
+    """Cores this process may run on (its CPU affinity, else the machine's count)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):
+        return max(1, os.cpu_count() or 1)
+
+
+def check_reachable(spec: ExecutionSpec) -> None:
+    """A remote scheduler's address is parsed and its port connected to (one TCP connect,
+    CONNECT_TIMEOUT_S) before any work: a typo then fails before an output folder exists."""
+    if spec.mode != "remote" or not spec.address:
+        return
+    text = spec.address.split("://", 1)[-1]
+    host, sep, port = text.rpartition(":")
+    if not sep or not port.isdigit() or not 0 < int(port) < 65536:
+        raise PolarrefError(f"scheduler address {spec.address!r} is not HOST:PORT or tcp://HOST:PORT "
+                            f"(fix --scheduler/${ENV_SCHEDULER})")
+    try:
+        socket.create_connection((host.strip("[]") or "localhost", int(port)), timeout=CONNECT_TIMEOUT_S).close()
+    except OSError as exc:
+        raise _connect_error(spec.address, exc) from None
 
 
 def configure(workers: int | None = None, scheduler: str | None = None) -> ExecutionSpec:

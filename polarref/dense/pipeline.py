@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref.core.atomic import atomic_open
+from polarref.core.atomic import (atomic_open, check_dir_target, check_writable_parent, holds_finished_result,
+                                  publish_dir, refuse_inside_inputs)
 from polarref.dense import consistency, depth as depth_mod, fusion, meshing, scoring, views as views_mod
 from polarref.dense.provenance import Provenance, collect
 from polarref.core.errors import PolarrefError
@@ -74,38 +75,49 @@ def _peak_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
 
 
-def _prepare_out(out: Path, overwrite: bool) -> None:
-    if out.exists() and not out.is_dir():
-        raise PolarrefError(f"output folder {out} exists and is not a directory")
-    if out.is_dir() and any(out.iterdir()) and not overwrite:
-        raise PolarrefError(f"output folder {out} is not empty; its dense outputs are replaced only on request",
-                            option="overwrite")
-    try:
-        (out / "depth").mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise PolarrefError(f"cannot create {out}: {exc}") from exc
+DENSE_OUTPUTS = ("depth", "fused.ply", "mesh.ply", "fused_gt.ply", "mesh_gt.ply", "metrics.json")
+
+
+def _check_out(scene_dir: Path, model: str, out: Path, overwrite: bool) -> None:
+    """Fail before any work: outputs never go into the scene or the model (``--out SCENE`` would
+    replace the GT mesh and depth and then score the result against itself)."""
+    refuse_inside_inputs(out, [scene_dir] + ([Path(model)] if model != "gt" else []))
+    check_dir_target(out, overwrite)
+    check_writable_parent(out)
 
 
 def run_dense(scene_dir: Path, model: str, out: Path, cfg: DenseConfig = DenseConfig(), *,
               overwrite: bool = False, command: str = "") -> DenseMetrics:
-    """Run the dense stage; always writes OUT/metrics.json (also on failure, then re-raises)."""
+    """Run the dense stage into OUT, built aside and swapped in whole when complete.
+
+    A failure writes OUT/metrics.json naming it and re-raises, unless OUT holds a finished
+    result: that is then kept as it was (the error says so).
+    """
     from polarref.metrics import write_json
 
     scene_dir, out = Path(scene_dir), Path(out)
     if not scene_dir.is_dir():
         raise PolarrefError(f"scene folder not found: {scene_dir}")
-    _prepare_out(out, overwrite)
+    _check_out(scene_dir, model, out, overwrite)
+    keep_finished = holds_finished_result(out)
     m = DenseMetrics("failed", "", str(scene_dir), model, cfg,
                      provenance=collect(command, {"dense": cfg.seed}, {"poisson": cfg.mesh.threads}))
-    try:
-        _run(scene_dir, model, out, cfg, m)
-        m.status = "ok"
-    except PolarrefError as exc:
-        m.message = str(exc)
-        raise
-    finally:
+    failure: PolarrefError | None = None
+    with publish_dir(out, overwrite=overwrite, owned=DENSE_OUTPUTS) as tmp:
+        (tmp / "depth").mkdir()
+        try:
+            _run(scene_dir, model, tmp, cfg, m)
+            m.status = "ok"
+        except PolarrefError as exc:
+            m.message = str(exc).replace(str(tmp), str(out))
+            if keep_finished:  # raised inside the block: the new folder is discarded
+                raise PolarrefError(f"{m.message}; the finished result in {out} was kept",
+                                    option=exc.option) from exc
+            failure = exc
         m.peak_memory_mb = _peak_mb()
-        write_json(out / "metrics.json", m.to_dict())
+        write_json(tmp / "metrics.json", m.to_dict())
+    if failure is not None:
+        raise PolarrefError(m.message, option=failure.option) from failure
     return m
 
 

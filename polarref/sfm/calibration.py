@@ -29,6 +29,18 @@ DEFAULT_FOCAL_FACTOR = 1.2
 CAMERA_MODES = ("per-model", "single", "per-image")
 EXIF_MODEL = "SIMPLE_RADIAL"
 EXIF_REFINE = ("focal", "dist")  # COLMAP's ba_refine_* defaults: focal and extra params, not pp
+# Focal lengths outside [0.1, 20] x max(width, height) (a 360 deg to a 3 deg field of view, about
+# 3.6 mm to 720 mm at 35 mm equivalent) are a broken tag (65535, 1), not a lens.
+FOCAL_FACTOR_RANGE = (0.1, 20.0)
+
+
+def check_focal(focal_px: float, width: int, height: int, what: str) -> None:
+    """PolarrefError naming ``what`` when ``focal_px`` is not a physically possible focal length."""
+    lo, hi = (k * max(width, height) for k in FOCAL_FACTOR_RANGE)
+    if not (np.isfinite(focal_px) and lo <= focal_px <= hi):
+        raise PolarrefError(f"{what}: focal length {focal_px:.6g} px is impossible for a {width}x{height} image "
+                            f"(expected {FOCAL_FACTOR_RANGE[0]:g}..{FOCAL_FACTOR_RANGE[1]:g} x {max(width, height)} "
+                            "px); fix the EXIF tag or give the camera (MODEL:params)")
 
 
 @dataclass(frozen=True)
@@ -69,6 +81,9 @@ def cameras_from_exif(paths: list[Path], sizes: list[tuple[int, int]], mode: str
     if mode not in CAMERA_MODES:
         raise PolarrefError(f"unknown camera mode {mode!r}; choose {', '.join(CAMERA_MODES)}")
     infos = [read_exif(p) for p in paths]
+    for p, info, (w, h) in zip(paths, infos, sizes):
+        if info.focal_px is not None:
+            check_focal(info.focal_px, w, h, f"{p} (EXIF)")
     if mode == "single":
         if len(set(sizes)) > 1:
             raise PolarrefError(f"one camera for all images, but the images have {len(set(sizes))} different sizes "

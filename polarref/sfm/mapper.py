@@ -43,7 +43,8 @@ class MapperConfig:
     global_ba_loss: str = "trivial"    # global BA runs after filtering: plain least squares
     final_ba_rounds: int = 2           # rounds of (retriangulate, global BA, filter) at the end
     # intrinsics groups refined (focal, pp, dist) in global BA only, once refine_min_images
-    # images (or all, if fewer exist) are registered; local BA holds them. None = decided by
+    # images are registered (a smaller set keeps its start intrinsics: on 2 images focal and
+    # distortion trade off against depth, f 386 -> 807); local BA holds them. None = decided by
     # the pipeline (EXIF cameras: focal, dist as COLMAP; given/GT cameras: none)
     refine: tuple | None = None
     refine_min_images: int = 10
@@ -75,7 +76,7 @@ def _global_ba(state: MapState, cfg: MapperConfig, log_: MapperLog, gauge: list[
     reg = [int(i) for i in np.flatnonzero(state.registered)]
     var = [i for i in reg if i not in gauge]
     # early intrinsics are poorly constrained (COLMAP also treats its first ~10 images apart)
-    enough = len(reg) >= min(cfg.refine_min_images, len(state.keypoints))
+    enough = len(reg) >= cfg.refine_min_images
     refine = tuple(cfg.refine or ()) if enough else ()
     info = bundle.adjust(state, var, list(gauge), cfg.ba, cfg.global_ba_iterations, cfg.global_ba_loss,
                          refine=refine)

@@ -11,6 +11,7 @@ import hashlib
 import json
 import logging
 import os
+import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,7 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from polarref.core import execution
-from polarref.core.atomic import atomic_write, check_dir_target, check_writable_parent, publish_dir
+from polarref.core.atomic import (atomic_write, check_dir_target, check_writable_parent, holds_finished_result,
+                                  publish_dir, refuse_inside_inputs)
+from polarref.core.data import cache_root
 from polarref.core.errors import PolarrefError
 from polarref.model import Reconstruction
 from polarref.sfm import features as F
@@ -102,6 +105,23 @@ def cameras_for_images(names: list[str], sizes: list[tuple[int, int]], camera=No
 
 
 # ---- cache ------------------------------------------------------------------------------------
+def _cache_file(config: SfMConfig, name: str) -> Path:
+    """Path of a cache entry; the folder is only created when the cache is used (``use_cache``
+    false never touches it, so an unwritable cache does not stop a --no-cache run)."""
+    if config.use_cache:
+        return cache_dir_for(config) / name
+    return (Path(config.cache_dir) if config.cache_dir else cache_root() / "sfm") / name
+
+
+def _parts_dir(config: SfMConfig) -> Path:
+    """Where cluster tasks exchange files: the cache folder, or without the cache a scratch
+    folder of this process in the system's temporary folder (local workers see it)."""
+    d = (cache_dir_for(config) if config.use_cache
+         else Path(tempfile.gettempdir()) / f"polarref-{os.getpid()}") / "parts"
+    d.mkdir(parents=True, exist_ok=True)
+    return d
+
+
 # ---- stages -----------------------------------------------------------------------------------
 def load_images_and_features(image_dir: Path, config: SfMConfig, timings: dict) -> tuple[list[F.Features], list[dict], str]:
     """Features of every readable image (cached); (features, skipped [{name, reason}], cache key)."""
@@ -111,7 +131,7 @@ def load_images_and_features(image_dir: Path, config: SfMConfig, timings: dict) 
         raise PolarrefError(f"no images found in {image_dir} (suffixes {', '.join(F.IMAGE_SUFFIXES)})")
     digests = [hashlib.sha256(p.read_bytes()).hexdigest() for p in paths]
     key = hash_parts("features", code_digest(F), [p.name for p in paths], digests, config.features)
-    cache = cache_dir_for(config) / f"features-{key}.npz"
+    cache = _cache_file(config, f"features-{key}.npz")
     skipped_file = cache.with_suffix(".skipped.json")
     if config.use_cache and cache_valid(cache) and cache_valid(skipped_file):
         # descriptors stay on disk until matching needs them (ensure_descriptors): with the
@@ -152,7 +172,7 @@ def match_and_verify(feats: list[F.Features], cameras: list, camera_of_image: np
 
     key = hash_parts("matches", code_digest(matching, verification), feature_key, config.matching, config.verification, cam_key,
                 camera_of_image.tolist(), None if centers is None else np.round(centers, 9).tolist())
-    cache = cache_dir_for(config) / f"matches-{key}.npz"
+    cache = _cache_file(config, f"matches-{key}.npz")
     if config.use_cache and cache_valid(cache):
         putative, geoms = load_matches(cache)
         timings["matching"] = time.perf_counter() - t0
@@ -184,9 +204,7 @@ def _extract_all(paths: list[Path], config: SfMConfig, key: str) -> tuple[list[F
     from polarref.sfm.tasks import ExtractTask, extract_image
 
     executor = execution.current()
-    parts = None if executor.in_process else cache_dir_for(config) / "parts"
-    if parts is not None:
-        parts.mkdir(parents=True, exist_ok=True)
+    parts = None if executor.in_process else _parts_dir(config)
     tasks = [ExtractTask(str(p), config.features, None if parts is None else str(parts / f"features-{key}-{os.getpid()}-{i:05d}.npz"))
              for i, p in enumerate(paths)]
     feats, skipped = [], []
@@ -207,8 +225,7 @@ def _match_on_cluster(executor, feats: list[F.Features], pairs: list[tuple[int, 
     """Matching + verification as chunk tasks exchanging files; merged in pair order."""
     from polarref.sfm.tasks import MatchTask, chunks, match_chunk
 
-    parts = cache_dir_for(config) / "parts"
-    parts.mkdir(parents=True, exist_ok=True)
+    parts = _parts_dir(config)
     feat_file = parts / f"features-for-{key}-{os.getpid()}.npz"
     F.save(feat_file, feats)
     tasks = [MatchTask(str(feat_file), tuple(c), tuple(cameras), tuple(int(i) for i in camera_of_image), focal,
@@ -262,7 +279,8 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         model_format: COLMAP ``text``, ``binary`` or ``both``; ``model/points3D.ply`` is always written.
     Raises:
         PolarrefError: no images, unknown intrinsics, no initial pair, < 2 registered images.
-            metrics.json is still written with what was done. A failure after the
+            metrics.json is still written with what was done, unless ``out_dir`` holds a
+            finished result, which is then left as it was. A failure after the
             reconstruction (GT metrics) does not raise: the model is kept and the failure is
             named in ``report.gt_skipped``.
     """
@@ -270,6 +288,7 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
 
     target = Path(out_dir) if out_dir is not None else None
     if target is not None:  # fail before any work, not after it
+        refuse_inside_inputs(target, [image_dir])
         check_dir_target(target, overwrite)
         check_writable_parent(target)
     t_start = time.perf_counter()
@@ -346,6 +365,11 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         from polarref.sfm.calibration import camera_reports
 
         report.refine = list(config.mapper.refine)
+        if report.refine and not any(b.kind == "global" and b.num_registered >= config.mapper.refine_min_images
+                                     for b in mlog.ba):
+            log.warning("intrinsics not refined (%s requested): %d registered images, refinement starts at %d",
+                        ",".join(report.refine), int(state.registered.sum()), config.mapper.refine_min_images)
+            report.refine = []
         report.cameras = camera_reports(initial_cameras, state.cameras, sources, cam_idx,
                                         [f.name for f in feats], gt)
         rec = to_reconstruction(state, colors=[f.colors for f in feats])
@@ -354,6 +378,9 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         report.error = str(exc)
         timings["total"] = time.perf_counter() - t_start
         report.runtime_s = timings
+        if target is not None and holds_finished_result(target):
+            # a failed rerun never replaces a finished result by its failure
+            raise PolarrefError(f"{exc}; the finished result in {target} was kept", option=exc.option) from exc
         _publish(None)
         raise
     t0 = time.perf_counter()
