@@ -72,19 +72,22 @@ def test_full_disk_during_export_keeps_earlier_result(small_copy, tmp_path, monk
     assert _sfm(small_copy, out, "--overwrite", "--seed", "3") == 0  # the rerun is not blocked
 
 
-def test_failing_overwrite_leaves_no_stale_model(small_copy, tmp_path, monkeypatch, capsys):
+def test_failing_overwrite_keeps_finished_result(small_copy, tmp_path, monkeypatch, capsys):
+    # issue 31 case 2: a failing --overwrite rerun leaves the finished result as it was
     monkeypatch.setenv("POLARREF_CACHE", str(tmp_path / "cache"))
     out = tmp_path / "out"
     assert _sfm(small_copy, out) == 0
     (out / "notes.txt").write_text("mine")
+    before = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
     for p in sorted((small_copy / "images").iterdir())[1:]:
         p.unlink()  # one image left: the rerun fails inside the pipeline
     capsys.readouterr()
     assert _sfm(small_copy, out, "--overwrite") == 1
-    assert len(_err_lines(capsys)) == 1
-    assert not (out / "model").exists()  # no old model beside the new "failed" metrics.json
-    assert json.loads((out / "metrics.json").read_text())["status"] == "failed"
-    assert (out / "notes.txt").read_text() == "mine"  # the user's file is carried over
+    lines = _err_lines(capsys)
+    assert len(lines) == 1 and "was kept" in lines[0]
+    after = {p.relative_to(out): p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    assert after == before
+    assert json.loads((out / "metrics.json").read_text())["status"] == "ok"
 
 
 def test_ba_full_disk_writes_nothing(tmp_path, monkeypatch, capsys):

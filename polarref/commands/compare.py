@@ -113,7 +113,10 @@ def run(args: argparse.Namespace) -> int:
     from polarref.compare.schema import STATUS_OK
 
     if args.out is not None:  # before rendering, not after it
-        from polarref.core.atomic import check_writable_parent
+        from polarref.core.atomic import check_writable_parent, refuse_inside_inputs
+
+        if args.scene is not None and Path(args.scene).expanduser().is_dir():
+            refuse_inside_inputs(args.out, [Path(args.scene).expanduser()])
 
         if args.out.exists() and not args.out.is_dir():
             raise PolarrefError(f"{args.out} exists and is not a folder (choose another report folder)")
