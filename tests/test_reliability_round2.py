@@ -103,3 +103,14 @@ def test_dense_overwrite_leaves_no_stale_outputs(scene, tmp_path):
     assert not (out / "depth" / "stale.npy").exists()
     assert sorted(p.name for p in (out / "depth").iterdir()) == [f"{i:04d}.npy" for i in range(4)]
     assert (out / "notes.txt").read_text() == "mine"
+
+
+def test_dense_error_has_no_doubled_prefix(tmp_path):
+    root = tmp_path / "two"
+    write_scene(root, SPHERE, orbit([0, 0, 0], 10.0, 2, 7.0), 64, 48, 30.0, wavelength=0.1,
+                bounds=([0, 0, 0], 3.2), mesh_args=(3,))
+    r = _cli("dense", str(root), "--model", "gt", "--out", str(tmp_path / "o"), *FAST, cwd=tmp_path)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 1 and len(lines) == 1, r.stderr
+    assert lines[0].startswith("polarref dense: ") and "dense: dense:" not in lines[0]
+    assert "need at least 3" in lines[0]

@@ -39,12 +39,12 @@ def poisson_mesh(cloud: PointCloud, voxel: float, opt: MeshOptions = MeshOptions
     try:
         import open3d as o3d
     except ImportError as exc:
-        raise PolarrefError(f"dense: meshing needs Open3D (pip install open3d-cpu): {exc}") from exc
+        raise PolarrefError(f"meshing needs Open3D (pip install open3d-cpu): {exc}") from exc
     from scipy.spatial import cKDTree
 
     has_normal = np.linalg.norm(cloud.normals, axis=1) > 0.5
     if has_normal.sum() < 100:
-        raise PolarrefError(f"dense: {int(has_normal.sum())} fused points with normals; too few to mesh")
+        raise PolarrefError(f"{int(has_normal.sum())} fused points with normals; too few to mesh")
     pcd = o3d.geometry.PointCloud()
     pcd.points = o3d.utility.Vector3dVector(cloud.points[has_normal])
     pcd.normals = o3d.utility.Vector3dVector(cloud.normals[has_normal])

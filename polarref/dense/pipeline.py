@@ -156,7 +156,7 @@ def _run(scene_dir: Path, model: str, out: Path, cfg: DenseConfig, m: DenseMetri
     image_dir, rec, gt, synth_scene = _load(scene_dir, model)
     m.num_views = len(rec.images)
     if m.num_views < views_mod.MIN_VIEWS:
-        raise PolarrefError(f"dense: the model has {m.num_views} registered view(s); need at least "
+        raise PolarrefError(f"the model has {m.num_views} registered view(s); need at least "
                             f"{views_mod.MIN_VIEWS}")
     width = max(c.width for c in rec.cameras.values())
     scale = cfg.scale if cfg.scale is not None else min(1.0, WORK_WIDTH / width)
@@ -202,7 +202,7 @@ def _run(scene_dir: Path, model: str, out: Path, cfg: DenseConfig, m: DenseMetri
     m.num_views_with_depth = sum(1 for f in filtered if len(f.points))
     t = _timed(m, "consistency", t)
     if m.num_views_with_depth == 0:
-        raise PolarrefError("dense: no view kept a consistent depth (textureless images, wrong poses or "
+        raise PolarrefError("no view kept a consistent depth (textureless images, wrong poses or "
                             "no overlap); depth maps kept in " + str(out / "depth"))
 
     depths = np.concatenate([f.depth[f.depth > 0] for f in filtered if len(f.points)])

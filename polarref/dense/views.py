@@ -61,14 +61,14 @@ def load_views(image_dir: Path, rec, scale: float = 1.0) -> list[DenseView]:
     for im in sorted(rec.images.values(), key=lambda i: i.name):
         cam: Camera = rec.cameras[im.camera_id]
         if not cam.is_perspective or any(abs(c) > 0 for c in cam.distortion):
-            raise PolarrefError(f"dense: camera {im.camera_id} ({cam.model}) is not an undistorted "
+            raise PolarrefError(f"camera {im.camera_id} ({cam.model}) is not an undistorted "
                                 "pinhole; plane-sweep stereo needs one")
         path = image_dir / im.name
         bgr = cv2.imread(str(path), cv2.IMREAD_COLOR)
         if bgr is None:
-            raise PolarrefError(f"dense: cannot read image {path}")
+            raise PolarrefError(f"cannot read image {path}")
         if bgr.shape[:2] != (cam.height, cam.width):
-            raise PolarrefError(f"dense: image {path} is {bgr.shape[1]}x{bgr.shape[0]}, "
+            raise PolarrefError(f"image {path} is {bgr.shape[1]}x{bgr.shape[0]}, "
                                 f"camera {im.camera_id} says {cam.width}x{cam.height}")
         K = cam.calibration_matrix().astype(np.float64)
         if scale != 1.0:
@@ -92,7 +92,7 @@ def scene_points(rec, views: list[DenseView], bounds, max_points: int = 4000, se
     if len(X) >= 20:
         return X if len(X) <= max_points else X[rng.choice(len(X), max_points, replace=False)]
     if bounds is None:
-        raise PolarrefError("dense: the model has no 3D points and no scene bounds were given; "
+        raise PolarrefError("the model has no 3D points and no scene bounds were given; "
                             "cannot choose depth ranges")
     center, radius = bounds
     # Sample the bounding sphere's volume: depth ranges and overlaps then err on the safe side.
@@ -107,7 +107,7 @@ def select_views(views: list[DenseView], points: np.ndarray, num_sources: int = 
     """Best ``num_sources`` neighbours per view and per-view depth range from ``points`` (P, 3)."""
     n = len(views)
     if n < MIN_VIEWS:
-        raise PolarrefError(f"dense: {n} registered view(s); need at least {MIN_VIEWS}")
+        raise PolarrefError(f"{n} registered view(s); need at least {MIN_VIEWS}")
     centers = np.array([v.cam_from_world.center for v in views])
     vis = np.zeros((n, len(points)), bool)
     near_far = np.zeros((n, 2))
