@@ -114,3 +114,12 @@ def test_dense_error_has_no_doubled_prefix(tmp_path):
     assert r.returncode == 1 and len(lines) == 1, r.stderr
     assert lines[0].startswith("polarref dense: ") and "dense: dense:" not in lines[0]
     assert "need at least 3" in lines[0]
+
+
+@pytest.mark.parametrize("inside", ["gt/ba.json", "gt/cameras.txt"])
+def test_ba_out_into_model_refused(scene, inside):
+    before = _digest(scene)
+    r = _cli("ba", str(scene / "gt"), "--max-iterations", "1", "--out", str(scene / inside), cwd=scene.parent)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 1 and len(lines) == 1 and "never written into their inputs" in lines[0], r.stderr
+    assert _digest(scene) == before
