@@ -28,12 +28,16 @@ REDUCED_UAV = dict(views=6, width=128, height=96, spp=4)  # the small UAV scene,
 
 
 # ---- mode selection and bad scheduler ------------------------------------------------------------
-def test_mode_resolution_and_environment_variable():
+def test_mode_resolution_and_environment_variable(monkeypatch, caplog):
+    monkeypatch.setattr(execution, "available_cores", lambda: 4)
     assert execution.resolve(None, None, environ={}) == execution.ExecutionSpec("serial")
     env = {execution.ENV_SCHEDULER: "tcp://10.1.2.3:8786"}
     assert execution.resolve(None, None, environ=env) == execution.ExecutionSpec("remote", address="tcp://10.1.2.3:8786")
     # explicit options win over the environment variable
     assert execution.resolve(3, None, environ=env) == execution.ExecutionSpec("local", workers=3)
+    # issue 31 case 6: more workers than cores are capped at the cores, with a warning
+    assert execution.resolve(999, None, environ={}) == execution.ExecutionSpec("local", workers=4)
+    assert "999 workers requested on 4 available core(s): using 4" in caplog.text
     assert execution.resolve(None, "tcp://h:1", environ=env).address == "tcp://h:1"
     with pytest.raises(PolarrefError, match="exclude"):
         execution.resolve(2, "tcp://h:1", environ={})

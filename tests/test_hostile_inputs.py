@@ -94,8 +94,8 @@ def _cases():
         ("sfm-gt-other-size", lambda t: ["sfm", str(_images(t, gt_size=(128, 96))), "--out", out(t)], 1,
          "64x48 but its ground-truth camera 1 is 128x96"),
         ("sfm-camera-param-count", lambda t: ["sfm", str(_images(t)), "--out", out(t), "--camera",
-                                              "PINHOLE:50,50,32"], 1, "PINHOLE:50,50,32"),
-        ("sfm-garbage-camera", lambda t: ["sfm", str(_images(t)), "--out", out(t), "--camera", "PINHOLE:a,b"], 1,
+                                              "PINHOLE:50,50,32"], 2, "PINHOLE:50,50,32"),  # usage (issue 31)
+        ("sfm-garbage-camera", lambda t: ["sfm", str(_images(t)), "--out", out(t), "--camera", "PINHOLE:a,b"], 2,
          "PINHOLE:a,b"),
         ("sfm-corrupt-gt", lambda t: ["sfm", str(_corrupt_gt(t)), "--out", out(t)], 1, "gt"),
         ("sfm-out-is-file", lambda t: ["sfm", str(_images(t)), "--out", str(_blocker(t)),
