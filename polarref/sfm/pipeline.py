@@ -276,7 +276,7 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
     t_start = time.perf_counter()
     timings: dict[str, float | bool] = {}
     from polarref.core.provenance import collect_record
-    from polarref.model.scene_folder import SkippedImage
+    from polarref.io.scene_folder import SkippedImage
 
     report = SfMReport(str(image_dir), config, collect_record(seeds={
         "verification": config.verification.seed, "registration": config.mapper.register.seed}))

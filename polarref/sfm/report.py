@@ -16,7 +16,7 @@ from typing import Any
 from polarref.core import records
 from polarref.metrics import SCHEMA_VERSION, ReconstructionMetrics
 from polarref.core.provenance import Provenance
-from polarref.model.scene_folder import SkippedImage
+from polarref.io.scene_folder import SkippedImage
 from polarref.sfm.ba_runs import BARun, ColmapBARun  # noqa: F401 (re-exported)
 from polarref.sfm.config import SfMConfig
 from polarref.core.status import RunStatus
