@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from polarref.compare import claims_experiments as cx
+from polarref.compare import claims_robustness as cr
 from polarref.compare import single_run
 from polarref.compare.runner import run_isolated
 from polarref.compare.claims_experiments import fig as _fig
@@ -205,14 +206,18 @@ def scene_claims(metrics: MetricsFile, exp: Experiments | None = None) -> list[C
         res4 = _merge(res4, cx.speedup(timing), problem)
     rob = exp.robustness if exp is not None else None
     if rob is not None:
-        res5 = _merge(res5, cx.more_tie_points(rob), rob.outlier_problem or rob.error,
+        res5 = _merge(res5, cr.more_tie_points(rob), rob.outlier_problem or rob.error,
                       "paired runs (seeds x outlier levels)")
     return [res3, res4, res5]
 
 
 # ---- claims 6-8: controlled BA experiments (polarref.compare.claims_experiments) ----------
 
-experiment_claims = cx.experiment_claims
+def experiment_claims(exp: Experiments | None, reason: str) -> list[ClaimResult]:
+    """C6, C7 and C8 from the experiments' record (None: all "not tested" with ``reason``)."""
+    if exp is None:
+        return cx.conditioning_claims(None, reason) + [cr.robustness_claim(None, reason)]
+    return cx.conditioning_claims(exp.conditioning, reason) + [cr.robustness_claim(exp.robustness, reason)]
 
 
 def traces_from(exp: Experiments | None) -> list[BATrace]:
