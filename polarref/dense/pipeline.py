@@ -22,6 +22,7 @@ from polarref.dense.provenance import Provenance, collect
 from polarref.core.errors import PolarrefError
 from polarref.core.progress import track
 from polarref.model.colmap import read_model
+from polarref.core.status import RunStatus
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +47,7 @@ class DenseConfig:
 class DenseMetrics:
     """Everything ``metrics.json`` holds (typed; serialized by :func:`polarref.metrics.write_json`)."""
 
-    status: str                                  # "ok" | "failed"
+    status: RunStatus
     message: str
     scene: str
     model: str                                   # "gt" or the model folder
@@ -95,11 +96,11 @@ def run_dense(scene_dir: Path, model: str, out: Path, cfg: DenseConfig = DenseCo
     if not scene_dir.is_dir():
         raise PolarrefError(f"scene folder not found: {scene_dir}")
     _prepare_out(out, overwrite)
-    m = DenseMetrics("failed", "", str(scene_dir), model, cfg,
+    m = DenseMetrics(RunStatus.FAILED, "", str(scene_dir), model, cfg,
                      provenance=collect(command, {"dense": cfg.seed}, {"poisson": cfg.mesh.threads}))
     try:
         _run(scene_dir, model, out, cfg, m)
-        m.status = "ok"
+        m.status = RunStatus.OK
     except PolarrefError as exc:
         m.message = str(exc)
         raise
@@ -119,7 +120,7 @@ def _timed(m: DenseMetrics, stage: str, t0: tuple[float, float]) -> tuple[float,
 def _load(scene_dir: Path, model: str):
     """(image_dir, rec, gt or None, loaded synthetic scene or None)."""
     from polarref.model import Reconstruction
-    from polarref.model.scene_folder import discover
+    from polarref.io.scene_folder import discover
 
     found = discover(scene_dir)
     image_dir = found.image_dir
