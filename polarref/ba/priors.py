@@ -13,7 +13,7 @@ parameters:
   C_i)) - uv_obs)``, the Euclidean residual (a control point is a marked target, its position
   is what the prior constrains).
 
-``s`` is the forms' pixel sigma (``BAOptions.sigma_px``): every form's residuals are in
+``s`` is the forms' pixel sigma (``BAPriors.image_sigma_px``): every form's residuals are in
 px-equivalent units with unit weight, i.e. whitened by ``sigma_px``, so the blocks above are
 whitened residuals times ``sigma_px``: the objective is a consistent weighted least squares.
 No robust loss acts on them (priors and marked targets carry no outliers).
@@ -81,6 +81,7 @@ class BAPriors:
     centres: CentrePriors | None = None
     attitudes: AttitudePriors | None = None
     control: ControlPoints | None = None
+    image_sigma_px: float = 1.0  # the forms' pixel residuals' sigma: the weight scale ``s``
 
     def anchors(self) -> np.ndarray:
         """(K + G, 3) prior centres and control points: what can fix the datum."""
@@ -125,7 +126,7 @@ def restrict(priors: BAPriors, image_index: np.ndarray) -> BAPriors:
         sel = np.array([int(c) in lut for c in cams], bool)
         return sel, np.array([lut[int(c)] for c in cams[sel]], np.int64)
 
-    out = BAPriors()
+    out = BAPriors(image_sigma_px=priors.image_sigma_px)
     if priors.centres is not None:
         s, cam = keep(priors.centres.cam)
         if s.any():

@@ -204,7 +204,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     pts = param.init_points() if pts0 is None else pts0.copy()
     # pose priors and control points: their blocks enter at the marked "priors" places below
     prior = None if problem.priors is None else PriorTerms(problem.priors, problem.cameras,
-                                                           options.sigma_px)
+                                                           problem.priors.image_sigma_px)
     Xg = None if prior is None else (np.zeros((0, 3)) if problem.control_X is None
                                      else problem.control_X.copy())
     ps = None
