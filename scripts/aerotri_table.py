@@ -17,7 +17,7 @@ from pathlib import Path
 from polarref.ba.parameterization import PARAMS
 from polarref.georef.adjust import georeference
 from polarref.georef.formats import load_georef
-from polarref.provenance import collect
+from polarref.core.provenance import collect
 from polarref.sfm.pipeline import PRESETS, run_sfm, with_ba
 from synth.uav import gcp_layout
 
@@ -39,14 +39,14 @@ def main() -> None:
         if not (work / name).exists():
             (work / name).symlink_to((a.scene / name).resolve())
     gcps, marks, priors = gcp_layout(work, a.control, a.check, a.mark_sigma, a.seed)
-    from polarref.model.reconstruction import Reconstruction
-    gt = Reconstruction.read(work / "gt")
+    from polarref.model.colmap import read_model
+    gt = read_model(work / "gt")
     names = sorted(im.name for im in gt.images.values())
     georef = load_georef(names, priors, gcps, marks)
     # what the priors' noise predicts for priors only: the datum error of the similarity taking
     # the GT centres to the prior centres, at the check points
     import numpy as np
-    from polarref.geometry import umeyama
+    from polarref.core.geometry import umeyama
     from polarref.georef.formats import Role
     by = {im.name: im for im in gt.images.values()}
     sim = umeyama(np.array([by[p.name].cam_from_world.center for p in georef.priors]),

@@ -236,12 +236,12 @@ def gcp_layout(root, n_control: int, n_check: int, mark_sigma_px: float, seed: i
     from pathlib import Path
 
     from polarref.georef.formats import GroundPoint, Mark, PosePrior, Role, write_gcps, write_marks, write_priors
-    from polarref.model.reconstruction import Reconstruction
+    from polarref.model.colmap import read_model
     from synth.scene import load_scene
 
     root = Path(root)
     scene = load_scene(root)
-    gt = Reconstruction.read(root / "gt")
+    gt = read_model(root / "gt")
     cam = scene.polarref_camera()
     imgs = [gt.images[i] for i in sorted(gt.images)]
     depths = [scene.depth(k) for k in range(len(imgs))]

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from polarref.ba.adapter import problem_to_reconstruction
-from polarref.errors import PolarrefError
+from polarref.core.errors import PolarrefError
 from polarref.georef.adjust import georeference
 from polarref.georef.formats import (GroundPoint, Mark, PosePrior, Role, load_georef,
                                      omega_phi_kappa_matrix, write_gcps, write_marks, write_priors)
@@ -121,7 +121,7 @@ def test_check_point_accuracy_by_variant(form):
     b, rec, g = _rec_and_georef(n_control=0)
     r = georeference(rec, g, form, use_control=False)
     assert r.num_control == 0 and r.check.count == 6
-    from polarref.geometry import umeyama
+    from polarref.core.geometry import umeyama
     sim = umeyama(b.C, np.array([p.centre for p in g.priors]))
     predicted = float(np.sqrt(((sim.apply(b.G) - b.G) ** 2).sum(1).mean()))
     rmse_3d = float(np.sqrt(r.check.rmse_x**2 + r.check.rmse_y**2 + r.check.rmse_z**2))

@@ -165,7 +165,7 @@ def _georeference(args: argparse.Namespace, rec, georef) -> None:
 
     from polarref import metrics as M
     from polarref.georef.adjust import georeference
-    from polarref.provenance import collect
+    from polarref.core.provenance import collect
 
     r = georeference(rec, georef, args.ba, image_sigma_px=args.image_sigma,
                      mark_sigma_px=args.mark_sigma)

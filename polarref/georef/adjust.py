@@ -16,8 +16,8 @@ import numpy as np
 
 from polarref.ba import BAOptions, prepare, problem_from_reconstruction, solve, write_back
 from polarref.ba.priors import AttitudePriors, BAPriors, CentrePriors, ControlPoints, PriorTerms
-from polarref.errors import PolarrefError
-from polarref.geometry import Rigid3, umeyama
+from polarref.core.errors import PolarrefError
+from polarref.core.geometry import Rigid3, umeyama
 from polarref.georef.formats import MIN_CONTROL_POINTS, Georef, Role
 
 log = logging.getLogger(__name__)

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref.errors import PolarrefError
-from polarref.geometry import axis_rotation
+from polarref.core.errors import PolarrefError
+from polarref.core.geometry import axis_rotation
 
 PRIOR_COLUMNS = ("name", "x", "y", "z", "sigma_x", "sigma_y", "sigma_z")
 ATTITUDE_COLUMNS = ("omega", "phi", "kappa", "sigma_angle_deg")
@@ -232,6 +232,6 @@ def write_priors(path: Path, priors) -> None:
 
 
 def _write(path: Path, lines) -> None:
-    from polarref.atomic import atomic_write
+    from polarref.core.atomic import atomic_write
 
     atomic_write(Path(path), "\n".join(lines) + "\n")
