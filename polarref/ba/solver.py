@@ -51,6 +51,7 @@ from polarref.ba.priors import PriorTerms
 from polarref.ba.problem import BAProblem, nonzero_counts, prepare
 from polarref.ba import chunked
 from polarref.ba.kernels import use_kernels
+from polarref.ba.reduced_solve import ReducedSolver, choose
 from polarref.ba.schur import SchurStructure
 from polarref.ba.xspace import AnchorElimination, xspace_note
 from polarref.core.geometry import so3_exp
@@ -101,6 +102,18 @@ def behind_camera_xyz(R, C, X, obs_cam, obs_pt) -> int:
     """Observations whose point X (P, 3) has depth <= 0 in its camera (R (N,3,3), C (N,3))."""
     z = np.einsum("mj,mj->m", R[obs_cam, 2], X[obs_pt] - C[obs_cam])
     return int((z <= 0).sum())
+
+
+def _reduced_solver(options: BAOptions, nv: int) -> tuple[ReducedSolver, int]:
+    """(solver of the reduced system, the dense_max_cameras that gives it the S it needs:
+    dense for Cholesky, sparse for LU; PCG takes either, dense up to options' limit)."""
+    choice = choose(options.reduced_solver, nv, options.dense_max_cameras,
+                    options.pcg_min_cameras)
+    if choice is ReducedSolver.DENSE_CHOLESKY:
+        return choice, max(options.dense_max_cameras, nv)
+    if choice is ReducedSolver.SPARSE_LU:
+        return choice, min(options.dense_max_cameras, nv - 1)
+    return choice, options.dense_max_cameras
 
 
 def _clipped_model(a_lin, q_damp, g_p, dp, delta, D_p, V, mu) -> float:
@@ -184,9 +197,12 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     # anchors' Jacobians factored (anchor_terms.py): numpy path, and the kernels' fused
     # three-slot build; the kernels' generic slot path (sparse S) takes them dense
     anchored = isinstance(param, AnchoredJacobians) and param.anchor_cams is not None
+    reduced, dense_max = _reduced_solver(options, int(cam_var.sum()))
     st = SchurStructure(param.slot_cams, param.slot_cols, problem.obs_pt, cam_var,
-                        problem.num_points, options.dense_max_cameras,
+                        problem.num_points, dense_max,
                         fast=use_kernels(options.kernels), anchored=anchored)
+    st.reduced_solver = reduced
+    st.pcg_settings = (options.pcg_rtol, options.pcg_max_iterations)
     builder = st
     if anchored and not st.fast:
         from polarref.ba.anchor_terms import AnchorTerms
