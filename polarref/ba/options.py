@@ -7,10 +7,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from polarref.ba.losses import LOSSES
-from polarref.ba.reduced_solve import ReducedSolver
-
 from polarref.ba.parameterization import PARAMS  # the one registry of form names (re-exported)
+from polarref.ba.reduced_solve import ReducedSolver
 from polarref.ba.refine import parse_refine
+
 SOLVERS = ("lm", "gn")  # Levenberg-Marquardt | Gauss-Newton (every step taken, no damping)
 DAMPINGS = ("ceres", "nielsen")
 REDUCED_SOLVERS = tuple(s.value for s in ReducedSolver)

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from polarref.geometry import so3_exp, so3_log
+from polarref.core.geometry import so3_exp, so3_log
 from polarref.io.bal import BALProblem
 from polarref.model.observations import Observations
 
