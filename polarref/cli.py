@@ -11,44 +11,21 @@ from __future__ import annotations
 import argparse
 import contextlib
 import errno
-import importlib
 import io
 import logging
 import os
-import pkgutil
 import signal
 import sys
 import threading
 import traceback
 import warnings
-from types import ModuleType
 
 from polarref import __version__
-
-from polarref.core import execution
-
-from polarref.core import progress
+from polarref.commands._registry import command_modules
+from polarref.core import execution, progress
 from polarref.core.errors import PolarrefError, UsageError, is_out_of_memory
 
 log = logging.getLogger("polarref")
-
-
-def command_modules() -> tuple[list[ModuleType], dict[str, str]]:
-    """Import every command module; return (loaded, {name: import error})."""
-    import polarref.commands as pkg
-
-    loaded: list[ModuleType] = []
-    failed: dict[str, str] = {}
-    for info in sorted(pkgutil.iter_modules(pkg.__path__), key=lambda i: i.name):
-        if info.name.startswith("_"):
-            continue
-        try:
-            module = importlib.import_module(f"polarref.commands.{info.name}")
-        except Exception as exc:  # a broken stage must not take the whole CLI down
-            failed[info.name] = f"{type(exc).__name__}: {exc}"
-            continue
-        loaded.append(module)
-    return loaded, failed
 
 
 def _worker_count(text: str) -> int:

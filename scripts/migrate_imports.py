@@ -29,13 +29,14 @@ MOVED = {
     "bench_sfm_report": "bench.sfm_report",
     "bench_sfm": "bench.sfm",
     "bench_exec": "bench.executor",
-    "scene_folder": "model.scene_folder",
+    "scene_folder": "io.scene_folder",
+    "model.scene_folder": "io.scene_folder",
     "pairing": "sfm.pairing",
     "reconstruction": "model",
 }
 
-_DOTTED = re.compile(r"\bpolarref\.(" + "|".join(sorted(MOVED, key=len, reverse=True)) + r")\b(?![\w])")
-_PATH = re.compile(r"\bpolarref/(" + "|".join(sorted(MOVED, key=len, reverse=True)) + r")\.py\b")
+_DOTTED = re.compile(r"\bpolarref\.(" + "|".join(map(re.escape, sorted(MOVED, key=len, reverse=True))) + r")\b(?![\w])")
+_PATH = re.compile(r"\bpolarref/(" + "|".join(map(re.escape, sorted(MOVED, key=len, reverse=True))) + r")\.py\b")
 _FROM = re.compile(r"^(\s*)from polarref import ([^\n(]+)$", re.M)
 
 

@@ -36,8 +36,9 @@ sys.path.insert(0, str(ROOT))
 
 from polarref.ba import BAOptions, prepare, solve  # noqa: E402
 from polarref.ba.loaders import load_problem  # noqa: E402
+from polarref.ba.parameterization import PARAMS
 
-FORMS = ("euclidean", "parallax", "polar", "angular")
+FORMS = PARAMS  # the one registry of form names
 # (label, BAOptions overrides); "default" = the form's own defaults (options.DEFAULT_*)
 MODES = (("default", {}),
          ("LM ceres, gauge held", {"damping": "ceres", "lm_gauge": "fixed"}),

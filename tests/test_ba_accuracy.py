@@ -8,6 +8,7 @@ import pytest
 from polarref.ba import BAOptions, adjust
 from polarref.ba.synthetic import synthetic_reconstruction
 from polarref.core.geometry import rotation_angle_deg, umeyama
+from polarref.ba.parameterization import PARAMS as FORM_NAMES
 
 
 def _rotation_errors_deg(rec, truth):
@@ -41,7 +42,7 @@ def scene_outliers():
     return synthetic_reconstruction(12, 500, seed=8, noise_px=0.5, outlier_fraction=0.1)
 
 
-@pytest.mark.parametrize("param", ["euclidean", "parallax", "polar", "angular"])
+@pytest.mark.parametrize("param", list(FORM_NAMES))
 def test_converges_to_noise_level(scene, param):
     init, truth = scene
     rec = copy.deepcopy(init)
@@ -55,7 +56,7 @@ def test_converges_to_noise_level(scene, param):
     assert 0.4 <= _inlier_rms(rec, None) <= 0.6  # written back into the Reconstruction
 
 
-@pytest.mark.parametrize("param", ["euclidean", "parallax", "polar", "angular"])
+@pytest.mark.parametrize("param", list(FORM_NAMES))
 def test_huber_with_outliers(scene_outliers, param):
     init, truth = scene_outliers
     rec = copy.deepcopy(init)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from polarref.ba import BAOptions
+from polarref.ba.parameterization import PARAMS as FORM_NAMES
 
 
 def test_bench_records_settings_repeats_and_time_to_common_cost(tmp_path):
@@ -58,7 +59,7 @@ def test_bench_records_settings_repeats_and_time_to_common_cost(tmp_path):
     ratio = rows["euclidean"]["ratio_to_fastest_ceres"]
     assert ratio == pytest.approx(rows["euclidean"]["time_to_target_s"]["median"] / res["fastest_ceres_time_to_target_s"])
     # per-iteration cost of every form, side by side; the kernel path and its warm-up recorded
-    for n in ["euclidean", "parallax", "polar", "angular"]:
+    for n in list(FORM_NAMES):
         per = rows[n]["s_per_accepted_iteration"]
         assert per["n"] == 2 and 0 < per["min"] <= per["median"] <= per["max"] < rows[n]["wall_s"]["max"]
         assert rows[n]["per_iteration_vs_euclidean"] == pytest.approx(per["median"] / rows["euclidean"]["s_per_accepted_iteration"]["median"])

@@ -26,8 +26,9 @@ from polarref.ba.parallax import choose_anchors
 from polarref.ba.schur import SchurStructure, chol_inv3
 from polarref.ba.solver import _robust, make_param
 from polarref.ba.synthetic import synthetic_reconstruction
+from polarref.ba.parameterization import PARAMS as FORM_NAMES
 
-PARAMS = ["euclidean", "parallax", "polar", "angular"]
+PARAMS = list(FORM_NAMES)
 
 
 @pytest.fixture(scope="module")

@@ -11,8 +11,9 @@ from polarref.ba.intrinsics import (IntrinsicsBlocks, SelfCalibrating, augmented
 from polarref.ba.solver import make_param
 from polarref.ba.synthetic import clone, synthetic_reconstruction
 from polarref.camera import Camera, ray_from_angular
+from polarref.ba.parameterization import PARAMS as FORM_NAMES
 
-PARAMS = ["euclidean", "parallax", "polar", "angular"]
+PARAMS = list(FORM_NAMES)
 
 
 @pytest.fixture(scope="module")

@@ -8,6 +8,7 @@ from polarref.ba.adapter import problem_from_reconstruction
 from polarref.ba.solver import make_param
 from polarref.ba.synthetic import synthetic_reconstruction
 from polarref.core.geometry import so3_exp
+from polarref.ba.parameterization import PARAMS as FORM_NAMES
 
 
 @pytest.fixture(scope="module")
@@ -18,7 +19,7 @@ def small_problem():
     return p
 
 
-@pytest.mark.parametrize("param", ["euclidean", "parallax", "polar", "angular"])
+@pytest.mark.parametrize("param", list(FORM_NAMES))
 def test_jacobians_match_central_differences(small_problem, param):
     p = small_problem.copy()
     prm = make_param(p, BAOptions(param=param))

@@ -16,10 +16,11 @@ from polarref.ba import BAOptions, prepare, solve
 from polarref.ba.adapter import problem_from_reconstruction
 from polarref.ba.solver import make_param
 from polarref.ba.synthetic import synthetic_reconstruction
+from polarref.ba.parameterization import PARAMS as FORM_NAMES
 
 pytest.importorskip("numba")
 
-PARAMS = ["euclidean", "parallax", "polar", "angular"]
+PARAMS = list(FORM_NAMES)
 
 
 def _problem(num_cameras, num_points, track, seed=4):

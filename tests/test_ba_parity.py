@@ -21,6 +21,7 @@ from polarref.ba.loaders import load_problem
 from polarref.ba.parallax import direction_frames
 from polarref.ba.solver import make_param
 from polarref.ba.synthetic import synthetic_reconstruction
+from polarref.ba.parameterization import PARAMS as FORM_NAMES
 
 PARALLAXBA_COST = 172.0841  # ParallaxBA's final MSE 0.013212 x 26050 observations / 2
 
@@ -93,7 +94,7 @@ def test_nielsen_rejection_doubles_nu():
     assert 0.4 < s.final_rms_px < 0.5
 
 
-@pytest.mark.parametrize("param", ["euclidean", "parallax", "polar", "angular"])
+@pytest.mark.parametrize("param", list(FORM_NAMES))
 def test_gauss_newton_reaches_the_lm_optimum(small, param):
     lm = solve(small.copy(), BAOptions(param=param, damping="ceres", lm_gauge="fixed"),
                prepared=True)

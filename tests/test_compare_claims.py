@@ -9,7 +9,7 @@ from test_report_build import synthetic_metrics
 import numpy as np
 
 from polarref.core import records
-from polarref.compare import claims, claims_experiments, schema
+from polarref.compare import claims, claims_experiments, claims_robustness, schema
 from polarref.compare.experiment_records import Conditioning, DerivationEvidence, Experiments, Robustness, Timing
 
 
@@ -175,7 +175,7 @@ def test_correlation_verdict_two_sided(corr_pa, verdict):
     (_rob(SOME, ALL, [(SOME, ALL)], start=ALL), "inconclusive"),        # the start point already succeeds
 ])
 def test_robustness_verdict(rob, verdict):
-    c8 = claims_experiments.robustness_claim(rob, "")
+    c8 = claims_robustness.robustness_claim(rob, "")
     assert c8.verdict == verdict
     f = {x.key: x.value for x in c8.figures}
     assert f["out0_parallax"] == pytest.approx(np.mean([r.success for r in rob.outliers["0.1"]["parallax"].runs]))
@@ -210,7 +210,7 @@ def test_broken_experiments_are_not_tested_with_reason():
     assert {c.verdict for c in claims_experiments.conditioning_claims(cond, "")} == {"not tested"}
     # a robustness run with no completed runs is inconclusive, not a verdict
     rob = _rob([], [], [([], [])])
-    assert claims_experiments.robustness_claim(rob, "").verdict == "inconclusive"
+    assert claims_robustness.robustness_claim(rob, "").verdict == "inconclusive"
 
 
 def _timing(rms_eu, rms_po, rot_eu, rot_po, wall_eu, wall_po):

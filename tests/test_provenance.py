@@ -13,10 +13,10 @@ def test_collect_matches_git_and_the_machine():
     head = subprocess.run(["git", "-C", str(REPO_ROOT), "rev-parse", "HEAD"], capture_output=True, text=True)
     if head.returncode == 0:          # a git checkout: the commit and dirty flag are git's own
         assert env["git_commit"] == head.stdout.strip() and re.fullmatch(r"[0-9a-f]{40}", env["git_commit"])
-        status = subprocess.run(["git", "-C", str(REPO_ROOT), "status", "--porcelain", "--untracked-files=no"],
+        status = subprocess.run(["git", "-C", str(REPO_ROOT), "status", "--porcelain", "--untracked-files=normal"],
                                 capture_output=True, text=True).stdout
         code_changed = [ln for ln in status.splitlines() if not ln[3:].startswith("reports/")]
-        assert env["git_dirty"] is bool(code_changed)  # regenerated example reports do not count
+        assert env["git_dirty"] is bool(code_changed)  # untracked count; regenerated example reports do not
     import numpy
     import pycolmap
     assert env["versions"]["numpy"] == numpy.__version__ and env["versions"]["pycolmap"] == pycolmap.__version__
@@ -69,3 +69,22 @@ def test_report_shows_the_stored_commit(tmp_path):
     assert commit_text(m) == "0123456789 (dirty)"
     back = schema.from_dict(schema.to_dict(m))          # the new fields round-trip through metrics.json
     assert back.environment == m.environment
+
+
+def test_an_untracked_file_makes_the_checkout_dirty(tmp_path):
+    """A new, untracked module is code the commit does not hold: the run is dirty."""
+    def git(*a):
+        subprocess.run(["git", "-C", str(tmp_path), *a], check=True, capture_output=True)
+    git("init", "-q")
+    (tmp_path / "a.py").write_text("x = 1\n")
+    (tmp_path / ".gitignore").write_text("cache/\n")
+    git("add", "-A")
+    git("-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "init")
+    assert provenance.git_state(tmp_path)[1] is False
+    (tmp_path / "cache").mkdir()
+    (tmp_path / "cache" / "x.bin").write_text("ignored")
+    (tmp_path / "reports").mkdir()
+    (tmp_path / "reports" / "r.md").write_text("regenerated report")
+    assert provenance.git_state(tmp_path)[1] is False       # ignored files and reports/ do not count
+    (tmp_path / "b.py").write_text("y = 2\n")
+    assert provenance.git_state(tmp_path)[1] is True

@@ -6,7 +6,7 @@ import pytest
 
 from polarref.cli import main
 from polarref.core.geometry import Rigid3
-from polarref.model.scene_folder import IMAGE_SUFFIXES, discover
+from polarref.io.scene_folder import IMAGE_SUFFIXES, discover
 
 
 def _rotation(seed: int) -> np.ndarray:

@@ -48,7 +48,7 @@ PIXEL_FORMS = ("euclidean", "parallax")   # forms whose objective is the pixel c
 
 def _resolve(spec: str) -> str:
     """A path that exists, ``synth-*``, or an item of the reference data (``bal/...``)."""
-    if spec.startswith("synth-") or Path(spec).exists():
+    if spec.startswith(("synth-", "scale-")) or Path(spec).exists():
         return spec
     from polarref.core.data import data_path
     from polarref.core.errors import DataNotFoundError

@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
+from polarref.ba.parameterization import PARAMS
 
 
 def _rng(st: dict | None, digits: int = 3) -> str:
@@ -70,7 +71,7 @@ def markdown(doc: dict) -> str:
     return "\n".join(out) + "\n"
 
 
-FORMS = ("euclidean", "parallax", "polar", "angular")
+FORMS = PARAMS  # the one registry of form names
 
 
 def _per_iteration_lines(doc: dict) -> list[str]:
@@ -136,7 +137,7 @@ def readme_table(doc: dict) -> str:
         t = {x["solver"]: x for x in res["rows"]}
         f = res.get("fastest_ceres")
         cells = []
-        for p in ("euclidean", "parallax", "polar", "angular"):
+        for p in FORMS:
             cells.append(_readme_cell(t.get(p) or {}, res.get("target_cost")))
         head = "none reached the target" if f is None else f"{f} ({res['fastest_ceres_time_to_target_s']:.3f})"
         out.append(f"| {res['problem']} | {head} | " + " | ".join(cells) + " |")

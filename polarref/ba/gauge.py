@@ -45,7 +45,7 @@ def release(problem: BAProblem) -> HeldGauge | None:
     """Unmask the gauge columns of a prepared problem; None (nothing changed) where the gauge is
     not fix_gauge's camera-and-scale choice on an otherwise free problem."""
     p = problem
-    if p.cam_fixed.any() or p.pt_fixed.any():
+    if p.cam_fixed.any() or p.pt_fixed.any() or p.priors is not None:
         return None
     held = ~p.cam_mask
     rows = np.flatnonzero(held.any(1))

@@ -57,6 +57,16 @@ def _load(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]:
                                                point_sigma=0.05, center_sigma=0.05,
                                                track_length=SPARSE_TRACK if spec in SPARSE_SIZES else -1)
         return problem_from_reconstruction(init), truth
+    if spec.startswith("scale-"):  # generated in memory, the same problem as its BAL file
+        from polarref.ba.scale_synth import generate, parse_spec
+        from polarref.io.bal import bal_to_reconstruction
+        try:
+            scale_spec, scale_seed = parse_spec(spec)
+        except ValueError as exc:
+            raise PolarrefError(str(exc)) from exc
+        gen = generate(scale_spec, scale_seed)
+        return (problem_from_reconstruction(bal_to_reconstruction(gen.initial)),
+                bal_to_reconstruction(gen.truth))
     path = Path(spec)
     if not path.exists():
         raise PolarrefError(f"BA problem not found: {path}")

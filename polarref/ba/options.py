@@ -7,11 +7,13 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from polarref.ba.losses import LOSSES
-
 from polarref.ba.parameterization import PARAMS  # the one registry of form names (re-exported)
+from polarref.ba.reduced_solve import ReducedSolver
 from polarref.ba.refine import parse_refine
+
 SOLVERS = ("lm", "gn")  # Levenberg-Marquardt | Gauss-Newton (every step taken, no damping)
 DAMPINGS = ("ceres", "nielsen")
+REDUCED_SOLVERS = tuple(s.value for s in ReducedSolver)
 # LM strategy per form where BAOptions leaves it None, measured (reports/bench-ba/
 # parallaxba-parity.md, iterations to the common optimum): Ceres' Jacobi-scaled trust region with
 # the gauge held for every form. Nielsen's (H + mu I) ties it on the fake pile in the free gauge
@@ -56,6 +58,12 @@ class BAOptions:
     # "theta" = theta only (a cone at the axis; stalls LM when rays cross it)
     axis_residual: str = "chart"
     dense_max_cameras: int = 700  # reduced camera system solved densely up to this many cameras
+    # reduced camera system solver (reduced_solve.py): "auto" = dense Cholesky up to
+    # dense_max_cameras, sparse LU up to pcg_min_cameras, PCG (block-Jacobi) above; or forced
+    reduced_solver: str = "auto"
+    pcg_min_cameras: int = 2000
+    pcg_rtol: float = 1e-8  # PCG stops at |b - S x| <= pcg_rtol |b|
+    pcg_max_iterations: int = 1000
     # per-iteration sums: "numba" compiled kernels (ba/kernels.py), "numpy" the reference
     # path, "auto" numba when it imports
     kernels: str = "auto"
@@ -95,6 +103,12 @@ class BAOptions:
             raise ValueError(f"unknown anchor_schur {self.anchor_schur!r}; choose xspace or cross")
         if self.axis_residual not in ("chart", "theta"):
             raise ValueError(f"unknown axis_residual {self.axis_residual!r}; choose chart or theta")
+        if self.reduced_solver not in REDUCED_SOLVERS:
+            raise ValueError(f"unknown reduced_solver {self.reduced_solver!r}; choose "
+                             f"{', '.join(REDUCED_SOLVERS)}")
+        if not (0 < self.pcg_rtol < 1 and self.pcg_max_iterations >= 1):
+            raise ValueError(f"pcg_rtol must be in (0, 1) and pcg_max_iterations >= 1, got "
+                             f"{self.pcg_rtol}, {self.pcg_max_iterations}")
         if self.blas_threads is not None and self.blas_threads < 1:
             raise ValueError(f"blas_threads must be >= 1 or None, got {self.blas_threads}")
         if self.refine:

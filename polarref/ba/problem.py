@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from polarref.ba.priors import BAPriors, fixes_datum
 from polarref.core.errors import PolarrefError
 from polarref.model.observations import Observations
 
@@ -52,6 +53,9 @@ class BAProblem:
     exclusions: dict[str, int] = field(default_factory=dict)   # reason -> count of dropped data
     # (N,) intrinsics group per camera for self-calibration (None: equal cameras share one)
     camera_group: np.ndarray | None = None
+    # pose priors and control points (ba/priors.py), cameras indexed as this problem's
+    priors: BAPriors | None = None
+    control_X: np.ndarray | None = None  # (G, 3) control point estimates (start: their priors)
 
     # The solver's kernels index these arrays directly: names kept for them.
     @property
@@ -99,7 +103,9 @@ class BAProblem:
                          None if self.point_ids is None else self.point_ids.copy(),
                          None if self.cam_mask is None else self.cam_mask.copy(),
                          self.gauge, copy.deepcopy(self.exclusions),
-                         None if self.camera_group is None else self.camera_group.copy())
+                         None if self.camera_group is None else self.camera_group.copy(),
+                         self.priors,
+                         None if self.control_X is None else self.control_X.copy())
 
     def cam_from_world_t(self) -> np.ndarray:
         """(N, 3) translations t = -R C (matmul: bit-identical to ``-R[i] @ C[i]``)."""
@@ -168,8 +174,46 @@ def prepare(problem: BAProblem, min_track: int = 2) -> BAProblem:
                     ex["cameras_without_observations"])
     p.R = np.asarray(p.R, np.float64).copy()
     p.C = np.asarray(p.C, np.float64).copy()
-    fix_gauge(p)
+    if p.priors is not None:
+        check_priors(p)
+    if fixes_datum(p.priors):
+        hold_datum_by_priors(p)
+    else:
+        fix_gauge(p)
     return p
+
+
+def check_priors(p: BAProblem) -> None:
+    """Priors' indices in range and weights finite and positive (PolarrefError otherwise);
+    the control point estimates start at their priors unless given."""
+    N = len(p.R)
+    pr = p.priors
+    for name, cams in (("centre prior", None if pr.centres is None else pr.centres.cam),
+                       ("attitude prior", None if pr.attitudes is None else pr.attitudes.cam),
+                       ("control observation", None if pr.control is None else pr.control.obs_cam)):
+        if cams is not None and len(cams) and (cams.min() < 0 or cams.max() >= N):
+            raise PolarrefError(f"bundle adjustment: {name} of an unknown camera")
+    if pr.attitudes is not None and not (pr.attitudes.sigma_rad > 0).all():
+        raise PolarrefError("bundle adjustment: attitude prior sigma must be > 0")
+    if pr.control is not None:
+        g = pr.control
+        if len(g.obs_gcp) and (g.obs_gcp.min() < 0 or g.obs_gcp.max() >= len(g.X0)):
+            raise PolarrefError("bundle adjustment: observation of an unknown control point")
+        if not g.mark_sigma_px > 0:
+            raise PolarrefError("bundle adjustment: marking sigma must be > 0")
+        if p.control_X is None or p.control_X.shape != g.X0.shape:
+            p.control_X = np.array(g.X0, np.float64)
+
+
+def hold_datum_by_priors(p: BAProblem) -> None:
+    """The priors fix all 7 similarity DoF: no camera coordinate is held for the gauge."""
+    mask = np.ones((len(p.R), 6), bool)
+    mask[p.cam_fixed] = False
+    p.cam_mask = mask
+    n_c = 0 if p.priors.centres is None else len(p.priors.centres.cam)
+    n_g = 0 if p.priors.control is None else len(p.priors.control.X0)
+    p.gauge = (f"datum fixed by the priors ({n_c} camera centres, {n_g} control points): "
+               "no gauge DoF held")
 
 
 def fix_gauge(p: BAProblem) -> None:

@@ -25,6 +25,8 @@ import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
 
+from polarref.ba.reduced_solve import ReducedSolver, pcg
+
 # Cost model for choosing the Z Z^T form, measured on this machine (1 BLAS thread):
 # ~30 ns per gathered entry pair (2 x 18 doubles), ~4 us per camera-pair GEMM call,
 # ~0.1 ns per dsyrk flop (n^2 k flops for an (n, k) operand).
@@ -105,6 +107,9 @@ def chol_inv3(V: np.ndarray) -> np.ndarray | None:
 class SchurStructure:
     """Precomputed index structure for one problem and one parameterization.
 
+    ``reduced_solver`` (set by the solver, reduced_solve.py) picks PCG instead of the dense
+    Cholesky / sparse LU that ``sparse_S`` implies; ``pcg_settings`` = (rtol, max iterations).
+
     Args:
         slot_cams: (S, M) camera index of each of the S camera slots of each observation.
         slot_cols: S column ranges ``(c0, c1)`` of the 6-column camera block per slot.
@@ -123,6 +128,8 @@ class SchurStructure:
         N, P = len(cam_var), num_points
         self.S, self.M, self.N, self.P = S, M, N, P
         self.fast = fast  # compiled kernels (kernels.py) instead of numpy gathers/reducers
+        self.reduced_solver = ReducedSolver.AUTO  # AUTO: sparse LU if sparse_S else Cholesky
+        self.pcg_settings, self.pcg_iterations = (1e-8, 1000), []
         self.slot_cols = [tuple(c) for c in slot_cols]
         self.var_index = -np.ones(N, np.int64)
         self.var_cams = np.flatnonzero(cam_var)
@@ -275,7 +282,12 @@ class SchurStructure:
         how = ("dense syrk" if self.use_gemm else
                "entry-pair kernel" if self.fast and not self.sparse_S else "camera-pair GEMMs")
         kern = "; numba kernels" if self.fast else "; numpy"
-        return f"Schur ({how}) + {'sparse LU' if self.sparse_S else 'dense Cholesky'}{kern}"
+        solver = ("PCG block-Jacobi" + (f" ({sum(self.pcg_iterations)} CG iterations in "
+                                        f"{len(self.pcg_iterations)} solves)"
+                                        if self.pcg_iterations else "")
+                  if self.reduced_solver is ReducedSolver.PCG else
+                  "sparse LU" if self.sparse_S else "dense Cholesky")
+        return f"Schur ({how}) + {solver}{kern}"
 
     def reduce_points(self, per_obs: np.ndarray) -> np.ndarray:
         """Sum per-observation arrays (M, ...) over each point -> (P, ...)."""
@@ -500,6 +512,10 @@ class SchurStructure:
 
     def solve(self, S, b) -> np.ndarray | None:
         """Solve S x = b; None when S is not positive definite (the LM step is then rejected)."""
+        if self.reduced_solver is ReducedSolver.PCG:
+            res = pcg(S, b, *self.pcg_settings)
+            self.pcg_iterations.append(res.iterations)
+            return res.x if res.x is not None and np.isfinite(res.x).all() else None
         if self.sparse_S:
             try:
                 x = scipy.sparse.linalg.splu(S).solve(b)

@@ -47,9 +47,11 @@ from polarref.ba.options import (DEFAULT_DAMPING, DEFAULT_LM_GAUGE, BAOptions, B
                                  IterationRecord)
 from polarref.ba.parameterization import (AnchoredJacobians, BoundedPoints, Parameterization,
                                           Staged, make_param)
+from polarref.ba.priors import PriorTerms
 from polarref.ba.problem import BAProblem, nonzero_counts, prepare
 from polarref.ba import chunked
 from polarref.ba.kernels import use_kernels
+from polarref.ba.reduced_solve import ReducedSolver, choose
 from polarref.ba.schur import SchurStructure
 from polarref.ba.xspace import AnchorElimination, xspace_note
 from polarref.core.geometry import so3_exp
@@ -100,6 +102,18 @@ def behind_camera_xyz(R, C, X, obs_cam, obs_pt) -> int:
     """Observations whose point X (P, 3) has depth <= 0 in its camera (R (N,3,3), C (N,3))."""
     z = np.einsum("mj,mj->m", R[obs_cam, 2], X[obs_pt] - C[obs_cam])
     return int((z <= 0).sum())
+
+
+def _reduced_solver(options: BAOptions, nv: int) -> tuple[ReducedSolver, int]:
+    """(solver of the reduced system, the dense_max_cameras that gives it the S it needs:
+    dense for Cholesky, sparse for LU; PCG takes either, dense up to options' limit)."""
+    choice = choose(options.reduced_solver, nv, options.dense_max_cameras,
+                    options.pcg_min_cameras)
+    if choice is ReducedSolver.DENSE_CHOLESKY:
+        return choice, max(options.dense_max_cameras, nv)
+    if choice is ReducedSolver.SPARSE_LU:
+        return choice, min(options.dense_max_cameras, nv - 1)
+    return choice, options.dense_max_cameras
 
 
 def _clipped_model(a_lin, q_damp, g_p, dp, delta, D_p, V, mu) -> float:
@@ -183,9 +197,12 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     # anchors' Jacobians factored (anchor_terms.py): numpy path, and the kernels' fused
     # three-slot build; the kernels' generic slot path (sparse S) takes them dense
     anchored = isinstance(param, AnchoredJacobians) and param.anchor_cams is not None
+    reduced, dense_max = _reduced_solver(options, int(cam_var.sum()))
     st = SchurStructure(param.slot_cams, param.slot_cols, problem.obs_pt, cam_var,
-                        problem.num_points, options.dense_max_cameras,
+                        problem.num_points, dense_max,
                         fast=use_kernels(options.kernels), anchored=anchored)
+    st.reduced_solver = reduced
+    st.pcg_settings = (options.pcg_rtol, options.pcg_max_iterations)
     builder = st
     if anchored and not st.fast:
         from polarref.ba.anchor_terms import AnchorTerms
@@ -201,6 +218,12 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     times["structure"] = time.perf_counter() - tic
     R, C = problem.R.copy(), problem.C.copy()
     pts = param.init_points() if pts0 is None else pts0.copy()
+    # pose priors and control points: their blocks enter at the marked "priors" places below
+    prior = None if problem.priors is None else PriorTerms(problem.priors, problem.cameras,
+                                                           problem.priors.image_sigma_px)
+    Xg = None if prior is None else (np.zeros((0, 3)) if problem.control_X is None
+                                     else problem.control_X.copy())
+    ps = None
     loss, scale = options.loss, options.loss_scale
 
     tic = time.perf_counter()
@@ -223,6 +246,8 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         raise PolarrefError(f"bundle adjustment ({options.param}): non-finite residuals at the "
                             "initial estimate (degenerate geometry?)")
     cost, w = _robust(r, param.groups, loss, scale)
+    if prior is not None:
+        cost += prior.cost(R, C, Xg)
     initial_cost = cost
     init_px_cost, init_rms = pixel_cost(param.pixel_residuals(R, C, pts), loss, scale)
     behind0 = behind_camera_xyz(problem.R, problem.C, problem.X, problem.obs_cam, problem.obs_pt)
@@ -292,6 +317,9 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             # those; an accepted one rebuilds from its own): not held through the next trial
             r = Jp = Jc = r_w = Jp_w = Jc_w = None
             (g_c, W, U), blocks = blocks, None
+            if prior is not None:  # priors: camera gradient and diagonal blocks
+                ps = prior.build(R, C, Xg, problem.num_cameras)
+                ps.add_to_cameras(st, st.var_cams, g_c, U)
             if active is not None:  # W's column of a held component: its point's entries
                 e0 = np.searchsorted(st.entry_pt, ai, "left")
                 ne = np.searchsorted(st.entry_pt, ai, "right") - e0
@@ -314,6 +342,9 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
                 D_c = np.clip(diag_u, _MIN_DIAG, _MAX_DIAG)
                 D_p = np.clip(np.diagonal(V, axis1=1, axis2=2), _MIN_DIAG, _MAX_DIAG)
             gmax = max(float(np.abs(g_c).max(initial=0.0)), float(np.abs(g_p).max(initial=0.0)))
+            if ps is not None:  # priors: control point damping and gradient
+                ps.damping_diag(_MIN_DIAG, _MAX_DIAG, identity_damping)
+                gmax = max(gmax, float(np.abs(ps.g_x).max(initial=0.0)))
             times["normal_equations"] += time.perf_counter() - tic
             need_build = False
             if gmax <= options.gradient_tolerance:
@@ -335,6 +366,9 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             system = xs.reduced_system(U, W, Vd, g_sys, g_p, diag_c, mu * D_p)
         else:
             system = st.reduced_system(U, W, Vd, g_c, g_p, diag_c)
+        if system is not None and ps is not None:  # priors: control points eliminated
+            S_g = ps.schur_into(system[0], system[1], mu, st.var_index, mask_v)
+            system = None if S_g is None else (S_g, system[1], system[2])
         times["schur"] += time.perf_counter() - tic
         tic = time.perf_counter()
         x = None
@@ -361,6 +395,11 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         # Predicted decrease of the linear model: 1/2 (-g^T dx + mu dx^T D dx).
         a_lin = -(g_c * dc).sum() - (g_p * dp).sum()
         q_damp = mu * ((D_c * dc**2 * mask_v).sum() + (D_p * dp**2).sum())
+        dXg = None
+        if ps is not None:  # priors: control point step and its share of the model
+            dXg = ps.step(dc)
+            a_lin -= (ps.g_x * dXg).sum()
+            q_damp += mu * (ps.D_x * dXg**2).sum()
         model = 0.5 * (a_lin + q_damp)
         delta = None
         if bounds is not None:
@@ -373,7 +412,8 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
                 delta[:, bcols] = d_b
                 model = _clipped_model(a_lin, q_damp, g_p, dp, delta, D_p, V, mu)
                 dp = dp + delta
-        step_norm = float(np.sqrt((dc**2).sum() + (dp**2).sum()))
+        step_norm = float(np.sqrt((dc**2).sum() + (dp**2).sum()
+                                  + (0.0 if dXg is None else (dXg**2).sum())))
         x_norm = float(np.sqrt((C**2).sum() + (pts**2).sum()))
         if step_norm <= options.parameter_tolerance * (x_norm + options.parameter_tolerance):
             termination = "parameter_tolerance"
@@ -394,6 +434,10 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
                                                factored=factored)
         times["evaluate"] += time.perf_counter() - tic
         new_cost, w_new = _robust(r_new, param.groups, loss, scale)
+        Xg_new = None
+        if prior is not None:
+            Xg_new = Xg + dXg
+            new_cost += prior.cost(R_new, C_new, Xg_new)
         gain = (cost - new_cost) / model if model > 0 else -1.0
         if gn:  # Gauss-Newton takes every finite step (ParallaxBA's GN mode)
             accepted = bool(np.isfinite(new_cost))
@@ -409,7 +453,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             accepted_n += 1
             clipped_steps += delta is not None
             rel = abs(cost - new_cost) / cost if cost > 0 else 0.0
-            R, C, pts = R_new, C_new, pts_new
+            R, C, pts, Xg = R_new, C_new, pts_new, Xg_new
             r, Jp, Jc, w, cost = r_new, Jp_new, Jc_new, w_new, new_cost
             r_new = Jp_new = Jc_new = None
             V = Vd = W = U = None  # the rebuild allocates its own
@@ -429,6 +473,8 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
                 termination = stop
                 break
     problem.R, problem.C = R, C
+    if Xg is not None:
+        problem.control_X = Xg
     param.store(R, C, pts)
     final_px_cost, final_rms = pixel_cost(param.pixel_residuals(R, C, pts), loss, scale)
     summary = BASummary(

@@ -84,7 +84,7 @@ def ring_problem(num_cameras: int, num_points: int, mean_track: float, seed: int
     consecutive cameras (2 + Poisson(mean_track - 2) long), 0.5 px pixel noise; poses and
     points perturbed (about 0.05 deg, 0.01 units); camera 0 fixed. Built with numpy only,
     fast at a million observations."""
-    from polarref.ba import BAProblem
+    from polarref.ba.problem import BAProblem
     from polarref.camera import Camera
     from polarref.core.geometry import so3_exp
     from polarref.model.observations import Observations

@@ -15,9 +15,7 @@ import argparse
 import dataclasses
 import json
 import os
-import platform
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
@@ -27,32 +25,11 @@ from pathlib import Path
 from polarref.core.atomic import atomic_write
 from polarref.core import execution
 from polarref.core.data import REPO_ROOT
+from polarref.core.provenance import collect
 
 
 def _noop(x: int) -> int:
     return x
-
-
-def _git() -> dict:
-    def git(*args: str) -> str:
-        try:
-            return subprocess.run(["git", "-C", str(REPO_ROOT), *args], capture_output=True, text=True,
-                                  timeout=30).stdout.strip()
-        except (OSError, subprocess.SubprocessError):
-            return ""
-    return {"commit": git("rev-parse", "HEAD") or None, "dirty": bool(git("status", "--porcelain"))}
-
-
-def _versions() -> dict:
-    import importlib.metadata as md
-
-    out = {"python": platform.python_version()}
-    for pkg in ("polarref", "numpy", "dask", "distributed", "mitsuba", "drjit", "opencv-python-headless"):
-        try:
-            out[pkg] = md.version(pkg)
-        except md.PackageNotFoundError:
-            out[pkg] = None
-    return out
 
 
 def overhead_per_task(ex, n: int) -> dict:
@@ -122,9 +99,7 @@ def main(argv: list[str] | None = None) -> int:
         "benchmark": "polarref.core.execution: render + features of a comet scene, per-task overhead",
         "command": " ".join(["python -m polarref.bench.executor", *(argv if argv is not None else sys.argv[1:])]),
         "created": started, "results": results, "speedup_2_vs_1_worker": speedup,
-        "provenance": {"git": _git(), "machine": {"platform": platform.platform(), "node": platform.node(),
-                                                  "cpu_count": os.cpu_count()},
-                       "versions": _versions(), "seeds": {"render": 0},
+        "provenance": {**collect(seeds={"render": 0}),
                        "load_average_before": list(load_before), "load_average_after": list(os.getloadavg()),
                        "note": "shared machine loaded by other jobs: compare modes within this file only"},
     }

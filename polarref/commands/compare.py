@@ -8,6 +8,7 @@ from pathlib import Path
 
 from polarref.commands._types import SEED, float_range, positive_float
 from polarref.core.errors import PolarrefError, UsageError
+from polarref.core.status import RunStatus
 
 NAME = "compare"
 HELP = ("run our SfM (euclidean/parallax/polar/angular BA) and pycolmap (incremental, global; its "
@@ -110,7 +111,6 @@ def run(args: argparse.Namespace) -> int:
     if args.scene in TWINS:
         return _run_twin(args)
     from polarref.compare.pipeline import CompareConfig, command_line, run_compare
-    from polarref.compare.schema import STATUS_OK
 
     if args.out is not None:  # before rendering, not after it
         from polarref.core.atomic import check_writable_parent, refuse_inside_inputs
@@ -130,11 +130,11 @@ def run(args: argparse.Namespace) -> int:
                         command=command_line(), overwrite=args.overwrite, dense=args.dense)
     t0 = time.perf_counter()
     out, metrics = run_compare(cfg)
-    ok = sum(m.status == STATUS_OK for m in metrics.methods)
+    ok = sum(m.status == RunStatus.OK for m in metrics.methods)
     print(f"{ok}/{len(metrics.methods)} methods succeeded in {time.perf_counter() - t0:.1f} s; "
           f"report: {out / 'report.html'} (and report.md, metrics.json)")
     for m in metrics.methods:
-        if m.status != STATUS_OK:
+        if m.status != RunStatus.OK:
             print(f"  {m.name}: {m.status}: {m.reason}")
     for c in metrics.claims:
         print(f"  {c.claim_id} {c.verdict:<13} {c.claim}")

@@ -38,7 +38,7 @@ def _pycolmap_cuda() -> str:
 def collect() -> dict[str, object]:
     """Everything doctor reports, as plain data (also recorded in reports)."""
     from polarref import __version__
-    from polarref.cli import command_modules
+    from polarref.commands._registry import command_modules
     from polarref.core.data import data_root
 
     report: dict[str, object] = {

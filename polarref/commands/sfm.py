@@ -43,6 +43,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--format", dest="model_format", choices=("text", "binary", "both"), default="both",
                         help="COLMAP model format in OUT/model (default: both); points3D.ply is always written")
     parser.add_argument("--overwrite", action="store_true", help="write into a non-empty --out")
+    geo = parser.add_argument_group("georeferencing (README: Ground control and pose priors)")
+    geo.add_argument("--priors", type=Path, metavar="CSV",
+                     help="pose priors name,x,y,z,sigma_x,sigma_y,sigma_z[,omega,phi,kappa,sigma_angle_deg]")
+    geo.add_argument("--gcps", type=Path, metavar="CSV", help="ground points id,x,y,z,sigma_x,sigma_y,sigma_z,role")
+    geo.add_argument("--gcp-observations", type=Path, metavar="CSV", help="marks id,image,u,v (COLMAP pixels)")
+    geo.add_argument("--image-sigma", type=float, default=0.5, metavar="PX",
+                     help="tie-point pixel sigma weighting the images against the priors (default 0.5)")
+    geo.add_argument("--mark-sigma", type=float, default=0.5, metavar="PX",
+                     help="GCP marking sigma (default 0.5)")
 
 
 def _image_size(text: str) -> int:
@@ -103,6 +112,7 @@ def run(args: argparse.Namespace) -> int:
         if first is not None:
             camera = parse_camera(args.camera, first.shape[1], first.shape[0])
     cfg = _config(args)
+    georef = _read_georef(args, image_dir)
     res = run_sfm(image_dir, args.out, cfg, camera=camera, gt=gt, mesh=mesh, overwrite=args.overwrite,
                   model_format=args.model_format)
     r = res.report
@@ -126,4 +136,42 @@ def run(args: argparse.Namespace) -> int:
                   f"{c.model} {vals}{gt_err}")
     print(f"wrote {args.out / 'model'} ({args.model_format} + points3D.ply) and {args.out / 'metrics.json'} "
           f"in {r.runtime_s['total']:.1f} s")
+    if georef is not None:
+        _georeference(args, res.reconstruction, georef)
     return 0
+
+
+def _read_georef(args: argparse.Namespace, image_dir: Path):
+    """The priors / GCP files, checked against the folder's images before any work."""
+    if args.priors is None and args.gcps is None and args.gcp_observations is None:
+        return None
+    if not (args.image_sigma > 0 and args.mark_sigma > 0):
+        raise PolarrefError("--image-sigma and --mark-sigma must be > 0")
+    if args.ba == "colmap":
+        raise PolarrefError("georeferencing needs one of our BA forms (--ba euclidean|parallax|polar|angular)")
+    from polarref.georef.formats import load_georef
+    from polarref.sfm import features as F
+
+    names = [p.name for p in F.list_images(image_dir)]
+    return load_georef(names, args.priors, args.gcps, args.gcp_observations)
+
+
+def _georeference(args: argparse.Namespace, rec, georef) -> None:
+    """Georeferenced BA of the finished model: OUT/model-georef/ and OUT/aerotriangulation.json."""
+    import dataclasses as dc
+
+    from polarref import metrics as M
+    from polarref.georef.adjust import georeference
+    from polarref.core.provenance import collect
+
+    r = georeference(rec, georef, args.ba, image_sigma_px=args.image_sigma,
+                     mark_sigma_px=args.mark_sigma)
+    (args.out / "model-georef").mkdir(exist_ok=True)
+    rec.write_text(args.out / "model-georef")
+    M.write_json(args.out / "aerotriangulation.json",
+                 {"record": dc.asdict(r), "provenance": collect()})
+    line = f"georeferenced ({r.num_priors} priors, {r.num_control} control points): sigma0 {r.sigma0:.3f}"
+    if r.check is not None:
+        line += (f"; {r.check.count} check points: RMSE horizontal {r.check.rmse_horizontal:.3f} m, "
+                 f"Z {r.check.rmse_z:.3f} m")
+    print(line)

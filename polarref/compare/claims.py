@@ -30,14 +30,16 @@ from pathlib import Path
 import numpy as np
 
 from polarref.compare import claims_experiments as cx
+from polarref.compare import claims_robustness as cr
 from polarref.compare import single_run
 from polarref.compare.runner import run_isolated
 from polarref.compare.claims_experiments import fig as _fig
 from polarref.compare.claims_experiments import not_tested as _not_tested
 from polarref.compare.experiment_records import DerivationEvidence, Experiments
-from polarref.compare.schema import STATUS_OK, BATrace, ClaimResult, MetricsFile, TracePoint
+from polarref.compare.schema import BATrace, ClaimResult, MetricsFile, TracePoint
 from polarref.compare.thresholds import (EQUIVALENT_PX, EQUIVALENT_REL, EXACT_RAD, ROT_EQUIV_DEG,
                                          ROT_EQUIV_REL, SPEEDUP_CLAIM, TIMING_SLACK)
+from polarref.core.status import RunStatus
 
 log = logging.getLogger(__name__)
 
@@ -97,7 +99,7 @@ def equation_claims(evidence: DerivationEvidence | None, reason: str) -> list[Cl
 
 def _ok(metrics: MetricsFile, name: str):
     m = metrics.method(name)
-    return m if m is not None and m.status == STATUS_OK else None
+    return m if m is not None and m.status == RunStatus.OK else None
 
 
 def _scene_only(metrics: MetricsFile) -> list[ClaimResult]:
@@ -204,14 +206,18 @@ def scene_claims(metrics: MetricsFile, exp: Experiments | None = None) -> list[C
         res4 = _merge(res4, cx.speedup(timing), problem)
     rob = exp.robustness if exp is not None else None
     if rob is not None:
-        res5 = _merge(res5, cx.more_tie_points(rob), rob.outlier_problem or rob.error,
+        res5 = _merge(res5, cr.more_tie_points(rob), rob.outlier_problem or rob.error,
                       "paired runs (seeds x outlier levels)")
     return [res3, res4, res5]
 
 
 # ---- claims 6-8: controlled BA experiments (polarref.compare.claims_experiments) ----------
 
-experiment_claims = cx.experiment_claims
+def experiment_claims(exp: Experiments | None, reason: str) -> list[ClaimResult]:
+    """C6, C7 and C8 from the experiments' record (None: all "not tested" with ``reason``)."""
+    if exp is None:
+        return cx.conditioning_claims(None, reason) + [cr.robustness_claim(None, reason)]
+    return cx.conditioning_claims(exp.conditioning, reason) + [cr.robustness_claim(exp.robustness, reason)]
 
 
 def traces_from(exp: Experiments | None) -> list[BATrace]:
@@ -234,7 +240,7 @@ def evaluate_into(metrics: MetricsFile, runs: Path, seed: int, budget_s: float, 
     d = run_isolated(jobs.derivation_evidence,
                      dict(n=DERIVATION_SAMPLES, out_json=str(runs / "claims" / "derivations.json")),
                      timeout_s, runs / "claims", "derivations", reuse)
-    evidence = d.result if d.status == STATUS_OK else None
+    evidence = d.result if d.status == RunStatus.OK else None
     if budget_s < MIN_EXPERIMENT_BUDGET_S:
         exp, why = None, (f"skipped: {budget_s:.0f} s of the run's time budget were left "
                           f"(< {MIN_EXPERIMENT_BUDGET_S:.0f} s); run with --preset small or --budget 0")
@@ -244,7 +250,7 @@ def evaluate_into(metrics: MetricsFile, runs: Path, seed: int, budget_s: float, 
         e = run_isolated(jobs.claim_experiments,
                          dict(seed=seed, budget_s=budget_s, out_json=str(runs / "claims" / "experiments.json")),
                          limit, runs / "claims", "experiments", reuse)
-        exp, why = (e.result if e.status == STATUS_OK else None), e.reason
+        exp, why = (e.result if e.status == RunStatus.OK else None), e.reason
     claims = equation_claims(evidence, d.reason)
     claims += scene_claims(metrics, exp)
     claims += experiment_claims(exp, why)

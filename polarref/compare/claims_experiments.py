@@ -260,20 +260,3 @@ def conditioning_claims(cond: Conditioning | None, reason: str) -> list[ClaimRes
                 f"ratio below {1 - MARGIN:.2f} on every seed. Gauge as in C6.")
         out.append(ClaimResult(*C7, figs, size, _ratio_verdict(pa / ce), text))
     return out
-
-
-def robustness_claim(rob: Robustness | None, reason: str) -> ClaimResult:
-    from polarref.compare.claims_robustness import robustness_claim as claim
-    return claim(rob, reason)
-
-
-def more_tie_points(rob: Robustness | None) -> tuple[str, list[Figure], str, int]:
-    from polarref.compare.claims_robustness import more_tie_points as controlled
-    return controlled(rob)
-
-
-def experiment_claims(exp: Experiments | None, reason: str) -> list[ClaimResult]:
-    """C6, C7 and C8 from the experiments' record (None: all "not tested" with ``reason``)."""
-    if exp is None:
-        return conditioning_claims(None, reason) + [robustness_claim(None, reason)]
-    return conditioning_claims(exp.conditioning, reason) + [robustness_claim(exp.robustness, reason)]

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from polarref.core.status import RunStatus
 
 log = logging.getLogger(__name__)
 
@@ -24,7 +25,7 @@ class DenseRun:
     """One dense reconstruction, scored in the GT frame (None = not measured)."""
 
     name: str                              # "gt" or a method name
-    status: str                            # "ok" | "failed" | "skipped"
+    status: RunStatus
     message: str = ""
     out_dir: str = ""                      # relative to the report folder
     tau: float | None = None
@@ -53,7 +54,7 @@ def run_dense_stage(scene_root: Path, model_dirs: dict[str, str | None], out: Pa
     section = DenseSection()
     for name in DENSE_SOURCES:
         model = "gt" if name == "gt" else model_dirs.get(name)
-        run = DenseRun(name, "skipped", out_dir=f"dense/{name}")
+        run = DenseRun(name, RunStatus.SKIPPED, out_dir=f"dense/{name}")
         section.runs.append(run)
         if model is None:
             run.message = "method did not run or produced no model"
@@ -62,9 +63,9 @@ def run_dense_stage(scene_root: Path, model_dirs: dict[str, str | None], out: Pa
         try:
             m = run_dense(scene_root, model, out / "dense" / name, DenseConfig(), overwrite=True)
         except PolarrefError as exc:
-            run.status, run.message = "failed", str(exc)
+            run.status, run.message = RunStatus.FAILED, str(exc)
             continue
-        run.status = "ok"
+        run.status = RunStatus.OK
         run.fused_points = m.num_fused_points
         run.dense_runtime_s = m.runtime_s.get("dense_total")
         if m.gt is not None and m.gt.cloud is not None:
@@ -108,7 +109,7 @@ def dense_blocks(metrics, figure_keys: set[str]) -> list:
 def draw_dense_figure(metrics, out_dir: Path, fig_dir: Path) -> dict[str, Path]:
     """Side-by-side snapshot (matplotlib, headless) of the dense runs that left GT-frame outputs."""
     sec = getattr(metrics, "dense", None)
-    runs = [r for r in (sec.runs if sec else []) if r.status == "ok"
+    runs = [r for r in (sec.runs if sec else []) if r.status == RunStatus.OK
             and (out_dir / r.out_dir / "fused_gt.ply").is_file()]
     if not runs:
         return {}

@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from polarref.core.atomic import atomic_open
-from polarref.compare.schema import STATUS_OK, Histogram, MetricsFile
+from polarref.compare.schema import Histogram, MetricsFile
+from polarref.core.status import RunStatus
 
 log = logging.getLogger(__name__)
 
@@ -45,7 +46,7 @@ def _save(fig, path: Path) -> Path:
 
 
 def _ok_with_plot(metrics: MetricsFile):
-    return [m for m in metrics.methods if m.status == STATUS_OK and m.plot is not None]
+    return [m for m in metrics.methods if m.status == RunStatus.OK and m.plot is not None]
 
 
 def trajectory(metrics: MetricsFile, path: Path) -> Path | None:
@@ -181,7 +182,7 @@ def error_histograms(metrics: MetricsFile, path: Path) -> Path | None:
 
 def runtimes(metrics: MetricsFile, path: Path) -> Path | None:
     """Stacked stage runtimes per method."""
-    methods = [m for m in metrics.methods if m.status == STATUS_OK and m.runtime_s is not None]
+    methods = [m for m in metrics.methods if m.status == RunStatus.OK and m.runtime_s is not None]
     if not methods:
         return None
     stages: list[str] = []

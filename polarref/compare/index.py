@@ -13,8 +13,9 @@ from pathlib import Path
 
 from polarref.compare.report import commit_text, fmt, fmt_s, improving_runtime
 from polarref.compare.report_render import Heading, Para, Table, to_html, to_markdown
-from polarref.compare.schema import STATUS_OK, MetricsFile, load, write_text_atomic
+from polarref.compare.schema import MetricsFile, load, write_text_atomic
 from polarref.core.errors import PolarrefError
+from polarref.core.status import RunStatus
 
 log = logging.getLogger(__name__)
 
@@ -30,7 +31,7 @@ def _main_row(m: MetricsFile) -> list[str]:
     if pair is None:
         return ["—", "—", "—"]
     b, c = m.method(pair.baseline), m.method(pair.candidate)
-    ok = b.status == STATUS_OK and c.status == STATUS_OK
+    ok = b.status == RunStatus.OK and c.status == RunStatus.OK
     err = "mean_reprojection_error_px"
     acc = f"{fmt(b.metric(err))} / {fmt(c.metric(err))}" if ok else "n/a"
     return [f"{b.label} vs {c.label}", acc, improving_runtime(b.runtime_s, c.runtime_s) if ok else "n/a"]
@@ -91,7 +92,7 @@ def build_index(root: str | Path) -> dict[str, Path]:
             bad.append(f"`{rel}`: {exc}")
             continue
         loaded.append((rel, m))
-        ok = sum(r.status == STATUS_OK for r in m.methods)
+        ok = sum(r.status == RunStatus.OK for r in m.methods)
         page = f"{rel}/report.html" if (d / "report.html").is_file() else f"{rel}/metrics.json"
         rows.append([f"[{rel}]({page})", m.scene.name, m.scene.kind, str(m.scene.num_images),
                      f"{ok}/{len(m.methods)}", *_main_row(m), fmt_s(m.environment.total_runtime_s),

@@ -8,7 +8,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from polarref.compare.schema import TracePoint
-from polarref.model.scene_folder import SkippedImage
+from polarref.io.scene_folder import SkippedImage
 
 
 @dataclass

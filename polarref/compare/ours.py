@@ -16,7 +16,7 @@ import numpy as np
 
 from polarref.camera import Camera
 from polarref.compare.job_results import MethodJobResult, SharedStageResult
-from polarref.model.scene_folder import SkippedImage
+from polarref.io.scene_folder import SkippedImage
 from polarref.compare.schema import TracePoint
 from polarref.peers.colmap_sfm import count_verified_pairs
 

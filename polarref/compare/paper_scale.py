@@ -15,9 +15,10 @@ from pathlib import Path
 
 from polarref.compare import paper_tables as PT
 from polarref.compare import single_run
-from polarref.compare.schema import STATUS_OK, MetricsFile, load
+from polarref.compare.schema import MetricsFile, load
 from polarref.compare.thresholds import TWIN_REGISTERED_MIN, TWIN_ROSETTA_MIN_TIES, TWIN_RUNTIME_TARGET_MIN
 from polarref.core.errors import PolarrefError
+from polarref.core.status import RunStatus
 
 NOT_TESTED = PT.NOT_TESTED
 PYCOLMAP = "pycolmap-incremental-sift"
@@ -48,7 +49,7 @@ def _frac(registered: int | None, images: int) -> float | None:
 
 def twin_column(table: PT.TwinTable) -> ScaleColumn:
     m = table.methods
-    ok = {k: r for k, r in m.items() if r.status == "ok"}
+    ok = {k: r for k, r in m.items() if r.status == RunStatus.OK}
     base, ours, col = ok.get(PT.BASELINE), ok.get(PT.OURS), ok.get(PYCOLMAP)
     v = PT.verdicts(table)
     return ScaleColumn(
@@ -62,7 +63,7 @@ def twin_column(table: PT.TwinTable) -> ScaleColumn:
 def metrics_column(name: str, mf: MetricsFile) -> ScaleColumn:
     def ok(n):
         r = mf.method(n)
-        return r if r is not None and r.status == STATUS_OK else None
+        return r if r is not None and r.status == RunStatus.OK else None
 
     base, ours, col = ok(PT.BASELINE), ok(PT.OURS), ok(PYCOLMAP)
     c4 = single_run.speedup_verdict(base.runtime_s, ours.runtime_s)[0] if base and ours else NOT_TESTED
@@ -153,7 +154,7 @@ def _measured(r: PT.MethodResult | None) -> bool | None:
     """None: not run (not tested); False: ran and failed or timed out; True: a result."""
     if r is None or r.status == PT.NOT_RUN:
         return None
-    return r.status == "ok"
+    return r.status == RunStatus.OK
 
 
 def done_when(table: PT.TwinTable) -> list[str]:

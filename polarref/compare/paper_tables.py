@@ -17,6 +17,7 @@ from pathlib import Path
 from polarref.core.atomic import atomic_write
 from polarref.compare import single_run
 from polarref.compare.thresholds import EQUIVALENT_PX, EQUIVALENT_REL
+from polarref.core.status import RunStatus
 
 TABLE_FORMAT = "polarref-paper-table/1"
 BASELINE, OURS = "ours-euclidean", "ours-polar"
@@ -96,14 +97,14 @@ def _fmt(row: str, v) -> str:
 def table_cell(m: MethodResult | None, row: str) -> str:
     if m is None or m.status == NOT_RUN:
         return NOT_RUN
-    if m.status != "ok":
+    if m.status != RunStatus.OK:
         return m.status
     return _fmt(row, getattr(m, row))
 
 
 def difference(row: str, base: MethodResult | None, ours: MethodResult | None) -> str:
     """The paper's "Improving" column: ours vs the Euclidean baseline."""
-    if base is None or ours is None or base.status != "ok" or ours.status != "ok":
+    if base is None or ours is None or base.status != RunStatus.OK or ours.status != RunStatus.OK:
         return "not tested"
     a, b = getattr(base, row), getattr(ours, row)
     if a is None or b is None:
@@ -139,7 +140,7 @@ def verdicts(table: TwinTable | None) -> dict[str, TwinVerdict]:
     either side (or a value) is missing."""
     base = table.methods.get(BASELINE) if table else None
     ours = table.methods.get(OURS) if table else None
-    if not (base and ours and base.status == ours.status == "ok"):
+    if not (base and ours and base.status == ours.status == RunStatus.OK):
         return {"C4": TwinVerdict(NOT_TESTED), "C5": TwinVerdict(NOT_TESTED)}
     word4, speedup = single_run.speedup_verdict(base.efficiency_min, ours.efficiency_min)
     ba = single_run.ratio(base.stages_s.get("bundle adjustment"), ours.stages_s.get("bundle adjustment"))
@@ -179,7 +180,7 @@ def render_table(table: TwinTable) -> str:
               "|---|---|---|---|---|---|---|---|---|---|---|"]
     for name in METHODS:
         r = m.get(name) or MethodResult(name)
-        ok = r.status == "ok"
+        ok = r.status == RunStatus.OK
         reg = f"{r.registered}/{table.images}" if ok and r.registered is not None else "-"
         rot = f"{r.rotation_error_deg:.4f}" if ok and r.rotation_error_deg is not None else "-"
         cen = f"{100 * r.center_error_rel:.4f}" if ok and r.center_error_rel is not None else "-"

@@ -28,12 +28,12 @@ from polarref.compare import jobs
 from polarref.compare.jobs import MethodJobResult, camera_to_json
 from polarref.compare.methods import METHOD_NAMES, PAIRS, RUN_ORDER, MethodSpec, select
 from polarref.compare.runner import JobOutcome, has_finished_result, run_isolated, run_isolated_with
-from polarref.compare.schema import (SCHEMA_VERSION, STATUS_FAILED, STATUS_OK, STATUS_TIMEOUT, BATrace,
-                                     Environment, MethodResult, MetricsFile, SceneInfo, save)
+from polarref.compare.schema import (SCHEMA_VERSION, BATrace, Environment, MethodResult, MetricsFile, SceneInfo, save)
 from polarref.core.errors import PolarrefError
 from polarref.core.progress import track
 from polarref.core.provenance import Provenance, collect_record
 from polarref.model.colmap import read_model
+from polarref.core.status import RunStatus
 
 if TYPE_CHECKING:
     from polarref.model import Reconstruction
@@ -119,7 +119,7 @@ def _shared_once(ctx: _Context, key: str):
                                                                  num_threads=PYCOLMAP_THREADS)
     elif key == "db-ours":
         feat, _ = _shared(ctx, "ours-features")
-        if feat.status != STATUS_OK:
+        if feat.status != RunStatus.OK:
             ctx.db_results[key] = (feat, None)
             return ctx.db_results[key]
         extra = ctx.runs / key / "database.db"
@@ -137,7 +137,7 @@ def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodResult, Reconstr
     from polarref.model import Reconstruction
 
     res = MethodResult(name=spec.name, label=spec.label, family=spec.family, features=spec.features,
-                       mapper=spec.mapper, ba=spec.ba, status=STATUS_FAILED, timeout_s=ctx.timeout,
+                       mapper=spec.mapper, ba=spec.ba, status=RunStatus.FAILED, timeout_s=ctx.timeout,
                        num_images=len(ctx.scene.image_names))
     work = ctx.runs / spec.name
     stages: dict[str, float] = {}
@@ -146,7 +146,7 @@ def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodResult, Reconstr
         prereqs.append("db-ours" if spec.features == "ours" else "db-pycolmap-sift")
     for key in prereqs:
         pre, db = _shared(ctx, key)
-        if pre.status != STATUS_OK:
+        if pre.status != RunStatus.OK:
             res.status = pre.status
             res.reason = f"shared stage {key} failed: {pre.reason}"
             return res, None, None
@@ -164,7 +164,7 @@ def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodResult, Reconstr
                                work_dir=str(work), preset=ctx.preset, cache_dir=str(ctx.cache)),
                           ctx.timeout, work, "job")
     res.status, res.reason = outcome.status, outcome.reason
-    if outcome.status != STATUS_OK:
+    if outcome.status != RunStatus.OK:
         return res, None, None
     stages.update(outcome.result.stage_runtime_s)
     res.stage_runtime_s = {k: float(v) for k, v in stages.items()}
@@ -172,7 +172,7 @@ def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodResult, Reconstr
     try:
         rec = read_model(outcome.result.model_dir)
     except PolarrefError as exc:
-        res.status, res.reason = STATUS_FAILED, f"cannot read the method's model: {exc}"
+        res.status, res.reason = RunStatus.FAILED, f"cannot read the method's model: {exc}"
         return res, None, outcome.result
     return res, rec, outcome.result
 
@@ -198,14 +198,14 @@ def _score_into(res: MethodResult, rec, scene: scenes.PreparedScene, mesh, seed:
         s = score(rec, scene.gt, mesh, seed)
     except Exception as exc:  # scoring must not take the other methods down
         log.exception("scoring %s failed", res.name)
-        res.status, res.reason = STATUS_FAILED, f"scoring failed: {type(exc).__name__}: {exc}"
+        res.status, res.reason = RunStatus.FAILED, f"scoring failed: {type(exc).__name__}: {exc}"
         return
     res.set_metrics(s.metrics)
     res.gt = s.gt
     res.plot = s.plot
     notes += [f"{res.name}: {n}" for n in s.notes]
     if res.metric("registered_images") == 0:
-        res.status, res.reason = STATUS_FAILED, "no image registered"
+        res.status, res.reason = RunStatus.FAILED, "no image registered"
 
 
 PYCOLMAP_THREADS = 1   # pycolmap extraction, matching, mapping: one thread, so reruns repeat exactly
@@ -286,7 +286,7 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
         for res, rec, job in _run_methods_on_cluster(executor, ctx, ordered, timeout, deadline):
             if rec is not None:
                 _score_into(res, rec, scene, mesh, cfg.seed, notes)
-                if view is not None and res.status == STATUS_OK:
+                if view is not None and res.status == RunStatus.OK:
                     view3d.add_method(view, res.name, res.label, rec, scene.gt, cfg.seed)
             job_results[res.name] = job
             results.append(res)
@@ -298,11 +298,11 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
             ctx.timeout = min(timeout, max(left, 2.0))
         log.info("running %s (limit %.0f s)", spec.name, ctx.timeout)
         res, rec, job = _run_method(ctx, spec)
-        if res.status == STATUS_TIMEOUT and ctx.timeout < timeout:
+        if res.status == RunStatus.TIMEOUT and ctx.timeout < timeout:
             res.reason += f" (limit cut from {timeout:.0f} s by the {budget:.0f} s run budget)"
         if rec is not None:
             _score_into(res, rec, scene, mesh, cfg.seed, notes)
-            if view is not None and res.status == STATUS_OK:
+            if view is not None and res.status == RunStatus.OK:
                 view3d.add_method(view, res.name, res.label, rec, scene.gt, cfg.seed)
         job_results[spec.name] = job
         log.info("%s: %s %s", spec.name, res.status, res.reason)

@@ -20,9 +20,9 @@ from polarref.compare import view3d
 from polarref.compare.dense_section import dense_blocks, draw_dense_figure
 from polarref.compare.report_render import (Badge, Badges, Bullets, Details, Fig, Heading, Para, RawHtml,
                                             Section, Table, to_html, to_markdown)
-from polarref.compare.schema import (STATUS_OK, ClaimResult, MethodPair, MethodResult,
-                                     MetricsFile, load, write_text_atomic)
+from polarref.compare.schema import (ClaimResult, MethodPair, MethodResult, MetricsFile, load, write_text_atomic)
 from polarref.compare.thresholds import EQUIVALENT_PX, EQUIVALENT_REL
+from polarref.core.status import RunStatus
 
 # Bumped when the page's structure changes, so a committed example built by an older layout is
 # recognised (and regenerated) instead of being diffed against the new one.
@@ -94,11 +94,11 @@ def improving_count(base: int | None, cand: int | None) -> str:
 
 
 def _cell(m: MethodResult, value: str) -> str:
-    return value if m.status == STATUS_OK else f"{m.status}"
+    return value if m.status == RunStatus.OK else f"{m.status}"
 
 
 def pair_table(pair: MethodPair, base: MethodResult, cand: MethodResult) -> Table:
-    ok = base.status == STATUS_OK and cand.status == STATUS_OK
+    ok = base.status == RunStatus.OK and cand.status == RunStatus.OK
     b, c = base.metric, cand.metric
     err, tp, rp, reg = ("mean_reprojection_error_px", "tie_points", "reprojected_px", "registered_images")
     rows = [
@@ -167,7 +167,7 @@ def _gt_section(m: MetricsFile) -> list:
     rows = []
     for r in m.methods:
         g = r.gt
-        if r.status != STATUS_OK or g is None:
+        if r.status != RunStatus.OK or g is None:
             continue
         rows.append([r.label, f"{g.aligned_images}", fmt(g.rotation_error_deg_mean, 4),
                      fmt(g.rotation_error_deg_median, 4), fmt(g.rotation_error_deg_max, 4),
@@ -295,7 +295,7 @@ def _scene_line(m: MetricsFile) -> str:
 
 def _summary(m: MetricsFile) -> Section:
     e = m.environment
-    ok = sum(r.status == STATUS_OK for r in m.methods)
+    ok = sum(r.status == RunStatus.OK for r in m.methods)
     blocks: list = [Para(f"**{m.scene.name}**: {m.scene.num_images} images · {ok}/{len(m.methods)} methods "
                          f"succeeded · total runtime {fmt_s(e.total_runtime_s)} · commit `{commit_text(m)}` · "
                          f"run {e.created[:10]}")]

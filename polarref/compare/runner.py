@@ -29,7 +29,7 @@ from typing import Any, Callable, Generic, TypeVar
 
 from polarref.core import records
 from polarref.core.atomic import atomic_write
-from polarref.compare.schema import STATUS_FAILED, STATUS_OK, STATUS_TIMEOUT
+from polarref.core.status import RunStatus
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +41,7 @@ R = TypeVar("R")
 class JobOutcome(Generic[R]):
     """What came back from one isolated job."""
 
-    status: str                     # ok | failed | timeout
+    status: RunStatus
     reason: str = ""                # failure reason (one line)
     wall_s: float = 0.0             # wall time of the child process, spawn included
     result: R | None = None         # the job's record (ok only)
@@ -117,7 +117,7 @@ def _finished(job: Callable, kwargs: dict, result_path: Path) -> JobOutcome | No
     except records.RecordError as exc:  # written by an older polarref: run it again
         log.info("not reusing %s: %s", result_path, exc)
         return None
-    return JobOutcome(STATUS_OK, "", float(payload["wall_s"]), result, reused=True)
+    return JobOutcome(RunStatus.OK, "", float(payload["wall_s"]), result, reused=True)
 
 
 def run_isolated(job: Callable[..., R], kwargs: dict, timeout_s: float, work_dir: Path, tag: str,
@@ -150,23 +150,23 @@ def run_isolated(job: Callable[..., R], kwargs: dict, timeout_s: float, work_dir
     if proc.is_alive():
         proc.kill()
         proc.join(10)
-        return JobOutcome(STATUS_TIMEOUT, f"timed out after {timeout_s:.0f} s (process killed)",
+        return JobOutcome(RunStatus.TIMEOUT, f"timed out after {timeout_s:.0f} s (process killed)",
                           time.perf_counter() - t0)
     wall = time.perf_counter() - t0
     if not result_path.exists():
         tail = _last_log_line(log_path)
-        return JobOutcome(STATUS_FAILED, f"process died with exit code {proc.exitcode}"
+        return JobOutcome(RunStatus.FAILED, f"process died with exit code {proc.exitcode}"
                           + (f"; last log line: {tail}" if tail else ""), wall)
     payload = json.loads(result_path.read_text())
     if not payload.get("ok"):
-        return JobOutcome(STATUS_FAILED, payload.get("error", "unknown error"), wall)
+        return JobOutcome(RunStatus.FAILED, payload.get("error", "unknown error"), wall)
     try:
         result = _decode(job, payload.get("result"), result_path)
     except records.RecordError as exc:
-        return JobOutcome(STATUS_FAILED, f"malformed job result: {exc}", wall)
+        return JobOutcome(RunStatus.FAILED, f"malformed job result: {exc}", wall)
     payload["wall_s"] = wall  # a finished job, complete with its time: what a rerun may reuse
     atomic_write(result_path, json.dumps(payload, allow_nan=True))
-    return JobOutcome(STATUS_OK, "", wall, result)
+    return JobOutcome(RunStatus.OK, "", wall, result)
 
 
 # ---- one isolated job as a task of polarref.core.execution -----------------------------------------
@@ -189,7 +189,7 @@ def isolated_task(task: IsolatedTask) -> JobOutcome:
     with ``DASK_DISTRIBUTED__WORKER__DAEMON=False`` (``--workers`` sets it).
     """
     if mp.current_process().daemon:
-        return JobOutcome(STATUS_FAILED, "this Dask worker is a daemonic process and cannot start the job's "
+        return JobOutcome(RunStatus.FAILED, "this Dask worker is a daemonic process and cannot start the job's "
                           "isolated process; start workers with DASK_DISTRIBUTED__WORKER__DAEMON=False")
     return run_isolated(task.job, task.kwargs, task.timeout_s, Path(task.work_dir), task.tag, task.reuse)
 

@@ -20,7 +20,7 @@ from polarref.core.atomic import atomic_write
 from polarref.camera import Camera
 from polarref.core.data import cache_root
 from polarref.core.errors import PolarrefError
-from polarref.model.scene_folder import IMAGE_SUFFIXES, discover
+from polarref.io.scene_folder import IMAGE_SUFFIXES, discover
 from polarref.model.colmap import read_model
 
 if TYPE_CHECKING:

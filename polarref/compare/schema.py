@@ -17,13 +17,10 @@ from polarref.core.atomic import atomic_write
 from polarref.compare.dense_section import DenseSection
 from polarref.core.errors import PolarrefError
 from polarref.metrics import SCHEMA_VERSION, ReconstructionMetrics
+from polarref.core.status import RunStatus
 
 _METRIC_FIELDS = frozenset(f.name for f in fields(ReconstructionMetrics))
 
-STATUS_OK = "ok"
-STATUS_FAILED = "failed"
-STATUS_TIMEOUT = "timeout"
-STATUS_SKIPPED = "skipped"
 
 VERDICTS = ("supported", "not supported", "inconclusive", "not tested")
 
@@ -118,7 +115,7 @@ class MethodResult:
     features: str             # "pycolmap-sift" or "ours"
     mapper: str               # "polarref-incremental", "pycolmap-incremental", "pycolmap-global"
     ba: str                   # BA parameterization or solver ("euclidean", ..., "ceres")
-    status: str               # ok | failed | timeout | skipped
+    status: RunStatus
     reason: str = ""          # why it failed / was skipped (empty when ok)
     runtime_s: float | None = None       # wall time of the whole method (features to final BA)
     stage_runtime_s: dict[str, float] = field(default_factory=dict)

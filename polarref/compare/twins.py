@@ -25,6 +25,7 @@ from polarref.compare import paper_tables as PT
 from polarref.core.errors import PolarrefError
 from polarref.sfm.pairing import PairingConfig, pairs_file_name, priors_from_scene, read_pairs, select, write_pairs
 from polarref.model.colmap import read_model
+from polarref.core.status import RunStatus
 
 log = logging.getLogger(__name__)
 
@@ -386,7 +387,7 @@ def run_twin(run: TwinRun) -> PT.TwinTable:
                for m in PT.METHODS}
     keypoints: dict[str, float | None] = {}  # per source (ours' cache, pycolmap's database): read once
     for m, r in methods.items():
-        if r.status != "ok":
+        if r.status != RunStatus.OK:
             continue
         source = "ours" if m.startswith("ours-") else "pycolmap"
         if source not in keypoints:

@@ -34,9 +34,11 @@ def _git(repo: Path, *args: str) -> str | None:
 def git_state(repo: Path | None = None) -> tuple[str, bool | None]:
     """(HEAD commit as 40 hex digits or "", dirty flag or None outside a git checkout).
 
-    Dirty means a tracked file outside ``reports/`` differs from HEAD. Untracked files (caches,
-    outputs) do not count, nor do the committed example reports: regenerating them one after
-    another rewrites tracked files, which says nothing about the code that produced the numbers.
+    Dirty means a file outside ``reports/`` differs from HEAD or is untracked and not ignored:
+    an untracked module imports as readily as a tracked one, so a run with one is not
+    reproducible from the commit. Ignored files (caches, outputs, the venv) do not count, nor
+    do the committed example reports: regenerating them one after another rewrites tracked
+    files, which says nothing about the code that produced the numbers.
     """
     from polarref.core.data import REPO_ROOT
 
@@ -44,7 +46,7 @@ def git_state(repo: Path | None = None) -> tuple[str, bool | None]:
     head = (_git(repo, "rev-parse", "HEAD") or "").strip()
     if len(head) != 40:
         return "", None
-    status = _git(repo, "status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)reports")
+    status = _git(repo, "status", "--porcelain", "--untracked-files=normal", "--", ".", ":(exclude)reports")
     return head, None if status is None else bool(status.strip())
 
 
@@ -87,7 +89,7 @@ class Provenance:
     """The environment record of a run (embedded as ``environment`` in result files)."""
 
     git_commit: str                  # HEAD, 40 hex digits ("" outside a git checkout)
-    git_dirty: bool | None           # tracked files differ from HEAD (None: unknown)
+    git_dirty: bool | None           # files differ from HEAD or are untracked (None: unknown)
     cpu_count: int
     cpu_model: str
     machine: str                     # e.g. x86_64

@@ -23,6 +23,7 @@ from polarref.dense.provenance import Provenance, collect
 from polarref.core.errors import PolarrefError
 from polarref.core.progress import track
 from polarref.model.colmap import read_model
+from polarref.core.status import RunStatus
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +48,7 @@ class DenseConfig:
 class DenseMetrics:
     """Everything ``metrics.json`` holds (typed; serialized by :func:`polarref.metrics.write_json`)."""
 
-    status: str                                  # "ok" | "failed"
+    status: RunStatus
     message: str
     scene: str
     model: str                                   # "gt" or the model folder
@@ -100,14 +101,14 @@ def run_dense(scene_dir: Path, model: str, out: Path, cfg: DenseConfig = DenseCo
         raise PolarrefError(f"scene folder not found: {scene_dir}")
     _check_out(scene_dir, model, out, overwrite)
     keep_finished = holds_finished_result(out)
-    m = DenseMetrics("failed", "", str(scene_dir), model, cfg,
+    m = DenseMetrics(RunStatus.FAILED, "", str(scene_dir), model, cfg,
                      provenance=collect(command, {"dense": cfg.seed}, {"poisson": cfg.mesh.threads}))
     failure: PolarrefError | None = None
     with publish_dir(out, overwrite=overwrite, owned=DENSE_OUTPUTS) as tmp:
         (tmp / "depth").mkdir()
         try:
             _run(scene_dir, model, tmp, cfg, m)
-            m.status = "ok"
+            m.status = RunStatus.OK
         except PolarrefError as exc:
             m.message = str(exc).replace(str(tmp), str(out))
             if keep_finished:  # raised inside the block: the new folder is discarded
@@ -131,7 +132,7 @@ def _timed(m: DenseMetrics, stage: str, t0: tuple[float, float]) -> tuple[float,
 def _load(scene_dir: Path, model: str):
     """(image_dir, rec, gt or None, loaded synthetic scene or None)."""
     from polarref.model import Reconstruction
-    from polarref.model.scene_folder import discover
+    from polarref.io.scene_folder import discover
 
     found = discover(scene_dir)
     image_dir = found.image_dir

@@ -24,7 +24,7 @@ import numpy as np
 
 from polarref.camera import Camera
 from polarref.core.geometry import Rigid3, so3_exp
-from polarref.io import FormatError, parse_numbers, read_lines
+from polarref.io.text import FormatError, parse_numbers, read_lines
 from polarref.model import Observations, build_reconstruction
 
 _F = np.diag([1.0, -1.0, -1.0])  # BAL camera frame (y up, -z forward) -> COLMAP camera frame

@@ -36,7 +36,7 @@ import numpy as np
 from polarref.camera import Camera
 from polarref.core.errors import PolarrefError
 from polarref.core.geometry import Rigid3, axis_rotation
-from polarref.io import FormatError, parse_numbers, read_lines, read_tracks
+from polarref.io.text import FormatError, parse_numbers, read_lines, read_tracks
 from polarref.model import Observations, build_reconstruction
 
 

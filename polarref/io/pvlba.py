@@ -34,7 +34,7 @@ import numpy as np
 
 from polarref.camera import Camera
 from polarref.core.geometry import Rigid3
-from polarref.io import FormatError, parse_numbers, read_lines, read_tracks
+from polarref.io.text import FormatError, parse_numbers, read_lines, read_tracks
 from polarref.model import Observations, build_reconstruction
 
 

@@ -26,7 +26,7 @@ import numpy as np
 
 from polarref.camera import Camera
 from polarref.core.geometry import Rigid3, skew
-from polarref.io import FormatError, parse_numbers, read_lines
+from polarref.io.text import FormatError, parse_numbers, read_lines
 from polarref.model import Image, Reconstruction
 
 

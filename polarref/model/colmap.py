@@ -126,6 +126,10 @@ class CeresSettings:
     num_threads: int = -1                # -1: all cores
     # Ceres runs single-threaded below this many residuals whatever num_threads says (COLMAP: 50,000)
     min_residuals_for_multithreading: int = 50_000
+    # Ceres linear solver and preconditioner by name ("DENSE_SCHUR", "SCHUR_JACOBI", ...);
+    # "" keeps COLMAP's own choice by problem size (auto_select_solver_type)
+    linear_solver: str = ""
+    preconditioner: str = ""
 
     def with_iterations(self, n: int) -> "CeresSettings":
         return dataclasses.replace(self, max_num_iterations=int(n))
@@ -162,6 +166,11 @@ def bundle_adjustment_options(ceres: CeresSettings, loss: str = "trivial", loss_
     so.parameter_tolerance = ceres.parameter_tolerance
     so.num_threads = ceres.num_threads
     opts.ceres.min_num_residuals_for_cpu_multi_threading = ceres.min_residuals_for_multithreading
+    if ceres.linear_solver:  # a fixed solver: COLMAP's size rule would override it
+        opts.ceres.auto_select_solver_type = False
+        so.linear_solver_type = getattr(type(so.linear_solver_type), ceres.linear_solver)
+    if ceres.preconditioner:
+        so.preconditioner_type = getattr(type(so.preconditioner_type), ceres.preconditioner)
     return opts
 
 

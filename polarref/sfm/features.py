@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from polarref.core.atomic import atomic_open
-from polarref.model.scene_folder import IMAGE_SUFFIXES, list_images  # noqa: F401 (re-exported)
+from polarref.io.scene_folder import IMAGE_SUFFIXES, list_images  # noqa: F401 (re-exported)
 
 log = logging.getLogger(__name__)
 

@@ -31,11 +31,12 @@ from polarref.sfm import feature_cache as FC
 from polarref.sfm import rays as R_
 from polarref.sfm.bundle import to_reconstruction
 from polarref.sfm.mapper import run_mapper
-from polarref.sfm.report import STATUS_FAILED, STATUS_OK, SfMReport
+from polarref.sfm.report import SfMReport
 from polarref.sfm.matching import match_pairs, select_pairs
 from polarref.sfm.state import MapState
 from polarref.sfm.tracks import build_tracks
 from polarref.sfm.verification import TwoViewGeometry, verify_pairs
+from polarref.core.status import RunStatus
 
 log = logging.getLogger(__name__)
 
@@ -294,7 +295,7 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
     t_start = time.perf_counter()
     timings: dict[str, float | bool] = {}
     from polarref.core.provenance import collect_record
-    from polarref.model.scene_folder import SkippedImage
+    from polarref.io.scene_folder import SkippedImage
 
     report = SfMReport(str(image_dir), config, collect_record(seeds={
         "verification": config.verification.seed, "registration": config.mapper.register.seed}))
@@ -374,7 +375,7 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
                                         [f.name for f in feats], gt)
         rec = to_reconstruction(state, colors=[f.colors for f in feats])
     except PolarrefError as exc:
-        report.status = STATUS_FAILED
+        report.status = RunStatus.FAILED
         report.error = str(exc)
         timings["total"] = time.perf_counter() - t_start
         report.runtime_s = timings
@@ -386,7 +387,7 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
     t0 = time.perf_counter()
     report.metrics, report.gt_skipped = _score(rec, gt, mesh, report.num_images)
     timings["metrics"] = time.perf_counter() - t0
-    report.status = STATUS_OK
+    report.status = RunStatus.OK
     timings["total"] = time.perf_counter() - t_start
     report.runtime_s = timings
     _publish(rec)

@@ -16,12 +16,12 @@ from typing import Any
 from polarref.core import records
 from polarref.metrics import SCHEMA_VERSION, ReconstructionMetrics
 from polarref.core.provenance import Provenance
-from polarref.model.scene_folder import SkippedImage
+from polarref.io.scene_folder import SkippedImage
 from polarref.sfm.ba_runs import BARun, ColmapBARun  # noqa: F401 (re-exported)
 from polarref.sfm.config import SfMConfig
+from polarref.core.status import RunStatus
 
 
-STATUS_RUNNING, STATUS_OK, STATUS_FAILED = "running", "ok", "failed"
 
 
 @dataclass
@@ -31,7 +31,7 @@ class SfMReport:
     image_dir: str
     config: SfMConfig
     environment: Provenance
-    status: str = STATUS_RUNNING         # running | ok | failed
+    status: RunStatus = RunStatus.RUNNING
     error: str = ""                      # why it failed ("" unless failed)
     skipped_images: list[SkippedImage] = field(default_factory=list)
     num_images: int | None = None        # readable + skipped

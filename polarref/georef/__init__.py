@@ -1,0 +1,1 @@
+"""Georeferencing: pose priors and ground control points (formats, mapping, check points)."""

@@ -1,0 +1,128 @@
+"""Georeferencing: CSV formats (strict readers), check points, the georeferenced adjustment."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from polarref.ba.adapter import problem_to_reconstruction
+from polarref.core.errors import PolarrefError
+from polarref.georef.adjust import georeference
+from polarref.georef.formats import (GroundPoint, Mark, PosePrior, Role, load_georef,
+                                     omega_phi_kappa_matrix, write_gcps, write_marks, write_priors)
+from tests._prior_scene import block
+
+
+def _georef(b, n_control=4, prior_sigma=2.0, seed=0):
+    rng = np.random.default_rng(seed)
+    names = [f"img_{i:05d}" for i in range(len(b.C))]
+    pri = tuple(PosePrior(n, c + rng.normal(0, prior_sigma, 3), np.full(3, prior_sigma))
+                for n, c in zip(names, b.C))
+    pts = tuple(GroundPoint(f"G{k}", b.G[k], np.full(3, 0.01),
+                            Role.CONTROL if k < n_control else Role.CHECK) for k in range(len(b.G)))
+    marks = tuple(Mark(f"G{g}", names[c], uv + rng.normal(0, 0.5, 2))
+                  for c, g, uv in zip(b.gcp_cam, b.gcp_idx, b.gcp_uv))
+    return names, pri, pts, marks
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    b = block(0)
+    names, pri, pts, marks = _georef(b)
+    d = tmp_path_factory.mktemp("georef")
+    write_priors(d / "priors.csv", pri)
+    write_gcps(d / "gcps.csv", pts)
+    write_marks(d / "marks.csv", marks)
+    return b, names, d
+
+
+def test_round_trip(files):
+    b, names, d = files
+    g = load_georef(names, d / "priors.csv", d / "gcps.csv", d / "marks.csv")
+    assert len(g.priors) == len(names) and len(g.points) == 6 and len(g.of_role(Role.CHECK)) == 2
+    assert np.abs(g.points[2].xyz - b.G[2]).max() < 1e-4
+
+
+def _edit(d, name, old, new, tmp):
+    text = (d / name).read_text().replace(old, new, 1)
+    (tmp / name).write_text(text)
+    return tmp / name
+
+
+@pytest.mark.parametrize("case, match", [
+    ("sigma", "must be > 0"), ("unknown_image", "unknown image"), ("unknown_id", "unknown ground point"),
+    ("no_obs", "has no observations"), ("prior_image", "not in the image folder"),
+    ("few_control", "at least 3 control points")])
+def test_bad_input_is_one_line(files, tmp_path, case, match):
+    b, names, d = files
+    p, g, m = d / "priors.csv", d / "gcps.csv", d / "marks.csv"
+    if case == "sigma":
+        g = _edit(d, "gcps.csv", ",0.01,0.01,0.01,control", ",0.01,0,0.01,control", tmp_path)
+    elif case == "unknown_image":
+        m = _edit(d, "marks.csv", ",img_00001,", ",img_00099,", tmp_path)
+    elif case == "unknown_id":
+        m = _edit(d, "marks.csv", "G1,", "G9,", tmp_path)
+    elif case == "no_obs":
+        m = tmp_path / "marks.csv"
+        m.write_text("\n".join(l for l in (d / "marks.csv").read_text().splitlines()
+                               if not l.startswith("G5,")) + "\n")
+    elif case == "prior_image":
+        p = _edit(d, "priors.csv", "img_00002,", "other.jpg,", tmp_path)
+    elif case == "few_control":
+        p = None
+        text = (d / "gcps.csv").read_text().replace("control", "check")
+        g = tmp_path / "gcps.csv"
+        g.write_text(text.replace("check", "control", 2))
+    with pytest.raises(PolarrefError, match=match) as exc:
+        load_georef(names, p, g, m)
+    assert "\n" not in str(exc.value)
+
+
+def test_omega_phi_kappa_nadir():
+    assert np.allclose(omega_phi_kappa_matrix(180.0, 0.0, 0.0), np.diag([1.0, -1.0, -1.0]))
+
+
+def _rec_and_georef(n_control=4, check_shift=None):
+    b = block(0)
+    names, pri, pts, marks = _georef(b, n_control)
+    if check_shift is not None:
+        k = n_control  # the first check point
+        pts = pts[:k] + (dataclasses.replace(pts[k], xyz=pts[k].xyz + check_shift),) + pts[k + 1:]
+    from polarref.georef.formats import Georef
+    return b, problem_to_reconstruction(b.problem), Georef(pri, pts, marks)
+
+
+def test_check_points_are_never_used_by_the_adjustment():
+    """Moving a check point's given 3D value by 5 m changes no estimated parameter; its
+    reported error changes by that amount."""
+    out = []
+    for shift in (None, np.array([5.0, 0.0, 0.0])):
+        b, rec, g = _rec_and_georef(check_shift=shift)
+        r = georeference(rec, g, "euclidean")
+        poses = np.array([np.r_[im.cam_from_world.R.ravel(), im.cam_from_world.t]
+                          for _, im in sorted(rec.images.items())])
+        out.append((poses, rec.points_array()[1], r))
+    assert np.array_equal(out[0][0], out[1][0]) and np.array_equal(out[0][1], out[1][1])
+    assert out[1][2].check.max_3d > 4.0 > 0.3 > out[0][2].check.max_3d
+
+
+@pytest.mark.parametrize("form", ["euclidean", "polar"])
+def test_check_point_accuracy_by_variant(form):
+    """GSD 5.6 cm. Control points: check points within 3 GSD. Priors only (2 m, 8 views): the
+    datum error the priors' noise predicts is that of the similarity taking the true centres to
+    the prior centres, evaluated at the check points (this draw's prediction); the adjustment's
+    check-point RMSE must be within 1.5x of it (+ 3 GSD for the block's own error)."""
+    b, rec, g = _rec_and_georef(n_control=4)
+    r = georeference(rec, g, form)
+    assert r.check.count == 2 and r.num_control == 4 and r.num_priors == 8
+    assert 0.001 < r.check.rmse_horizontal < 3 * 0.056
+    assert 0.001 < r.check.rmse_z < 3 * 0.056
+    assert 0.3 < r.sigma0 < 3.0
+    b, rec, g = _rec_and_georef(n_control=0)
+    r = georeference(rec, g, form, use_control=False)
+    assert r.num_control == 0 and r.check.count == 6
+    from polarref.core.geometry import umeyama
+    sim = umeyama(b.C, np.array([p.centre for p in g.priors]))
+    predicted = float(np.sqrt(((sim.apply(b.G) - b.G) ** 2).sum(1).mean()))
+    rmse_3d = float(np.sqrt(r.check.rmse_x**2 + r.check.rmse_y**2 + r.check.rmse_z**2))
+    assert predicted / 1.5 - 3 * 0.056 < rmse_3d < 1.5 * predicted + 3 * 0.056

@@ -1,0 +1,149 @@
+"""The package layout ARCHITECTURE.md promises, checked on the sources: no import cycle between
+modules (function-local and TYPE_CHECKING imports included), packages layered one way, nothing
+at the package top level but its face and the CLI entry."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("polarref", "synth", "derivations")
+
+# A package imports only from packages in lower rows (ARCHITECTURE.md, "Packages").
+LAYERS = (
+    ("__main__",),
+    ("cli",),
+    ("commands",),
+    ("compare", "bench"),
+    ("dense", "sfm"),
+    ("ba", "peers"),
+    ("io", "metrics", "synth"),
+    ("model",),
+    ("camera", "derivations"),
+    ("core",),
+    ("_generated",),
+)
+TOP_LEVEL = {"__init__", "__main__", "cli"}
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for pkg in PACKAGES:
+        for path in (ROOT / pkg).rglob("*.py"):
+            parts = list(path.relative_to(ROOT).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts = parts[:-1]
+            out[".".join(parts)] = path
+    return out
+
+
+def _targets(mod: str, node: ast.AST, is_pkg: bool, mods: dict[str, Path]) -> list[str]:
+    """Modules an import statement loads, not counting the parent packages Python runs first."""
+    if isinstance(node, ast.Import):
+        return [a.name for a in node.names if a.name in mods]
+    base = node.module or ""
+    if node.level:
+        parts = mod.split(".") if is_pkg else mod.split(".")[:-1]
+        parts = parts[: len(parts) - node.level + 1]
+        base = ".".join(parts + ([base] if base else []))
+    subs = [f"{base}.{a.name}" for a in node.names if f"{base}.{a.name}" in mods]
+    return subs + ([base] if len(subs) < len(node.names) and base in mods else [])
+
+
+def import_graph() -> dict[str, set[str]]:
+    mods = _modules()
+    graph = {m: set() for m in mods}
+    for mod, path in mods.items():
+        is_pkg = path.name == "__init__.py"
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, (ast.Import, ast.ImportFrom)):
+                graph[mod].update(t for t in _targets(mod, node, is_pkg, mods) if t != mod)
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """Strongly connected components of more than one module (Tarjan, iterative)."""
+    index, low, stack, on, out, counter = {}, {}, [], set(), [], [0]
+    for root in graph:
+        if root in index:
+            continue
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = counter[0]
+        counter[0] += 1
+        stack.append(root)
+        on.add(root)
+        while work:
+            v, it = work[-1]
+            w = next(it, None)
+            if w is not None:
+                if w not in index:
+                    index[w] = low[w] = counter[0]
+                    counter[0] += 1
+                    stack.append(w)
+                    on.add(w)
+                    work.append((w, iter(sorted(graph[w]))))
+                elif w in on:
+                    low[v] = min(low[v], index[w])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[v])
+            if low[v] == index[v]:
+                comp = []
+                while True:
+                    x = stack.pop()
+                    on.discard(x)
+                    comp.append(x)
+                    if x == v:
+                        break
+                if len(comp) > 1:
+                    out.append(sorted(comp))
+    return out
+
+
+def _package(mod: str) -> str:
+    parts = mod.split(".")
+    return parts[1] if parts[0] == "polarref" and len(parts) > 1 else parts[0]
+
+
+def test_cycle_finder_finds_a_cycle():
+    g = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
+    assert cycles(g) == [["a", "b", "c"]]
+    assert cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_no_import_cycle():
+    found = cycles(import_graph())
+    assert not found, "import cycles: " + "; ".join(" <-> ".join(c) for c in found)
+
+
+def test_packages_layered_one_way():
+    rank = {p: i for i, row in enumerate(LAYERS) for p in row}
+    bad = []
+    for mod, targets in import_graph().items():
+        a = _package(mod)
+        if a not in rank:
+            continue
+        for t in targets:
+            b = _package(t)
+            if b in rank and b != a and rank[b] <= rank[a]:
+                bad.append(f"{mod} -> {t}")
+    assert not bad, "imports against the layering: " + ", ".join(sorted(bad))
+
+
+def test_nothing_at_the_top_level_but_the_face_and_the_cli():
+    top = {p.stem for p in (ROOT / "polarref").glob("*.py")}
+    assert top == TOP_LEVEL
+    assert not (ROOT / "polarref" / "reconstruction.py").exists()
+
+
+@pytest.mark.parametrize("pkg", [p.name for p in (ROOT / "polarref").iterdir()
+                                 if (p / "__init__.py").is_file()])
+def test_no_module_imports_its_own_package_face(pkg):
+    """A package's __init__ re-exports; its modules import the defining module instead."""
+    face = f"polarref.{pkg}"
+    bad = [m for m, t in import_graph().items() if m.startswith(face + ".") and face in t]
+    assert not bad, f"{', '.join(bad)} import {face} (its __init__)"
