@@ -90,7 +90,7 @@ def _config(args: argparse.Namespace):
 
 def run(args: argparse.Namespace) -> int:
     from polarref.core.atomic import refuse_inside_inputs
-    from polarref.model.scene_folder import discover
+    from polarref.io.scene_folder import discover
     from polarref.sfm import features as F
     from polarref.sfm.pipeline import parse_camera, run_sfm
 
