@@ -131,7 +131,6 @@ def _timed(m: DenseMetrics, stage: str, t0: tuple[float, float]) -> tuple[float,
 
 def _load(scene_dir: Path, model: str):
     """(image_dir, rec, gt or None, loaded synthetic scene or None)."""
-    from polarref.model import Reconstruction
     from polarref.io.scene_folder import discover
 
     found = discover(scene_dir)
