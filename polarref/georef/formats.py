@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from polarref.core.atomic import atomic_write
 from polarref.core.errors import PolarrefError
 from polarref.core.geometry import axis_rotation
 
@@ -232,6 +233,4 @@ def write_priors(path: Path, priors) -> None:
 
 
 def _write(path: Path, lines) -> None:
-    from polarref.core.atomic import atomic_write
-
     atomic_write(Path(path), "\n".join(lines) + "\n")
