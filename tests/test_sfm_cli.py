@@ -70,10 +70,13 @@ def test_cli_unknown_camera_and_missing_dir(tmp_path, capsys):
     assert "no image pair passed geometric verification" in capsys.readouterr().err
     m = json.loads((tmp_path / "o2" / "metrics.json").read_text())
     assert m["status"] == "failed"
-    assert main(["sfm", str(tmp_path / "s"), "--out", str(tmp_path / "o4"), "--refine", "focal,skew"]) == 1
-    assert "--refine" in capsys.readouterr().err
-    assert main(["sfm", str(tmp_path / "s"), "--out", str(tmp_path / "o3"), "--camera", "PINHOLE:1,2"]) == 1
-    assert "--camera" in capsys.readouterr().err
+    # invalid option values are usage errors (issue 31): argparse's exit 2, before any work
+    for opt, value, out in (("--refine", "focal,skew", "o4"), ("--camera", "PINHOLE:1,2", "o3")):
+        with pytest.raises(SystemExit) as exit_info:
+            main(["sfm", str(tmp_path / "s"), "--out", str(tmp_path / out), opt, value])
+        assert exit_info.value.code == 2
+        assert opt in capsys.readouterr().err
+        assert not (tmp_path / out).exists()
 
 
 def test_cli_fewer_than_two_registrable_views(tmp_path, monkeypatch, capsys):
