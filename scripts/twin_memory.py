@@ -33,18 +33,18 @@ def main(argv=None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     stage, run, scene, r = rr.stage, rr.run, rr.scene, rr.result
-    same = filecmp.cmp(Path(r.model_dir) / "points3D.txt", Path(stage["result"]["model_dir"]) / "points3D.txt",
+    same = filecmp.cmp(Path(r.model_dir) / "points3D.txt", Path(stage.result.model_dir) / "points3D.txt",
                        shallow=False)
-    rec = {"twin": run["twin"], "method": f"ours-{a.ba}", "images": len(scene.image_names),
+    rec = {"twin": run.twin, "method": f"ours-{a.ba}", "images": len(scene.image_names),
            "peak_rss_mb": r.peak_rss_mb, "stage_runtime_s": r.stage_runtime_s,
            "wall_s": rr.wall_s, "model_identical_to_stage": same,
-           "stage_record": {"peak_rss_mb": stage["result"]["peak_rss_mb"],
-                            "stage_runtime_s": stage["result"]["stage_runtime_s"],
-                            "finished_utc": stage["finished_utc"], "git_commit": stage.get("git_commit")},
+           "stage_record": {"peak_rss_mb": stage.result.peak_rss_mb,
+                            "stage_runtime_s": stage.result.stage_runtime_s,
+                            "finished_utc": stage.finished_utc, "git_commit": stage.git_commit or None},
            "provenance": collect()}
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(rec, indent=1, default=str) + "\n")
-    print(f"ours-{a.ba} on {run['twin']}: peak {r.peak_rss_mb:.0f} MB (stage record {stage['result']['peak_rss_mb']:.0f} MB), "
+    print(f"ours-{a.ba} on {run.twin}: peak {r.peak_rss_mb:.0f} MB (stage record {stage.result.peak_rss_mb:.0f} MB), "
           f"model identical: {same}")
     return 0
 

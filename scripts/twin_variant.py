@@ -13,7 +13,6 @@ the tables' "drop").
 """
 
 import argparse
-import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -25,6 +24,14 @@ from polarref.core.provenance import collect
 from polarref.sfm.pipeline import PRESETS
 
 TIE_POINT_TARGET = {"rosetta": TWIN_ROSETTA_MIN_TIES}  # issue 13's done-when (the other twins have none)
+
+
+def _scores(m) -> dict:
+    """The figures of the tables (a ReconstructionMetrics) under this file's keys."""
+    return {"registered": m.registered_images, "tie_points": m.tie_points, "reprojected_px": m.reprojected_px,
+            "mean_reprojection_error_px": m.mean_reprojection_error_px,
+            "rotation_error_deg": None if m.gt is None else m.gt.rotation_error_deg_mean,
+            "centre_error_rel": None if m.gt is None else m.gt.center_error_rel_mean}
 
 
 def main(argv=None) -> int:
@@ -41,14 +48,14 @@ def main(argv=None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     stage, run, scene, r, wall = rr.stage, rr.run, rr.scene, rr.result, rr.wall_s
-    variant = {**dataclasses.asdict(score_model(r.model_dir, scene.gt)), "peak_rss_mb": r.peak_rss_mb,
+    variant = {**_scores(score_model(r.model_dir, scene.gt)), "peak_rss_mb": r.peak_rss_mb,
                "stage_runtime_s": r.stage_runtime_s, "wall_s": wall}
-    baseline = {**dataclasses.asdict(score_model(stage["result"]["model_dir"], scene.gt)),
-                "peak_rss_mb": stage["result"]["peak_rss_mb"],
-                "stage_runtime_s": stage["result"]["stage_runtime_s"], "wall_s": stage["wall_s"],
-                "finished_utc": stage["finished_utc"], "git_commit": stage.get("git_commit")}
-    target = TIE_POINT_TARGET.get(run["twin"])
-    rec = {"twin": run["twin"], "method": f"ours-{a.ba}", "images": len(scene.image_names),
+    baseline = {**_scores(score_model(stage.result.model_dir, scene.gt)),
+                "peak_rss_mb": stage.result.peak_rss_mb,
+                "stage_runtime_s": stage.result.stage_runtime_s, "wall_s": stage.wall_s,
+                "finished_utc": stage.finished_utc, "git_commit": stage.git_commit or None}
+    target = TIE_POINT_TARGET.get(run.twin)
+    rec = {"twin": run.twin, "method": f"ours-{a.ba}", "images": len(scene.image_names),
            "variant_settings": {"track_conflicts": a.track_conflicts},
            "baseline_settings": {"track_conflicts": PRESETS["default"].track_conflicts},
            "variant": variant, "baseline": baseline,
@@ -58,7 +65,7 @@ def main(argv=None) -> int:
            "provenance": collect()}
     a.out.parent.mkdir(parents=True, exist_ok=True)
     a.out.write_text(json.dumps(rec, indent=1, default=str) + "\n")
-    print(f"ours-{a.ba} on {run['twin']}, track conflicts {a.track_conflicts}: {variant['tie_points']:,} tie points "
+    print(f"ours-{a.ba} on {run.twin}, track conflicts {a.track_conflicts}: {variant['tie_points']:,} tie points "
           f"(stage: {baseline['tie_points']:,}), {variant['mean_reprojection_error_px']:.3f} px "
           f"({baseline['mean_reprojection_error_px']:.3f}), rotation {variant['rotation_error_deg']:.4f} deg "
           f"({baseline['rotation_error_deg']:.4f}), {wall / 60:.1f} min, peak {r.peak_rss_mb:.0f} MB")

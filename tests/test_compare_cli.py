@@ -15,7 +15,7 @@ import pytest
 
 from polarref.cli import main
 from polarref.compare import pipeline
-from polarref.compare.jobs import MethodJobResult, SharedStageResult
+from polarref.model.run import MethodRun
 from polarref.compare.runner import JobOutcome
 
 
@@ -80,8 +80,8 @@ def test_failed_method_is_reported_and_others_still_report(tmp_path, monkeypatch
         if name == "pycolmap_map":
             return JobOutcome("failed", "RuntimeError: pycolmap incremental mapping registered no images")
         if name == "ours_sfm":
-            return JobOutcome("ok", "", 1.0, MethodJobResult(str(model), {"mapping": 2.5, "bundle adjustment": 0.5}))
-        return JobOutcome("ok", "", 1.0, SharedStageResult({"features": 1.0}, 3))
+            return JobOutcome("ok", "", 1.0, MethodRun(model_dir=str(model), stage_runtime_s={"mapping": 2.5, "bundle adjustment": 0.5}))
+        return JobOutcome("ok", "", 1.0, MethodRun(stage_runtime_s={"features": 1.0}, verified_pairs=3))
 
     monkeypatch.setattr(pipeline, "run_isolated", fake)
     out = tmp_path / "report"
@@ -156,7 +156,7 @@ def test_run_budget_shortens_later_limits(tmp_path, monkeypatch, isolated_cache)
             limits.append(timeout_s)
             clock.t += timeout_s
             return JobOutcome("timeout", f"timed out after {timeout_s:.0f} s (process killed)", timeout_s)
-        return JobOutcome("ok", "", 0.0, SharedStageResult({}, 0))
+        return JobOutcome("ok", "", 0.0, MethodRun(verified_pairs=0))
 
     monkeypatch.setattr(pipeline, "run_isolated", fake)
     monkeypatch.setattr(pipeline, "time", clock)
@@ -209,8 +209,8 @@ def test_default_output_is_gitignored_polarref_out(tmp_path, monkeypatch, isolat
     toy, model, _ = _toy_scene(tmp_path)
     scene = toy.rename(tmp_path / f"toy{uuid.uuid4().hex[:8]}")  # a name no user folder has
     monkeypatch.setattr(pipeline, "run_isolated", lambda job, kw, t, w, tag, reuse=False: JobOutcome(
-        "ok", "", 1.0, MethodJobResult(str(model), {"mapping": 1.0})
-        if job.__name__ == "ours_sfm" else SharedStageResult({}, 0)))
+        "ok", "", 1.0, MethodRun(model_dir=str(model), stage_runtime_s={"mapping": 1.0})
+        if job.__name__ == "ours_sfm" else MethodRun(verified_pairs=0)))
     status = lambda: subprocess.run(["git", "status", "--porcelain", "--untracked-files=all"], cwd=REPO_ROOT,
                                     capture_output=True, text=True, check=True).stdout
     reports = sorted((p.relative_to(REPO_ROOT), p.stat().st_mtime_ns) for p in (REPO_ROOT / "reports").rglob("*"))

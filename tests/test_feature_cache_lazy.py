@@ -84,15 +84,16 @@ def test_descriptors_of_other_images_or_a_vanished_cache_are_refused(cached, tmp
 def test_twin_features_stage_names_a_cached_load(tmp_path):
     """A twin's features stage that only loaded cached features says so instead of calling the
     load time the extraction time (the table compares it with pycolmap's extraction)."""
-    from polarref.compare.twins import FEATURES_CACHED, job_ours_features
+    from polarref.compare.jobs import ours_features
+    from polarref.compare.twins import FEATURES_CACHED
 
     images = _images(tmp_path / "images")
     pairs = tmp_path / "pairs.txt"
     pairs.write_text("im0.png im1.png\nim1.png im2.png\nim0.png im2.png\n")
     w, h = cv2.imread(str(images / "im0.png")).shape[1::-1]
     cam = {"model": "PINHOLE", "width": w, "height": h, "params": [300.0, 300.0, w / 2, h / 2]}
-    first = job_ours_features(str(images), cam, str(pairs), str(tmp_path / "cache"))
-    again = job_ours_features(str(images), cam, str(pairs), str(tmp_path / "cache"))
+    first = ours_features(str(images), cam, "default", str(tmp_path / "cache"), str(pairs))
+    again = ours_features(str(images), cam, "default", str(tmp_path / "cache"), str(pairs))
     assert "features" in first.stage_runtime_s and FEATURES_CACHED not in first.stage_runtime_s
     assert FEATURES_CACHED in again.stage_runtime_s and "features" not in again.stage_runtime_s
     assert first.verified_pairs == again.verified_pairs == 3

@@ -16,7 +16,10 @@ from polarref.compare import paper_scale as PS
 from polarref.compare import paper_readme as PR
 from polarref.compare import paper_tables as PT
 from polarref.sfm.feature_cache import mean_keypoints
-from polarref.compare import twins
+from polarref.compare import jobs, twins
+from polarref.core import records
+from polarref.core.status import RunStatus
+from polarref.model.run import MethodRun
 from polarref.compare.index import build_index
 from polarref.core.errors import PolarrefError
 
@@ -177,19 +180,20 @@ def test_stage_records_name_their_commit_and_old_records_still_resume(tmp_path, 
 
     def fake(job, kwargs, timeout_s, work_dir, tag, reuse=False):
         calls.append(tag)
-        return JobOutcome("ok", "", 1.5, twins.TwinJobResult({"features": 1.0}, 10.0, feature_file="x.npz"))
+        return JobOutcome("ok", "", 1.5, MethodRun(stage_runtime_s={"features": 1.0}, peak_rss_mb=10.0, feature_file="x.npz"))
 
     monkeypatch.setattr(runner, "run_isolated", fake)
     st = twins._Stages(tmp_path, 60.0)
-    rec = st.run("ours-features", "job_ours_features", {})
+    rec = st.run("ours-features", jobs.ours_features, {})
     commit, dirty = git_state()
-    assert rec["git_commit"] == commit and len(commit) == 40 and rec["git_dirty"] == dirty
+    assert rec.git_commit == commit and len(commit) == 40 and rec.git_dirty == dirty
     assert json.loads((tmp_path / "stages" / "ours-features.json").read_text())["result"]["feature_file"] == "x.npz"
     old = {"stage": "ours-polar", "status": "ok", "reason": "", "wall_s": 9.0, "result": {}, "finished_utc": "x"}
     (tmp_path / "stages" / "ours-polar.json").write_text(json.dumps(old))
-    assert st.run("ours-polar", "job_ours_sfm", {}) == old and calls == ["ours-features"]   # resumed, not rerun
+    assert st.run("ours-polar", jobs.ours_sfm, {}) == twins.StageRecord("ours-polar", RunStatus.OK, "", 9.0, MethodRun(), "x") \
+        and calls == ["ours-features"]   # resumed, not rerun
     assert PT.stage_commit(old) == "not recorded"
-    assert PT.stage_commit(rec).startswith(commit[:10])
+    assert PT.stage_commit(records.to_dict(rec)).startswith(commit[:10])
 
 
 def test_mean_keypoints_from_our_feature_cache_and_a_colmap_database(tmp_path):
@@ -205,14 +209,14 @@ def test_mean_keypoints_from_our_feature_cache_and_a_colmap_database(tmp_path):
     assert mean_keypoints(tmp_path / "bad.npz") is None
     # Which cache file: the one the stage recorded; for old records every one in the cache if they agree.
     save(tmp_path / "features-def.npz", feats[:1])
-    recorded = {"result": {"feature_file": str(tmp_path / "features-def.npz")}}
+    recorded = str(tmp_path / "features-def.npz")
     assert twins.ours_mean_keypoints(recorded, tmp_path) == pytest.approx(10.0)
     (tmp_path / "features-def.npz").unlink()
-    assert twins.ours_mean_keypoints({"result": {}}, tmp_path) == pytest.approx(21.0)
+    assert twins.ours_mean_keypoints("", tmp_path) == pytest.approx(21.0)
     save(tmp_path / "features-ghi.npz", feats[::-1])                 # same counts, other order: agree
-    assert twins.ours_mean_keypoints({"result": {}}, tmp_path) == pytest.approx(21.0)
+    assert twins.ours_mean_keypoints("", tmp_path) == pytest.approx(21.0)
     save(tmp_path / "features-def.npz", feats[:1])
-    assert twins.ours_mean_keypoints({"result": {}}, tmp_path) is None    # they disagree: not recorded
+    assert twins.ours_mean_keypoints("", tmp_path) is None    # they disagree: not recorded
 
     db = tmp_path / "database.db"
     con = sqlite3.connect(db)

@@ -3,85 +3,103 @@
 Features and verified matches are computed once per comparison (timed) into a cache folder
 inside the run directory; every ``ours-*`` method and the ``pycolmap-*-ours`` imports then
 read that cache, and the shared stage's time is added to each method's runtime, exactly as
-pycolmap's shared SIFT database is for its two mappers.
+pycolmap's shared SIFT database is for its two mappers. The scene comparison and the twins run
+these same functions (through :mod:`polarref.compare.jobs`); the twins match a pairs file.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import resource
 import time
 from pathlib import Path
 
 import numpy as np
 
 from polarref.camera import Camera
-from polarref.compare.job_results import MethodJobResult, SharedStageResult
-from polarref.io.scene_folder import SkippedImage
-from polarref.compare.schema import TracePoint
+from polarref.model.run import MethodRun, SkippedImage, TracePoint
 from polarref.peers.colmap_sfm import count_verified_pairs
+from polarref.sfm.config import PRESETS, SfMConfig
 
 # Timing keys of polarref.sfm that are not part of reconstructing (or double count).
 _NOT_STAGES = {"total", "metrics", "export", "features_cached", "matches_cached"}
+# features/matching/verification of a method come from the shared cache: their real cost is the shared stage's
+_SHARED_STAGES = ("features", "matching", "verification")
+FEATURES_CACHED = "features (loaded from an earlier run's cache)"
 
 
-def sfm_config(preset: str, cache_dir: Path):
-    from polarref.sfm.pipeline import PRESETS
+def peak_rss_mb() -> float:
+    """Largest resident set of this process so far, MB (Linux reports KiB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
+
+def sfm_config(preset: str, cache_dir: Path, pairs_file: str = "", track_conflicts: str | None = None) -> SfMConfig:
+    """The pipeline settings of a comparison: the preset's (small, or default for the others)
+    with the shared cache; ``pairs_file`` matches only its pairs; ``track_conflicts`` None keeps
+    the pipeline's default."""
     base = PRESETS["small" if preset == "small" else "default"]
-    return dataclasses.replace(base, use_cache=True, cache_dir=str(cache_dir))
+    config = dataclasses.replace(base, use_cache=True, cache_dir=str(cache_dir),
+                                 track_conflicts=track_conflicts or base.track_conflicts)
+    if pairs_file:
+        config = dataclasses.replace(config, matching=dataclasses.replace(config.matching, pairing="file",
+                                                                          pairs_file=str(pairs_file)))
+    return config
 
 
-def _features_and_matches(image_dir: Path, cam: Camera, preset: str, cache_dir: Path):
+def _features_and_matches(image_dir: Path, cam: Camera, config: SfMConfig):
     from polarref.sfm.pipeline import load_images_and_features, match_and_verify
 
-    config = sfm_config(preset, cache_dir)
-    timings: dict = {}
+    timings: dict[str, float] = {}
     feats, skipped, key = load_images_and_features(image_dir, config, timings)
     matches = match_and_verify(feats, [cam], np.zeros(len(feats), np.int64), config, key, timings)
-    return matches, skipped, timings
+    return matches, skipped, timings, key
 
 
-def prepare_features(image_dir: Path, cam: Camera, preset: str, cache_dir: Path) -> SharedStageResult:
+def prepare_features(image_dir: Path, cam: Camera, config: SfMConfig) -> MethodRun:
     """Compute (and cache) features and verified matches; returns the timed stages."""
-    matches, skipped, timings = _features_and_matches(image_dir, cam, preset, cache_dir)
-    return SharedStageResult({k: float(timings[k]) for k in ("features", "matching", "verification")
-                              if k in timings}, len(matches.geometries),
-                             [SkippedImage(str(s["name"]), str(s["reason"])) for s in skipped])
+    matches, skipped, timings, key = _features_and_matches(image_dir, cam, config)
+    stages = {k: float(timings[k]) for k in _SHARED_STAGES if k in timings}
+    if timings.get("features_cached"):  # the time to load them, not to extract them: say so
+        stages[FEATURES_CACHED] = stages.pop("features")
+    return MethodRun("ours-features", stage_runtime_s=stages, verified_pairs=len(matches.geometries),
+                     skipped_images=[SkippedImage(str(s["name"]), str(s["reason"])) for s in skipped],
+                     feature_file=str(Path(config.cache_dir) / f"features-{key}.npz"), peak_rss_mb=peak_rss_mb())
 
 
-def import_into_database(image_dir: Path, cam: Camera, preset: str, cache_dir: Path,
-                         db_path: Path) -> SharedStageResult:
+def import_into_database(image_dir: Path, cam: Camera, config: SfMConfig, db_path: Path) -> MethodRun:
     """Our keypoints, putative matches and verified geometries as a pycolmap database (no re-verification)."""
     from polarref.sfm.export import write_colmap_database
 
-    matches, _, _ = _features_and_matches(image_dir, cam, preset, cache_dir)
+    matches, _, _, _ = _features_and_matches(image_dir, cam, config)
     t0 = time.perf_counter()
     write_colmap_database(db_path, matches, [cam], np.zeros(len(matches.names), np.int64), overwrite=True)
-    return SharedStageResult({"import": time.perf_counter() - t0}, count_verified_pairs(db_path))
+    return MethodRun("db-ours", stage_runtime_s={"import": time.perf_counter() - t0},
+                     verified_pairs=count_verified_pairs(db_path), peak_rss_mb=peak_rss_mb())
 
 
-def run(image_dir: Path, cam: Camera, ba: str, work_dir: Path, preset: str, cache_dir: Path) -> MethodJobResult:
+def _final_trace(bas) -> list[TracePoint] | None:
+    """Accepted steps of the last global BA that kept a trace, starting at its initial cost."""
+    final = next((b for b in reversed(bas) if b.kind == "global" and b.trace), None)
+    if final is None:
+        return None
+    return [TracePoint(0, 0.0, float(final.initial_cost))] + [
+        TracePoint(int(r.iteration), float(r.wall_s), float(r.cost)) for r in final.trace if r.accepted]
+
+
+def run(image_dir: Path, cam: Camera, ba: str, work_dir: Path, config: SfMConfig) -> MethodRun:
     """``polarref.sfm.run_sfm`` with BA ``ba``; model in ``work_dir/sfm/model``."""
     from polarref.sfm.pipeline import run_sfm, with_ba
 
-    config = with_ba(sfm_config(preset, cache_dir), ba)
     t0 = time.perf_counter()
-    result = run_sfm(image_dir, work_dir / "sfm", config, camera=cam, overwrite=True)
+    result = run_sfm(image_dir, work_dir / "sfm", with_ba(config, ba), camera=cam, overwrite=True)
     wall = time.perf_counter() - t0
-    t = result.report.runtime_s
-    stages = {k: float(v) for k, v in t.items() if k not in _NOT_STAGES and not isinstance(v, bool)}
-    # features/matching/verification came from the shared cache: their real cost is the shared stage's.
-    for k in ("features", "matching", "verification"):
-        stages.pop(k, None)
+    stages = {k: float(v) for k, v in result.report.runtime_s.items()
+              if k not in _NOT_STAGES and k not in _SHARED_STAGES and not isinstance(v, bool)}
     ba_s = stages.pop("ba", 0.0)
     if "mapping" in stages:
         stages["mapping (excl. BA)"] = max(0.0, stages.pop("mapping") - ba_s)
     stages["bundle adjustment"] = ba_s
     bas = list(result.report.ba or [])
-    final = next((b for b in reversed(bas) if b.kind == "global" and b.trace), None)
-    trace = None
-    if final is not None:  # accepted steps, starting at the initial cost
-        trace = [TracePoint(0, 0.0, float(final.initial_cost))] + [
-            TracePoint(int(r.iteration), float(r.wall_s), float(r.cost)) for r in final.trace if r.accepted]
-    return MethodJobResult(str(work_dir / "sfm" / "model"), stages, wall_s=wall, num_ba_runs=len(bas),
-                           final_ba_trace=trace)
+    return MethodRun(f"ours-{ba}", form=ba, stage_runtime_s=stages, wall_s=wall,
+                     model_dir=str(work_dir / "sfm" / "model"), num_ba_runs=len(bas),
+                     final_ba_trace=_final_trace(bas), peak_rss_mb=peak_rss_mb())

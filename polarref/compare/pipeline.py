@@ -25,7 +25,7 @@ from polarref.core import execution
 from polarref.compare import claims as claims_mod
 from polarref.compare import scenes, view3d
 from polarref.compare import jobs
-from polarref.compare.jobs import MethodJobResult, camera_to_json
+from polarref.compare.jobs import camera_to_json
 from polarref.compare.methods import METHOD_NAMES, PAIRS, RUN_ORDER, MethodSpec, select
 from polarref.compare.runner import JobOutcome, has_finished_result, run_isolated, run_isolated_with
 from polarref.compare.schema import (SCHEMA_VERSION, BATrace, Environment, MethodResult, MetricsFile, SceneInfo, save)
@@ -33,6 +33,7 @@ from polarref.core.errors import PolarrefError
 from polarref.core.progress import track
 from polarref.core.provenance import Provenance, collect_record
 from polarref.model.colmap import read_model
+from polarref.model.run import MethodRun
 from polarref.core.status import RunStatus
 
 if TYPE_CHECKING:
@@ -132,7 +133,7 @@ def _shared_once(ctx: _Context, key: str):
     return ctx.db_results[key]
 
 
-def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodResult, Reconstruction | None, MethodJobResult | None]:
+def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodResult, Reconstruction | None, MethodRun | None]:
     """Run one method; returns (result with status/timings, Reconstruction or None, job result)."""
     from polarref.model import Reconstruction
 
@@ -179,7 +180,7 @@ def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodResult, Reconstr
 
 def _run_methods_on_cluster(executor, ctx: _Context, ordered: list[MethodSpec], timeout: float,
                             deadline: float | None) -> list[tuple[MethodResult, Reconstruction | None,
-                                                                  MethodJobResult | None]]:
+                                                                  MethodRun | None]]:
     """Every method as a task on the cluster at once (shared stages run once, first come).
 
     One thread per method waits for its task(s); the methods' own processes run on the workers.
@@ -278,7 +279,7 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
     reserve = claims_budget if claims_budget < float("inf") else CLAIMS_BUDGET_S["default"]
     deadline = None if budget is None else t_start + budget - reserve - REPORT_RESERVE_S
     results: list[MethodResult] = []
-    job_results: dict[str, MethodJobResult | None] = {}
+    job_results: dict[str, MethodRun | None] = {}
     view = view3d.new_view(scene.gt, scene.camera, mesh, cfg.seed) if scene.gt is not None else None
     ordered = sorted(specs, key=lambda m: RUN_ORDER.index(m.name))
     executor = execution.current()

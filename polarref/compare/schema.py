@@ -18,6 +18,7 @@ from polarref.compare.dense_section import DenseSection
 from polarref.core.errors import PolarrefError
 from polarref.metrics import SCHEMA_VERSION, ReconstructionMetrics
 from polarref.core.status import RunStatus
+from polarref.model.run import TracePoint  # noqa: F401 (part of the schema)
 
 _METRIC_FIELDS = frozenset(f.name for f in fields(ReconstructionMetrics))
 
@@ -70,15 +71,6 @@ class Histogram:
 
     edges: list[float]
     counts: list[int]
-
-
-@dataclass
-class TracePoint:
-    """One solver iteration (for convergence plots)."""
-
-    iteration: int
-    time_s: float
-    cost: float
 
 
 @dataclass

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 from polarref.core.errors import PolarrefError
 from polarref.model.colmap import read_model
+from polarref.model.run import SkippedImage  # noqa: F401 (re-exported: the readers name it)
 
 if TYPE_CHECKING:
     from polarref.model import Reconstruction
@@ -27,14 +28,6 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp")
 def list_images(image_dir: str | Path) -> list[Path]:
     """Image files directly inside ``image_dir``, sorted by name."""
     return sorted(p for p in Path(image_dir).iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
-
-
-@dataclass
-class SkippedImage:
-    """An image file a stage could not read, and why."""
-
-    name: str
-    reason: str
 
 
 @dataclass
