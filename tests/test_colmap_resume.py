@@ -14,9 +14,10 @@ pytest.importorskip("pycolmap")
 
 @pytest.fixture(scope="module")
 def small_db(comet_small_scene, tmp_path_factory):
+    from polarref.compare.presets import DEFAULT
     from polarref.compare.scenes import prepare
 
-    scene = prepare(str(comet_small_scene), "default", 0)
+    scene = prepare(str(comet_small_scene), DEFAULT, 0)
     db = tmp_path_factory.mktemp("resume") / "database.db"
     extract_and_match_sift(scene.image_dir, scene.camera, db, ColmapSfMOptions(seed=0, num_threads=1),
                            image_names=list(scene.image_names))

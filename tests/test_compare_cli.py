@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from polarref.cli import main
-from polarref.compare import pipeline
+from polarref.compare import pipeline, presets
 from polarref.model.run import MethodRun
 from polarref.compare.runner import JobOutcome
 
@@ -161,7 +161,7 @@ def test_run_budget_shortens_later_limits(tmp_path, monkeypatch, isolated_cache)
     monkeypatch.setattr(pipeline, "run_isolated", fake)
     monkeypatch.setattr(pipeline, "time", clock)
     out = tmp_path / "r"
-    cfg = pipeline.CompareConfig(scene=str(scene), preset="large", out=out, claims=False, budget_s=60.0,
+    cfg = pipeline.CompareConfig(scene=str(scene), preset=presets.get("large"), out=out, claims=False, budget_s=60.0,
                                  methods=("ours-euclidean", "ours-polar", "ours-angular"))
     _, metrics = pipeline.run_compare(cfg)
     # deadline = 60 - 12 (report reserve); the first keeps 8 s for each of the two others.

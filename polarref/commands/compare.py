@@ -7,6 +7,7 @@ import logging
 from pathlib import Path
 
 from polarref.commands._types import SEED, float_range, positive_float
+from polarref.compare import presets
 from polarref.core.errors import PolarrefError, UsageError
 from polarref.core.status import RunStatus
 
@@ -30,8 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "truth (images/ + gt/ COLMAP model or Strecha gt_dense_cameras/); or a twin of "
                              "the paper's datasets, rosetta, poets-park or mappilot (Tables 1-3: resumable "
                              "stages, paper-table.md; --preset, --budget, --no-claims, --dense do not apply)")
-    parser.add_argument("--preset", default="default", choices=("small", "default", "large"),
-                        help="synthetic scene size / real-image downscaling (default: default)")
+    parser.add_argument("--preset", default=presets.DEFAULT.name, choices=presets.NAMES,
+                        help="synthetic scene size, real-image downscaling, time limits (default: "
+                             f"{presets.DEFAULT.name})")
     parser.add_argument("--out", type=Path, default=None,
                         help="report folder (default: ./polarref-out/<scene>-<preset>); a finished one "
                              "(metrics.json) is refused without --overwrite, and updated, never wiped, with it")
@@ -41,11 +43,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="subset of methods (default: all): " + ", ".join(METHOD_NAMES))
     parser.add_argument("--seed", type=SEED, default=0, help="render seed and every method/experiment seed")
     parser.add_argument("--method-timeout", type=positive_float, default=None, metavar="S",
-                        help="wall-clock limit per method in seconds (default by preset: small 120, "
-                             "default 90, large 1800); a method over it is reported as timed out")
+                        help="wall-clock limit per method in seconds (default by preset: "
+                             + ", ".join(f"{p.name} {p.method_timeout_s:g}" for p in presets.PRESETS.values())
+                             + "); a method over it is reported as timed out")
     parser.add_argument("--budget", type=_budget, default=-1.0, metavar="S",
                         help="whole-run time limit in seconds, rendering included (default by preset: "
-                             "default 290, others none; 0 = none); later methods get shorter limits")
+                             + ", ".join(f"{p.name} {'none' if p.run_budget_s is None else f'{p.run_budget_s:g}'}"
+                                         for p in presets.PRESETS.values())
+                             + "; 0 = none); later methods get shorter limits")
     parser.add_argument("--no-claims", action="store_true", help="skip the claim experiments")
     parser.add_argument("--tables", type=Path, default=None, metavar="DIR",
                         help="twins only: also write DIR/<twin>/paper-table.md/.json and DIR/README.md "
@@ -93,7 +98,7 @@ def _check_twin_options(args: argparse.Namespace, twin: bool) -> None:
     """Options of the other kind of run are refused, not ignored (a twin renders hundreds of
     views: ``--preset small --budget 5`` must not start that silently)."""
     if twin:
-        given = [flag for flag, on in (("--preset", args.preset != "default"), ("--budget", args.budget != -1.0),
+        given = [flag for flag, on in (("--preset", args.preset != presets.DEFAULT.name), ("--budget", args.budget != -1.0),
                                        ("--no-claims", args.no_claims), ("--dense", args.dense)) if on]
         if given:
             raise UsageError(f"{', '.join(given)} do(es) not apply to the twin {args.scene} (its views, size and "
@@ -123,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
         check_writable_parent(args.out / "metrics.json")
     if args.method_timeout is not None and not args.method_timeout > 0:
         raise PolarrefError(f"--method-timeout must be > 0, got {args.method_timeout}")
-    cfg = CompareConfig(scene=args.scene, preset=args.preset, out=args.out,
+    cfg = CompareConfig(scene=args.scene, preset=presets.get(args.preset), out=args.out,
                         methods=tuple(args.methods or ()), seed=args.seed,
                         method_timeout_s=args.method_timeout, claims=not args.no_claims,
                         budget_s=None if args.budget == 0 else args.budget,

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from polarref.camera import Camera
+from polarref.compare import presets
 from polarref.model.run import MethodRun, SkippedImage, TracePoint
 from polarref.peers.colmap_sfm import count_verified_pairs
 from polarref.sfm.config import PRESETS, SfMConfig
@@ -34,10 +35,10 @@ def peak_rss_mb() -> float:
 
 
 def sfm_config(preset: str, cache_dir: Path, pairs_file: str = "", track_conflicts: str | None = None) -> SfMConfig:
-    """The pipeline settings of a comparison: the preset's (small, or default for the others)
+    """The pipeline settings of a comparison under the compare preset named ``preset``
     with the shared cache; ``pairs_file`` matches only its pairs; ``track_conflicts`` None keeps
     the pipeline's default."""
-    base = PRESETS["small" if preset == "small" else "default"]
+    base = PRESETS[presets.get(preset).sfm_preset]
     config = dataclasses.replace(base, use_cache=True, cache_dir=str(cache_dir),
                                  track_conflicts=track_conflicts or base.track_conflicts)
     if pairs_file:

@@ -23,7 +23,8 @@ from typing import TYPE_CHECKING, Callable
 
 from polarref.core import execution
 from polarref.compare import claims as claims_mod
-from polarref.compare import scenes, view3d
+from polarref.compare import presets, scenes, view3d
+from polarref.compare.presets import ComparePreset
 from polarref.compare import jobs
 from polarref.compare.jobs import camera_to_json
 from polarref.compare.methods import METHOD_NAMES, PAIRS, RUN_ORDER, MethodSpec, select
@@ -41,15 +42,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 
-# Per-method wall-clock limit by preset.
-METHOD_TIMEOUT_S = {"small": 120.0, "default": 90.0, "large": 1800.0}
-# Claim experiments: the small preset runs every seed (no deadline, so reruns repeat exactly);
-# the default preset must fit its 290 s run budget (10 + 5 seeds need ~40 s on 2 idle cores).
-CLAIMS_BUDGET_S = {"small": float("inf"), "default": 60.0, "large": 300.0}
-# Whole-run budget (rendering included) by preset; None = unlimited. The default run must finish
-# in 5 minutes on 2 cores: methods run in RUN_ORDER, each may use what is left after keeping
-# MIN_METHOD_S for every later method and RESERVE_S for claims and the report.
-TOTAL_BUDGET_S = {"small": None, "default": 290.0, "large": None}
+# Under a run budget (presets.ComparePreset.run_budget_s) every later method keeps this much,
+# and the report this much.
 MIN_METHOD_S = 8.0
 REPORT_RESERVE_S = 12.0
 
@@ -59,12 +53,12 @@ class CompareConfig:
     """One comparison run."""
 
     scene: str | None = None          # comet | uav | folder; None = comet
-    preset: str = "default"           # small | default | large
+    preset: ComparePreset = presets.DEFAULT
     out: Path | None = None           # report folder; None = ./polarref-out/<scene>-<preset>
     methods: tuple[str, ...] = ()     # empty = all
     seed: int = 0                     # render seed and every method/experiment seed
-    method_timeout_s: float | None = None   # None = METHOD_TIMEOUT_S[preset]
-    budget_s: float | None = -1.0     # whole-run limit in s; -1 = TOTAL_BUDGET_S[preset], None = none
+    method_timeout_s: float | None = None   # None = the preset's
+    budget_s: float | None = -1.0     # whole-run limit in s; -1 = the preset's, None = none
     claims: bool = True               # run the claim experiments
     command: str = ""                 # exact command line, recorded in the report
     overwrite: bool = False           # allow replacing a finished report folder (metrics.json present)
@@ -77,7 +71,7 @@ class _Context:
     runs: Path
     timeout: float
     seed: int
-    preset: str
+    preset: str                                      # ComparePreset.name (a JSON-able job argument)
     cache: Path                                      # shared feature/match cache of our SfM
     camera: dict[str, object] = field(default_factory=dict)      # jobs.camera_to_json
     db_results: dict[str, tuple[JobOutcome, Path | None]] = field(default_factory=dict)  # shared stage -> (outcome, db)
@@ -89,10 +83,10 @@ class _Context:
         return (self.run or run_isolated)(*args, reuse=self.reuse)
 
 
-def default_out(scene: scenes.PreparedScene, preset: str) -> Path:
+def default_out(scene: scenes.PreparedScene, preset: ComparePreset) -> Path:
     """``./polarref-out/<scene>/`` in the working directory (never the committed ``reports/``)."""
     name = scene.name if scene.kind == "real" else scene.name.split("-")[0]
-    return Path.cwd() / "polarref-out" / f"{name}-{preset}"
+    return Path.cwd() / "polarref-out" / f"{name}-{preset.name}"
 
 
 def _refuse_finished(out: Path, overwrite: bool) -> None:
@@ -225,7 +219,7 @@ def _environment(cfg: CompareConfig, scene: scenes.PreparedScene, timeout: float
     return Environment(
         command=cfg.command or "polarref compare", created=datetime.now(timezone.utc).isoformat(timespec="seconds"),
         versions=prov.versions, cpu_count=prov.cpu_count, mitsuba_variant=variant,
-        seeds={"scene": scene.seed, "methods": cfg.seed, "claims": cfg.seed}, preset=cfg.preset,
+        seeds={"scene": scene.seed, "methods": cfg.seed, "claims": cfg.seed}, preset=cfg.preset.name,
         method_timeout_s=timeout, total_runtime_s=total_s, git_commit=prov.git_commit,
         git_dirty=prov.git_dirty, cpu_model=prov.cpu_model, machine=prov.machine,
         platform=prov.platform, threads=prov.threads)
@@ -238,11 +232,9 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
     # Taken before anything is written: regenerating a committed report must not mark the run dirty.
     prov = collect_record(threads={"pycolmap": PYCOLMAP_THREADS, "ba_blas": 1})
     specs = select(list(cfg.methods) or None)
-    if cfg.preset not in METHOD_TIMEOUT_S:
-        raise PolarrefError(f"unknown preset {cfg.preset!r} (choose from {', '.join(METHOD_TIMEOUT_S)})")
     if cfg.out or cfg.scene is None or cfg.scene in scenes.SYNTHETIC:  # refuse before rendering
         _refuse_finished(Path(cfg.out) if cfg.out else
-                         Path.cwd() / "polarref-out" / f"{cfg.scene or 'comet'}-{cfg.preset}", cfg.overwrite)
+                         Path.cwd() / "polarref-out" / f"{cfg.scene or 'comet'}-{cfg.preset.name}", cfg.overwrite)
     scene = scenes.prepare(cfg.scene, cfg.preset, cfg.seed)
     out = Path(cfg.out) if cfg.out else default_out(scene, cfg.preset)
     if out.exists() and not out.is_dir():
@@ -252,8 +244,8 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise PolarrefError(f"cannot create report folder {out}: {exc}") from exc
-    timeout = float(cfg.method_timeout_s or METHOD_TIMEOUT_S[cfg.preset])
-    ctx = _Context(scene, out / "runs", timeout, cfg.seed, cfg.preset, out / "runs" / "ours-features" / "cache",
+    timeout = float(cfg.method_timeout_s or cfg.preset.method_timeout_s)
+    ctx = _Context(scene, out / "runs", timeout, cfg.seed, cfg.preset.name, out / "runs" / "ours-features" / "cache",
                    camera=camera_to_json(scene.camera), reuse=not cfg.overwrite)
     from polarref.compare.scoring import load_mesh
     from polarref.metrics import scene_size
@@ -273,10 +265,10 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
     if scene.kind == "real" and scene.downscale != 1.0:
         notes.append(f"Images downscaled by {scene.downscale:g} (INTER_AREA) before every method; "
                      "intrinsics divided by the same factor (exact with the corner pixel origin).")
-    budget = TOTAL_BUDGET_S[cfg.preset] if cfg.budget_s == -1.0 else cfg.budget_s
-    claims_budget = CLAIMS_BUDGET_S[cfg.preset] if cfg.claims else 0.0
+    budget = cfg.preset.run_budget_s if cfg.budget_s == -1.0 else cfg.budget_s
+    claims_budget = cfg.preset.claims_budget_s if cfg.claims else 0.0
     # an unbounded claims budget (small preset) under an explicit --budget keeps the default's reserve
-    reserve = claims_budget if claims_budget < float("inf") else CLAIMS_BUDGET_S["default"]
+    reserve = claims_budget if claims_budget < float("inf") else presets.DEFAULT.claims_budget_s
     deadline = None if budget is None else t_start + budget - reserve - REPORT_RESERVE_S
     results: list[MethodResult] = []
     job_results: dict[str, MethodRun | None] = {}
@@ -348,4 +340,4 @@ def command_line(argv: list[str] | None = None) -> str:
     return " ".join([prog, *map(shlex.quote, argv[1:])])
 
 
-__all__ = ["CompareConfig", "run_compare", "METHOD_TIMEOUT_S"]
+__all__ = ["CompareConfig", "run_compare"]

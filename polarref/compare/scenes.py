@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from polarref.compare.presets import ComparePreset
 from polarref.core.atomic import atomic_write
 from polarref.camera import Camera
 from polarref.core.data import cache_root
@@ -29,8 +30,6 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 SYNTHETIC = ("comet", "uav")
-# Real images wider than this (per preset) are downscaled; SIFT on 3072 px is too slow for 2 cores.
-MAX_WIDTH = {"small": 768, "default": 1024, "large": 1536}
 
 
 @dataclass
@@ -122,7 +121,7 @@ def _downscale(src_dir: Path, names: list[str], factor: int, dst_dir: Path) -> N
         atomic_write(out, png.tobytes())
 
 
-def _real(folder: Path, source: str, preset: str) -> PreparedScene:
+def _real(folder: Path, source: str, preset: ComparePreset) -> PreparedScene:
     from polarref.model import Image, Reconstruction
 
     found = discover(folder)
@@ -134,7 +133,7 @@ def _real(folder: Path, source: str, preset: str) -> PreparedScene:
         raise PolarrefError(f"{folder} has images but no ground truth (gt/ COLMAP model or "
                             "gt_dense_cameras/*.camera); polarref compare needs the intrinsics")
     cam = next(iter(gt.cameras.values()))
-    factor = _downscale_factor(int(cam.width), int(cam.height), MAX_WIDTH[preset])
+    factor = _downscale_factor(int(cam.width), int(cam.height), preset.max_width)
     used_dir, used_names = image_dir, names
     if factor > 1:
         used_dir = cache_root() / "compare-inputs" / f"{folder.name}-x{factor}"
@@ -147,15 +146,14 @@ def _real(folder: Path, source: str, preset: str) -> PreparedScene:
         gt_used.images[image_id] = Image(image_id, new_name, im.camera_id, im.cam_from_world)
     return PreparedScene(name=folder.name, kind="real", source=source, root=folder, image_dir=used_dir,
                          image_names=used_names, camera=fixed, gt=gt_used, mesh_path=None,
-                         preset=preset, seed=-1, downscale=float(factor))
+                         preset=preset.name, seed=-1, downscale=float(factor))
 
 
-def prepare(arg: str | None, preset: str, seed: int) -> PreparedScene:
-    """Resolve SCENE|DIR (None = the default comet scene)."""
-    if preset not in MAX_WIDTH:
-        raise PolarrefError(f"unknown preset {preset!r} (choose from {', '.join(MAX_WIDTH)})")
+def prepare(arg: str | None, preset: ComparePreset, seed: int) -> PreparedScene:
+    """Resolve SCENE|DIR (None = the default comet scene); ``preset`` sizes a synthetic scene
+    and downscales real images (a twin or a rendered folder decides its own size)."""
     if arg is None or arg in SYNTHETIC:
-        return _synthetic(arg or "comet", preset, seed)
+        return _synthetic(arg or "comet", preset.name, seed)
     from synth.config import TWINS
 
     if arg in TWINS:  # the twin decides views, size and orbit; --preset does not apply

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
-from polarref.compare import jobs, ours, runner
+from polarref.compare import jobs, ours, presets, runner
 from polarref.compare import paper_readme as PR
 from polarref.compare import paper_tables as PT
 from polarref.compare.scenes import PreparedScene, prepare
@@ -131,7 +131,7 @@ def rerun_ours_stage(run_dir: Path, ba: str, out: Path, work: Path | None = None
     scene = _scene(run)  # the scene the run itself prepared
     t0 = time.perf_counter()
     result = jobs.ours_sfm(str(scene.image_dir), jobs.camera_to_json(scene.camera), ba,
-                           str(work or out.with_suffix("")), "default", str(run_dir / "cache"), str(pairs),
+                           str(work or out.with_suffix("")), presets.DEFAULT.name, str(run_dir / "cache"), str(pairs),
                            track_conflicts=track_conflicts)
     return StageRerun(stage, run, scene, result, time.perf_counter() - t0)
 
@@ -172,7 +172,7 @@ class _Stages:
 
 
 def _scene(run: TwinRun) -> PreparedScene:
-    return prepare(run.scene_dir or run.twin, "default", run.seed)
+    return prepare(run.scene_dir or run.twin, presets.DEFAULT, run.seed)
 
 
 def read_run(path: Path) -> TwinRun:
@@ -272,11 +272,11 @@ def _run_stages(run: TwinRun, scene: PreparedScene, out: Path, pairs_file: Path)
     recs: dict[str, list[StageRecord]] = {}
     if any(m.startswith("ours-") for m in wanted):
         feats = st.run("ours-features", jobs.ours_features,
-                       dict(image_dir=img, camera=cam, preset="default", cache_dir=cache, pairs_file=str(pairs_file)))
+                       dict(image_dir=img, camera=cam, preset=presets.DEFAULT.name, cache_dir=cache, pairs_file=str(pairs_file)))
         for m in (m for m in wanted if m.startswith("ours-")):
             recs[m] = [feats] if feats.status != RunStatus.OK else [feats, st.run(
                 m, jobs.ours_sfm, dict(image_dir=img, camera=cam, ba=m.split("-", 1)[1], work_dir=str(out / m),
-                                       preset="default", cache_dir=cache, pairs_file=str(pairs_file)))]
+                                       preset=presets.DEFAULT.name, cache_dir=cache, pairs_file=str(pairs_file)))]
     if any(m.startswith("pycolmap-") for m in wanted):
         sift = st.run("pycolmap-features", jobs.pycolmap_sift_db,
                       dict(image_dir=img, image_names=list(scene.image_names), camera=cam, db_path=db, seed=run.seed,
