@@ -27,10 +27,16 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
-from polarref.bench.sfm_report import STAGES, json_default, write_outputs  # noqa: F401 (STAGES re-exported)
-from polarref.core.atomic import atomic_write
+from polarref.bench.records import (BenchSfMSettings, FailedCell, PeakMemory, SfMBench, SfMCell, read_cell,
+                                    write)
+from polarref.bench.sfm_report import STAGES, write_outputs  # noqa: F401 (STAGES re-exported)
+from polarref.core import records
 from polarref.core.errors import PolarrefError
+from polarref.core.provenance import collect_record
+from polarref.core.status import RunStatus
+from polarref.model import Reconstruction
 from polarref.model.colmap import from_pycolmap, read_model
 
 log = logging.getLogger(__name__)
@@ -41,15 +47,16 @@ THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 @dataclass(frozen=True)
-class BenchSfMSettings:
-    """What every cell shares (stored in bench.json and in each cell)."""
+class _MethodOutput:
+    """What one method's run hands to the cell (in the cell's process)."""
 
-    scene: str = "comet"
-    preset: str = "default"       # synth preset (image size, sampling); views overridden per cell
-    seed: int = 0                 # render seed and both mappers' seeds
-    pairing: str = "sequential"   # our pair selection, imported by pycolmap
-    overlap: int = 10             # sequential overlap
-    threads: int = 1              # every stage of both methods
+    stages_s: dict[str, float]
+    rec: Reconstruction
+    gt: Reconstruction
+    num_images: int
+    pairs: int
+    pairs_sha256: str
+    settings: dict[str, Any]   # the method's option objects as they print
 
 
 def scene_root(settings: BenchSfMSettings, views: int) -> Path:
@@ -85,21 +92,20 @@ def _cpu_seconds() -> float:
     return float(r.ru_utime + r.ru_stime)
 
 
-def peak_memory_mb() -> dict:
+def peak_memory_mb() -> PeakMemory:
     """Peak resident memory of this process: ru_maxrss and /proc VmHWM (MiB; None if unknown)."""
-    out = {"ru_maxrss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, "vmhwm_mb": None}
+    hwm = None
     try:
         for line in Path("/proc/self/status").read_text().splitlines():
             if line.startswith("VmHWM:"):
-                out["vmhwm_mb"] = int(line.split()[1]) / 1024.0
+                hwm = int(line.split()[1]) / 1024.0
     except (OSError, ValueError, IndexError):
         pass
-    return out
+    return PeakMemory(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, hwm)
 
 
 # ---- one cell (child process) ------------------------------------------------------------------
 def _scene(root: Path):
-    from polarref.model import Reconstruction
     from polarref.sfm import features as F
     from synth.scene import load_scene
 
@@ -116,7 +122,7 @@ def _ours_config(settings: BenchSfMSettings):
         base.matching, pairing=settings.pairing, sequential_overlap=settings.overlap))
 
 
-def _run_ours(root: Path, settings: BenchSfMSettings) -> dict:
+def _run_ours(root: Path, settings: BenchSfMSettings) -> _MethodOutput:
     from polarref.sfm.pipeline import run_sfm
 
     names, camera, gt = _scene(root)
@@ -126,15 +132,13 @@ def _run_ours(root: Path, settings: BenchSfMSettings) -> dict:
     stages = {s: float(t.get(s, 0.0)) for s in STAGES["ours"]}
     stages["ba"] = float(t.get("ba", 0.0))  # part of mapping
     pairs = pairs_for(len(names), settings)
-    return {"stages_s": stages, "rec": res.reconstruction, "gt": gt, "num_images": len(names),
-            "pairs": len(pairs), "pairs_sha256": _pairs_digest(names, pairs),
-            "settings": dataclasses.asdict(config)}
+    return _MethodOutput(stages, res.reconstruction, gt, len(names), len(pairs), _pairs_digest(names, pairs),
+                         dataclasses.asdict(config))
 
 
-def _run_pycolmap(root: Path, settings: BenchSfMSettings, work: Path) -> dict:
+def _run_pycolmap(root: Path, settings: BenchSfMSettings, work: Path) -> _MethodOutput:
     from polarref.peers.colmap_sfm import (ColmapSfMOptions, extract_and_match_sift, incremental_options,
                                            run_mapper, sift_options)
-    from polarref.model import Reconstruction
 
     names, camera, gt = _scene(root)
     pairs = pairs_for(len(names), settings)
@@ -154,38 +158,31 @@ def _run_pycolmap(root: Path, settings: BenchSfMSettings, work: Path) -> dict:
                     "incremental_options": incremental_options(opts).todict(),
                     "extraction_options": extraction.todict(), "matching_options": matching.todict(),
                     "pairing": f"imported pair list ({settings.pairing}, overlap {settings.overlap})"}
-    return {"stages_s": stages, "rec": from_pycolmap(run.reconstruction), "gt": gt,
-            "num_images": len(names), "pairs": len(pairs), "pairs_sha256": _pairs_digest(names, pairs),
-            "settings": settings_out}
+    return _MethodOutput(stages, from_pycolmap(run.reconstruction), gt, len(names), len(pairs),
+                         _pairs_digest(names, pairs), settings_out)
 
 
-def run_cell(method: str, root: Path, settings: BenchSfMSettings, work: Path) -> dict:
-    """Run one method on one scene here and return the cell record (JSON-ready)."""
+def run_cell(method: str, root: Path, settings: BenchSfMSettings, work: Path) -> SfMCell:
+    """Run one method on one scene here and return the cell record."""
     from polarref import metrics as M
-    from polarref.core.provenance import collect
 
     t0 = time.perf_counter()
     got = _run_ours(root, settings) if method == "ours" else _run_pycolmap(root, settings, work)
     wall = time.perf_counter() - t0
-    m = M.evaluate(got["rec"], gt=got["gt"], num_images=got["num_images"])
-    stages = got["stages_s"]
-    return {
-        "method": method, "views": got["num_images"], "status": "ok",
-        "stages_s": stages, "total_s": float(sum(stages[s] for s in STAGES[method])), "wall_s": wall,
-        "peak_memory_mb": peak_memory_mb(),
+    m = M.evaluate(got.rec, gt=got.gt, num_images=got.num_images)
+    return SfMCell(
+        method=method, views=got.num_images, status=RunStatus.OK, stages_s=got.stages_s,
+        total_s=float(sum(got.stages_s[s] for s in STAGES[method])), wall_s=wall, peak_memory_mb=peak_memory_mb(),
         # CPU seconds of the whole cell process (imports and scoring included): on a loaded
         # machine a steadier figure than wall time (one thread each)
-        "cpu_s": _cpu_seconds(),
-        "registered_images": m.registered_images, "tie_points": m.tie_points,
-        "observations": m.reprojected_px, "mean_track_length": m.mean_track_length,
-        "mean_reprojection_error_px": m.mean_reprojection_error_px,
-        "rotation_error_deg_mean": None if m.gt is None else m.gt.rotation_error_deg_mean,
-        "center_error_rel_mean": None if m.gt is None else m.gt.center_error_rel_mean,
-        "pairs": got["pairs"], "pairs_sha256": got["pairs_sha256"],
-        "bench_settings": dataclasses.asdict(settings), "method_settings": got["settings"],
-        "scene_root": str(root), "environment": collect(seeds={"seed": settings.seed},
-                                                        threads={"all_stages": settings.threads}),
-    }
+        cpu_s=_cpu_seconds(),
+        registered_images=m.registered_images, tie_points=m.tie_points, observations=m.reprojected_px,
+        mean_track_length=m.mean_track_length, mean_reprojection_error_px=m.mean_reprojection_error_px,
+        rotation_error_deg_mean=None if m.gt is None else m.gt.rotation_error_deg_mean,
+        center_error_rel_mean=None if m.gt is None else m.gt.center_error_rel_mean,
+        pairs=got.pairs, pairs_sha256=got.pairs_sha256, bench_settings=settings, method_settings=got.settings,
+        scene_root=str(root), environment=collect_record(seeds={"seed": settings.seed},
+                                                         threads={"all_stages": settings.threads}))
 
 
 def _child(argv: list[str]) -> int:
@@ -196,10 +193,10 @@ def _child(argv: list[str]) -> int:
 
     method, root, settings_json, out = argv
     cv2.setNumThreads(1)
-    settings = BenchSfMSettings(**json.loads(settings_json))
+    settings = records.from_dict(BenchSfMSettings, json.loads(settings_json), label="bench settings")
     with tempfile.TemporaryDirectory(prefix="bench-sfm-") as work:
         cell = run_cell(method, Path(root), settings, Path(work))
-    atomic_write(Path(out), json.dumps(cell, indent=1, default=json_default))
+    write(cell, Path(out))
     return 0
 
 
@@ -208,16 +205,16 @@ def cell_path(out: Path, method: str, views: int) -> Path:
     return out / "cells" / f"{method}-v{views}.json"
 
 
-def load_cell(path: Path, settings: BenchSfMSettings) -> dict | None:
+def load_cell(path: Path, settings: BenchSfMSettings) -> SfMCell | None:
     """A finished cell made with ``settings`` (None: absent); PolarrefError when it differs."""
     if not path.is_file():
         return None
     try:
-        cell = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise PolarrefError(f"{path}: unreadable bench cell ({exc}); delete it or use --overwrite") from exc
-    if cell.get("bench_settings") != dataclasses.asdict(settings):
-        raise PolarrefError(f"{path} was made with other settings ({cell.get('bench_settings')}); "
+        cell = read_cell(path)
+    except records.RecordError as exc:
+        raise PolarrefError(f"unreadable bench cell ({exc}); delete it or use --overwrite") from exc
+    if cell.bench_settings != settings:
+        raise PolarrefError(f"{path} was made with other settings ({dataclasses.asdict(cell.bench_settings)}); "
                             "use --overwrite or another --out", option="overwrite")
     return cell
 
@@ -243,7 +240,7 @@ def _spawn(method: str, root: Path, settings: BenchSfMSettings, path: Path, time
 
 def run_bench(views: list[int], out: Path, settings: BenchSfMSettings = BenchSfMSettings(),
               methods: tuple[str, ...] = METHODS, overwrite: bool = False,
-              cell_timeout_s: float | None = None) -> dict:
+              cell_timeout_s: float | None = None) -> SfMBench:
     """Run every (method, views) cell not finished yet, then write bench.json/md/png from all cells."""
 
     out.mkdir(parents=True, exist_ok=True)
@@ -255,7 +252,7 @@ def run_bench(views: list[int], out: Path, settings: BenchSfMSettings = BenchSfM
             path = cell_path(out, method, n)
             cell = None if overwrite else load_cell(path, settings)
             if cell is not None:
-                _log_line(out, f"{method} v{n}: finished cell reused ({cell['total_s']:.1f} s)")
+                _log_line(out, f"{method} v{n}: finished cell reused ({cell.total_s:.1f} s)")
                 cells.append(cell)
                 continue
             root = root or scene_root(settings, n)
@@ -264,12 +261,17 @@ def run_bench(views: list[int], out: Path, settings: BenchSfMSettings = BenchSfM
                 _spawn(method, root, settings, path, cell_timeout_s)
             except PolarrefError as exc:
                 _log_line(out, f"{method} v{n}: FAILED {exc}")
-                failed.append({"method": method, "views": n, "error": str(exc)})
+                failed.append(FailedCell(method, n, str(exc)))
                 continue
-            cell = json.loads(path.read_text())
-            _log_line(out, f"{method} v{n}: done, total {cell['total_s']:.1f} s, peak "
-                           f"{cell['peak_memory_mb']['ru_maxrss_mb']:.0f} MiB, {cell['registered_images']} registered, "
-                           f"{cell['tie_points']} tie points")
+            try:
+                cell = read_cell(path)
+            except records.RecordError as exc:
+                _log_line(out, f"{method} v{n}: FAILED {exc}")
+                failed.append(FailedCell(method, n, str(exc)))
+                continue
+            _log_line(out, f"{method} v{n}: done, total {cell.total_s:.1f} s, peak "
+                           f"{cell.peak_memory_mb.ru_maxrss_mb:.0f} MiB, {cell.registered_images} registered, "
+                           f"{cell.tie_points} tie points")
             cells.append(cell)
     return write_outputs(out, cells, failed, settings)
 

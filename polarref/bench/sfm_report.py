@@ -6,26 +6,21 @@ Growth exponents are least-squares slopes of log(time) against log(views) (``t ~
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
+from polarref.bench.records import (BenchSfMSettings, FailedCell, MemoryFit, SfMBench, SfMCell, SfMChecks,
+                                    json_default, write)  # noqa: F401 (json_default re-exported)
 from polarref.core.atomic import atomic_open, atomic_write
+from polarref.core.provenance import collect_record
+from polarref.core.status import RunStatus
 
 # the stages each method's wall time is split into (bench.json and the tables)
 STAGES = {"ours": ("features", "matching", "verification", "tracks", "mapping"),
           "pycolmap": ("features", "matching", "mapping")}
-
-
-def json_default(obj):
-    """numpy scalars as numbers; paths, enums and sets of pycolmap's option dicts as text."""
-    if hasattr(obj, "item") and callable(obj.item):
-        return obj.item()
-    if isinstance(obj, (set, frozenset, tuple)):
-        return sorted(map(str, obj))
-    return str(obj)
 
 
 TARGET_VIEWS = 168            # issue 14: ours <= 1.0x pycolmap's total time on the 168-view comet
@@ -60,103 +55,113 @@ def _power_fit(views, values) -> tuple[float, float] | None:
     return float(k), float(loga)
 
 
-def _series(cells: list[dict], method: str, key) -> tuple[list[int], list[float]]:
-    rows = sorted((c["views"], key(c)) for c in cells if c["method"] == method and c.get("status") == "ok")
+def _series(cells: list[SfMCell], method: str, key: Callable[[SfMCell], float | None]) -> tuple[list[int], list[float]]:
+    rows = sorted((c.views, key(c)) for c in cells if c.method == method and c.status == RunStatus.OK)
     rows = [(n, y) for n, y in rows if y is not None]
     return [n for n, _ in rows], [float(y) for _, y in rows]
 
 
-def summarize(cells: list[dict]) -> dict:
-    """Exponents per method and stage, and the done-when checks that the cells allow."""
-    growth, mem = {}, {}
+def _stage_time(stage: str) -> Callable[[SfMCell], float | None]:
+    if stage == "total":
+        return lambda c: c.total_s
+    return lambda c: c.stages_s.get(stage)
+
+
+def _peak(c: SfMCell) -> float:
+    return c.peak_memory_mb.ru_maxrss_mb
+
+
+TOTAL_RANGE = f"total_{EXPONENT_RANGE[0]}_{EXPONENT_RANGE[1]}"
+
+
+def _checks_168(o: SfMCell | None, p: SfMCell | None) -> SfMChecks:
+    if not (o and p):
+        return SfMChecks()
+    time_ratio = o.total_s / p.total_s
+    tie_ratio = o.tie_points / max(p.tie_points, 1)
+    ro, rp = o.rotation_error_deg_mean, p.rotation_error_deg_mean
+    return SfMChecks(time_ratio_168=time_ratio, time_ratio_168_ok=time_ratio <= TARGET_TIME_RATIO,
+                     # whole-process CPU seconds, steadier when loaded
+                     cpu_ratio_168=o.cpu_s / p.cpu_s if o.cpu_s and p.cpu_s else None,
+                     tie_ratio_168=tie_ratio, tie_ratio_168_ok=tie_ratio >= TARGET_TIE_RATIO,
+                     rotation_error_168_ok=None if ro is None or rp is None else ro <= rp,
+                     same_pairs_168=o.pairs_sha256 == p.pairs_sha256)
+
+
+def summarize(cells: list[SfMCell], settings: BenchSfMSettings, environment, failed: list[FailedCell] = ()) -> SfMBench:
+    """The bench of ``cells``: exponents per method and stage, and the done-when checks the cells allow."""
+    growth: dict[str, dict[str, float | None]] = {}
+    mem: dict[str, MemoryFit] = {}
     for method, stages in STAGES.items():
-        g = {}
-        for s in (*stages, "total"):
-            key = (lambda c: c["total_s"]) if s == "total" else (lambda c, s=s: c["stages_s"].get(s))
-            n, y = _series(cells, method, key)
-            g[s] = growth_exponent(n, y)
-        n, y = _series(cells, method, lambda c: c["total_s"])
-        g[f"total_{EXPONENT_RANGE[0]}_{EXPONENT_RANGE[1]}"] = growth_exponent(n, y, *EXPONENT_RANGE)
+        g = {s: growth_exponent(*_series(cells, method, _stage_time(s))) for s in (*stages, "total")}
+        g[TOTAL_RANGE] = growth_exponent(*_series(cells, method, _stage_time("total")), *EXPONENT_RANGE)
         growth[method] = g
-        n, y = _series(cells, method, lambda c: c["peak_memory_mb"]["ru_maxrss_mb"])
+        n, y = _series(cells, method, _peak)
         # the two largest view counts: small runs sit on the fixed floor (imports, numba)
         fit = _power_fit(n[-2:], y[-2:])
         measured = dict(zip(n, y)).get(MEMORY_VIEWS)
-        mem[method] = {"measured_mb": measured, "exponent": None if fit is None else fit[0],
-                       "extrapolated_mb": None if fit is None or measured is not None
-                       else math.exp(fit[1]) * MEMORY_VIEWS ** fit[0]}
-    by = {(c["method"], c["views"]): c for c in cells if c.get("status") == "ok"}
-    checks = {}
-    o, p = by.get(("ours", TARGET_VIEWS)), by.get(("pycolmap", TARGET_VIEWS))
-    if o and p:
-        checks["time_ratio_168"] = o["total_s"] / p["total_s"]
-        checks["time_ratio_168_ok"] = checks["time_ratio_168"] <= TARGET_TIME_RATIO
-        if o.get("cpu_s") and p.get("cpu_s"):  # whole-process CPU seconds, steadier when loaded
-            checks["cpu_ratio_168"] = o["cpu_s"] / p["cpu_s"]
-        checks["tie_ratio_168"] = o["tie_points"] / max(p["tie_points"], 1)
-        checks["tie_ratio_168_ok"] = checks["tie_ratio_168"] >= TARGET_TIE_RATIO
-        ro, rp = o["rotation_error_deg_mean"], p["rotation_error_deg_mean"]
-        checks["rotation_error_168_ok"] = None if ro is None or rp is None else ro <= rp
-        checks["same_pairs_168"] = o["pairs_sha256"] == p["pairs_sha256"]
-    k = growth["ours"][f"total_{EXPONENT_RANGE[0]}_{EXPONENT_RANGE[1]}"]
-    checks["ours_total_exponent_ok"] = None if k is None else k <= EXPONENT_LIMIT
-    mb = mem["ours"]["measured_mb"] or mem["ours"]["extrapolated_mb"]
-    checks["ours_memory_631_mb"] = mb
-    checks["ours_memory_631_source"] = ("measured" if mem["ours"]["measured_mb"] else
-                                        "extrapolated (power fit of the two largest measured cells)" if mb else "not tested")
-    checks["ours_memory_631_ok"] = None if mb is None else mb <= MEMORY_LIMIT_MB
-    return {"growth_exponents": growth, "peak_memory": mem, "checks": checks}
+        mem[method] = MemoryFit(measured, None if fit is None else fit[0],
+                                None if fit is None or measured is not None
+                                else math.exp(fit[1]) * MEMORY_VIEWS ** fit[0])
+    by = {(c.method, c.views): c for c in cells if c.status == RunStatus.OK}
+    k = growth["ours"][TOTAL_RANGE]
+    mb = mem["ours"].measured_mb or mem["ours"].extrapolated_mb
+    source = ("measured" if mem["ours"].measured_mb else
+              "extrapolated (power fit of the two largest measured cells)" if mb else "not tested")
+    checks = dataclasses.replace(_checks_168(by.get(("ours", TARGET_VIEWS)), by.get(("pycolmap", TARGET_VIEWS))),
+                                 ours_total_exponent_ok=None if k is None else k <= EXPONENT_LIMIT,
+                                 ours_memory_631_mb=mb, ours_memory_631_source=source,
+                                 ours_memory_631_ok=None if mb is None else mb <= MEMORY_LIMIT_MB)
+    return SfMBench(settings, environment, sorted(cells, key=lambda c: (c.views, c.method)), list(failed),
+                    growth, mem, checks)
 
 
 def _fmt(x, spec=".1f") -> str:
     return "n/a" if x is None else format(x, spec)
 
 
-def markdown(bench: dict) -> str:
-    env = bench["environment"]
+def markdown(bench: SfMBench) -> str:
+    env, st = bench.environment, bench.settings
     lines = ["# `polarref bench sfm`", "",
-             f"Scene {bench['settings']['scene']} ({bench['settings']['preset']} preset), pairs: "
-             f"{bench['settings']['pairing']} overlap {bench['settings']['overlap']} (pycolmap imports our "
-             f"pair list), {bench['settings']['threads']} thread per method, each cell in its own process. "
-             f"Commit {env['git_commit'][:10]}{' (dirty)' if env['git_dirty'] else ''}, "
-             f"{env['cpu_count']} CPUs ({env['cpu_model']}).", "",
+             f"Scene {st.scene} ({st.preset} preset), pairs: {st.pairing} overlap {st.overlap} (pycolmap imports "
+             f"our pair list), {st.threads} thread per method, each cell in its own process. "
+             f"Commit {env.git_commit[:10]}{' (dirty)' if env.git_dirty else ''}, "
+             f"{env.cpu_count} CPUs ({env.cpu_model}).", "",
              "| method | views | registered | tie points | rot. err (deg) | total (s) | stages (s) | CPU (s) | peak MiB |",
              "|---|---|---|---|---|---|---|---|---|"]
-    for c in sorted(bench["cells"], key=lambda c: (c["views"], c["method"])):
-        st = ", ".join(f"{s} {c['stages_s'].get(s, 0):.1f}" for s in (*STAGES[c["method"]], "ba")
-                       if s in c["stages_s"])
-        lines.append(f"| {c['method']} | {c['views']} | {c['registered_images']} | {c['tie_points']} | "
-                     f"{_fmt(c['rotation_error_deg_mean'], '.3f')} | {c['total_s']:.1f} | {st} | "
-                     f"{_fmt(c.get('cpu_s'))} | "
-                     f"{c['peak_memory_mb']['ru_maxrss_mb']:.0f} |")
-    for f in bench.get("failed", []):
-        lines.append(f"| {f['method']} | {f['views']} | failed: {f['error']} | | | | | | |")
+    for c in sorted(bench.cells, key=lambda c: (c.views, c.method)):
+        times = ", ".join(f"{s} {c.stages_s.get(s, 0):.1f}" for s in (*STAGES[c.method], "ba") if s in c.stages_s)
+        lines.append(f"| {c.method} | {c.views} | {c.registered_images} | {c.tie_points} | "
+                     f"{_fmt(c.rotation_error_deg_mean, '.3f')} | {c.total_s:.1f} | {times} | {_fmt(c.cpu_s)} | "
+                     f"{_peak(c):.0f} |")
+    for f in bench.failed:
+        lines.append(f"| {f.method} | {f.views} | failed: {f.error} | | | | | | |")
     lines += ["", "Growth exponent k (time ~ views^k, least squares over the cells):", "",
               "| method | " + " | ".join(["stage", "k"]) + " |", "|---|---|---|"]
-    for method, g in bench["growth_exponents"].items():
+    for method, g in bench.growth_exponents.items():
         for s, k in g.items():
             lines.append(f"| {method} | {s} | {_fmt(k, '.2f')} |")
-    c = bench["checks"]
+    c = bench.checks
     lines += ["", "Checks (issues 13 and 14):", ""]
-    if "time_ratio_168" in c:
-        lines += [f"- {TARGET_VIEWS} views: ours/pycolmap total time {c['time_ratio_168']:.2f}x "
-                  f"(target <= {TARGET_TIME_RATIO}: {'met' if c['time_ratio_168_ok'] else 'NOT met'}); "
-                  f"tie points {c['tie_ratio_168']:.2f}x (target >= {TARGET_TIE_RATIO}: "
-                  f"{'met' if c['tie_ratio_168_ok'] else 'NOT met'}); rotation error ours <= pycolmap: "
-                  f"{c['rotation_error_168_ok']}; same pairs: {c['same_pairs_168']}; CPU-time ratio "
-                  f"{_fmt(c.get('cpu_ratio_168'), '.2f')}"]
+    if c.time_ratio_168 is not None:
+        lines += [f"- {TARGET_VIEWS} views: ours/pycolmap total time {c.time_ratio_168:.2f}x "
+                  f"(target <= {TARGET_TIME_RATIO}: {'met' if c.time_ratio_168_ok else 'NOT met'}); "
+                  f"tie points {c.tie_ratio_168:.2f}x (target >= {TARGET_TIE_RATIO}: "
+                  f"{'met' if c.tie_ratio_168_ok else 'NOT met'}); rotation error ours <= pycolmap: "
+                  f"{c.rotation_error_168_ok}; same pairs: {c.same_pairs_168}; CPU-time ratio "
+                  f"{_fmt(c.cpu_ratio_168, '.2f')}"]
     else:
         lines.append(f"- {TARGET_VIEWS} views: not tested")
-    k = bench["growth_exponents"]["ours"][f"total_{EXPONENT_RANGE[0]}_{EXPONENT_RANGE[1]}"]
+    k = bench.growth_exponents["ours"][TOTAL_RANGE]
     lines.append(f"- ours total-time exponent {EXPONENT_RANGE[0]}-{EXPONENT_RANGE[1]} views: {_fmt(k, '.2f')} "
-                 f"(target <= {EXPONENT_LIMIT}: {c['ours_total_exponent_ok']})")
-    lines.append(f"- ours peak memory at {MEMORY_VIEWS} views: {_fmt(c['ours_memory_631_mb'], '.0f')} MiB, "
-                 f"{c['ours_memory_631_source']} (target <= {MEMORY_LIMIT_MB:.0f}: {c['ours_memory_631_ok']})")
+                 f"(target <= {EXPONENT_LIMIT}: {c.ours_total_exponent_ok})")
+    lines.append(f"- ours peak memory at {MEMORY_VIEWS} views: {_fmt(c.ours_memory_631_mb, '.0f')} MiB, "
+                 f"{c.ours_memory_631_source} (target <= {MEMORY_LIMIT_MB:.0f}: {c.ours_memory_631_ok})")
     lines += ["", "Settings of each method are stored beside its times in `bench.json` (`method_settings`)."]
     return "\n".join(lines) + "\n"
 
 
-def plot(bench: dict, path: Path) -> None:
+def plot(bench: SfMBench, path: Path) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -166,17 +171,16 @@ def plot(bench: dict, path: Path) -> None:
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
     names = list(dict.fromkeys([s for st in STAGES.values() for s in st] + ["total"]))
     color_of = {s: colors[k % len(colors)] for k, s in enumerate(names)}  # one colour per stage name
-    views = sorted({c["views"] for c in bench["cells"]})
+    views = sorted({c.views for c in bench.cells})
     for m, (method, stages) in enumerate(STAGES.items()):
         style = "-" if method == "ours" else "--"
         for s in (*stages, "total"):
-            key = (lambda c: c["total_s"]) if s == "total" else (lambda c, s=s: c["stages_s"].get(s))
-            n, y = _series(bench["cells"], method, key)
+            n, y = _series(bench.cells, method, _stage_time(s))
             if n:
-                exp = bench["growth_exponents"][method].get(s)
+                exp = bench.growth_exponents[method].get(s)
                 ax.loglog(n, y, style, marker="o", color=color_of[s], lw=2.5 if s == "total" else 1.2,
                           label=f"{method} {s} (k={_fmt(exp, '.2f')})")
-        n, y = _series(bench["cells"], method, lambda c: c["peak_memory_mb"]["ru_maxrss_mb"])
+        n, y = _series(bench.cells, method, _peak)
         if n:
             am.loglog(n, y, style, marker="o", color=colors[m], label=method)
     for a in (ax, am):
@@ -193,13 +197,9 @@ def plot(bench: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def write_outputs(out: Path, cells: list[dict], failed: list[dict], settings) -> dict:
-    from polarref.core.provenance import collect
-
-    bench = {"settings": dataclasses.asdict(settings), "environment": collect(seeds={"seed": settings.seed}),
-             "cells": sorted(cells, key=lambda c: (c["views"], c["method"])), "failed": failed,
-             **summarize(cells)}
-    atomic_write(out / "bench.json", json.dumps(bench, indent=1, default=json_default))
+def write_outputs(out: Path, cells: list[SfMCell], failed: list[FailedCell], settings: BenchSfMSettings) -> SfMBench:
+    bench = summarize(cells, settings, collect_record(seeds={"seed": settings.seed}), failed)
+    write(bench, out / "bench.json")
     atomic_write(out / "bench.md", markdown(bench))
     if cells:
         plot(bench, out / "bench.png")

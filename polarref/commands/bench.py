@@ -76,4 +76,4 @@ def _run_sfm(args) -> int:
     bench = run_bench(sorted(set(args.views)), out, settings, tuple(args.methods), overwrite=args.overwrite,
                       cell_timeout_s=args.cell_timeout)
     print((out / "bench.md").read_text())
-    return 0 if bench["cells"] and not bench["failed"] else 1
+    return 0 if bench.cells and not bench.failed else 1
