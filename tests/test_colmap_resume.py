@@ -88,7 +88,7 @@ def test_twin_table_says_when_a_model_took_several_segments():
               reprojected_px=99)
     table = PT.TwinTable("rosetta", 631, 10, {
         "pycolmap-incremental-sift": PT.MethodResult("pycolmap-incremental-sift", segments=3, **kw),
-        "pycolmap-global-sift": PT.MethodResult("pycolmap-global-sift", **kw)}, {})
+        "pycolmap-global-sift": PT.MethodResult("pycolmap-global-sift", **kw)}, None)
     md = PT.render_table(table)
     assert md.count("resumed: 3 segments") == 1 and "resumed: 1" not in md
     back = PT.TwinTable.from_dict(table.to_dict())

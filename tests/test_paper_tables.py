@@ -139,19 +139,19 @@ def test_no_second_copy_of_the_scorecards_thresholds():
 
 def test_stage_provenance_is_listed_and_old_records_say_not_recorded(tmp_path):
     t = _table(**{PT.BASELINE: _ok(PT.BASELINE, 0.4, 50.0, 100_000, 500_000, 600.0)})
-    t.provenance = {"commit": "f" * 40, "stages": {
-        "ours-features": {"git_commit": "", "git_dirty": None, "finished_utc": "2026-12-01T20:00:00Z"},
-        "ours-euclidean": {"git_commit": "0123456789abcdef" + "0" * 24, "git_dirty": True}}}
+    t.provenance = PT.TwinProvenance(commit="f" * 40, stages={
+        "ours-features": PT.StageProvenance("", None, "2026-12-01T20:00:00Z"),
+        "ours-euclidean": PT.StageProvenance("0123456789abcdef" + "0" * 24, True)})
     PT.write_table(tmp_path / "rosetta", t)
     md = (tmp_path / "rosetta" / "paper-table.md").read_text()
     assert "ours-euclidean 0123456789 (dirty); ours-features not recorded." in md
     back = PT.TwinTable.from_dict(json.loads((tmp_path / "rosetta" / "paper-table.json").read_text()))
-    assert back.provenance["stages"]["ours-features"]["finished_utc"] == "2026-12-01T20:00:00Z"
+    assert back.provenance.stages["ours-features"].finished_utc == "2026-12-01T20:00:00Z"
     # A table written before mean_keypoints existed still loads (the field defaults to unknown).
     old = json.loads((tmp_path / "rosetta" / "paper-table.json").read_text())
     del old["methods"][PT.BASELINE]["mean_keypoints"]
     assert PT.TwinTable.from_dict(old).methods[PT.BASELINE].mean_keypoints is None
-    assert PT.stage_commit({"git_commit": "a" * 40, "git_dirty": False}) == "a" * 10
+    assert PT.stage_commit(PT.StageProvenance("a" * 40, False)) == "a" * 10
 
 
 @pytest.mark.slow
@@ -182,7 +182,7 @@ def test_twin_comparison_runs_every_method_and_resumes(tmp_path):
     assert len(records) == 6
     for f in records:   # (the <stage>.result.json beside them are the runner's job results)
         assert len(json.loads(f.read_text())["git_commit"]) == 40, f
-    assert set(table.provenance["stages"]) == {"ours-features", "pycolmap-features", *PT.METHODS}
+    assert set(table.provenance.stages) == {"ours-features", "pycolmap-features", *PT.METHODS}
     for name in PT.METHODS:
         assert 100 < table.methods[name].mean_keypoints <= 4096, name   # both extract at most 4096
     readme = (tmp_path / "tables" / "README.md").read_text().split("## Table 3")[1]
@@ -216,3 +216,22 @@ def test_twin_comparison_runs_every_method_and_resumes(tmp_path):
     assert tm.main([str(tmp_path / "out"), "euclidean", str(tmp_path / "mem.json")]) == 0
     mem = json.loads((tmp_path / "mem.json").read_text())
     assert mem["model_identical_to_stage"] is True and mem["peak_rss_mb"] > 50
+
+
+def test_committed_tables_read_strictly_and_rewrite_byte_for_byte():
+    """The typed table (rows, provenance, stage commits) keeps the committed layout: each twin's
+    paper-table.json and .md regenerate from the JSON unchanged; an unknown key is refused."""
+    from polarref.core import records
+
+    root = Path(__file__).parents[1] / "reports" / "paper-tables"
+    tables = sorted(root.glob("*/paper-table.json"))
+    assert len(tables) == 3
+    for path in tables:
+        data = json.loads(path.read_text())
+        table = PT.TwinTable.from_dict(data)
+        assert json.dumps(table.to_dict(), indent=1) + "\n" == path.read_text(), path
+        assert PT.render_table(table) + "\n" == path.with_suffix(".md").read_text(), path
+        assert table.provenance is not None and set(table.provenance.stages) >= set(PT.METHODS)
+    data["provenance"]["extra"] = 1
+    with pytest.raises(records.RecordError, match="extra"):
+        PT.TwinTable.from_dict(data)

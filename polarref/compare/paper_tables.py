@@ -11,10 +11,13 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Protocol
 
+from polarref.core import records
 from polarref.core.atomic import atomic_write
+from polarref.core.provenance import Provenance
 from polarref.compare import single_run
 from polarref.compare.thresholds import EQUIVALENT_PX, EQUIVALENT_REL
 from polarref.core.status import RunStatus
@@ -57,10 +60,41 @@ class MethodResult:
     reprojected_px: int | None = None         # observations of the tie points
     rotation_error_deg: float | None = None   # GT, after Sim3 alignment (mean over images)
     center_error_rel: float | None = None     # GT, mean centre error / scene size
-    stages_s: dict = field(default_factory=dict)
+    stages_s: dict[str, float] = field(default_factory=dict)
     peak_rss_mb: float | None = None          # largest resident set of the method's processes
     mean_keypoints: float | None = None       # features per image the method started from (None: unknown)
     segments: int = 1                         # processes the mapping took (> 1: resumed from snapshots)
+
+
+class HasCommit(Protocol):
+    """A stage record or its provenance entry: the code that finished the stage."""
+
+    git_commit: str
+    git_dirty: bool | None
+
+
+@dataclass(frozen=True)
+class StageProvenance:
+    """Which code finished one stage ("" / None: written before stages kept their commit)."""
+
+    git_commit: str = ""
+    git_dirty: bool | None = None
+    finished_utc: str = ""
+
+
+@dataclass
+class TwinProvenance:
+    """Where and with what a twin's table was made."""
+
+    commit: str | None = None             # HEAD when the table was written
+    dirty: bool | None = None
+    machine: str | None = None
+    seed: int = 0
+    pairs_file: str = ""
+    wall_s_this_call: float = 0.0         # this call's wall time (finished stages are not rerun)
+    pycolmap_max_num_features: int = 0
+    environment: Provenance | None = None
+    stages: dict[str, StageProvenance] = field(default_factory=dict)
 
 
 @dataclass
@@ -70,18 +104,20 @@ class TwinTable:
     twin: str
     images: int
     pairs: int | None
-    methods: dict  # name -> MethodResult
-    provenance: dict = field(default_factory=dict)
+    methods: dict[str, MethodResult]      # name -> its row
+    provenance: TwinProvenance | None = None
 
     def to_dict(self) -> dict:
-        d = asdict(self)
-        d["format"] = TABLE_FORMAT
-        return d
+        return {**records.to_dict(self), "format": TABLE_FORMAT}
 
     @staticmethod
-    def from_dict(d: dict) -> "TwinTable":
-        methods = {k: MethodResult(**v) for k, v in d.get("methods", {}).items()}
-        return TwinTable(d["twin"], int(d["images"]), d.get("pairs"), methods, d.get("provenance", {}))
+    def from_dict(d: dict, label: str = "paper-table.json") -> "TwinTable":
+        """The table from its JSON, strictly (a table written without provenance reads with None)."""
+        if isinstance(d, dict):
+            d = {k: v for k, v in d.items() if k != "format"}
+            if not d.get("provenance"):
+                d.pop("provenance", None)
+        return records.from_dict(TwinTable, d, label=label)
 
 
 def _fmt(row: str, v) -> str:
@@ -199,23 +235,24 @@ def render_table(table: TwinTable) -> str:
     v = verdicts(table)
     lines += ["", f"Scorecard on this twin (single-run rules, polar vs Euclidean BA): C4 (faster): {v['C4']}; "
               f"C5 (more tie points and reprojected px): {v['C5']}.", ""]
-    if table.provenance:
-        lines += ["Provenance: " + ", ".join(f"{k} {v}" for k, v in sorted(table.provenance.items())
-                                            if not isinstance(v, dict)), ""]
-    stages = table.provenance.get("stages") or {}
+    prov = records.to_dict(table.provenance) if table.provenance is not None else {}
+    if prov:
+        lines += ["Provenance: " + ", ".join(f"{k} {v}" for k, v in sorted(prov.items())
+                                            if k not in ("environment", "stages")), ""]
+    stages = table.provenance.stages if table.provenance is not None else {}
     if stages:
         lines += ["Code per stage (git commit of the run that finished it): "
                   + "; ".join(f"{k} {stage_commit(v)}" for k, v in sorted(stages.items())) + ".", ""]
     return "\n".join(lines)
 
 
-def stage_commit(rec: dict) -> str:
+def stage_commit(rec: HasCommit) -> str:
     """``abc1234567`` / ``... (dirty)`` from a stage record (or its provenance entry); "not recorded"
     for records written before stages kept their commit."""
-    commit = rec.get("git_commit") or ""
+    commit = rec.git_commit or ""
     if not commit:
         return "not recorded"
-    dirty = rec.get("git_dirty")
+    dirty = rec.git_dirty
     return commit[:10] + (" (dirty)" if dirty else " (dirty: unknown)" if dirty is None else "")
 
 

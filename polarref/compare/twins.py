@@ -28,7 +28,7 @@ from polarref.compare.scoring import score
 from polarref.core import records
 from polarref.core.atomic import atomic_write
 from polarref.core.errors import PolarrefError
-from polarref.core.provenance import collect, git_state
+from polarref.core.provenance import collect_record, git_state
 from polarref.core.status import RunStatus
 from polarref.model.colmap import read_model
 from polarref.model.run import MethodRun
@@ -313,12 +313,11 @@ def run_twin(run: TwinRun) -> PT.TwinTable:
                                  if source == "ours" else mean_keypoints_db(out / "pycolmap" / "database.db"))
         r.mean_keypoints = keypoints[source]
     stage_recs = {rec.stage: rec for rs in recs.values() for rec in rs}
-    env = collect()
-    provenance = {"commit": env.get("git_commit"), "dirty": env.get("git_dirty"), "machine": env.get("machine"),
-                  "seed": run.seed, "pairs_file": pairs_file.name, "wall_s_this_call": round(time.perf_counter() - t0, 1),
-                  "pycolmap_max_num_features": PYCOLMAP_FEATURES, "environment": env,
-                  "stages": {k: {"git_commit": v.git_commit, "git_dirty": v.git_dirty,
-                                 "finished_utc": v.finished_utc} for k, v in sorted(stage_recs.items())}}
+    env = collect_record()
+    provenance = PT.TwinProvenance(
+        env.git_commit, env.git_dirty, env.machine, run.seed, pairs_file.name, round(time.perf_counter() - t0, 1),
+        PYCOLMAP_FEATURES, env, {k: PT.StageProvenance(v.git_commit, v.git_dirty, v.finished_utc)
+                                 for k, v in sorted(stage_recs.items())})
     table = PT.TwinTable(run.twin, n, n_pairs, methods, provenance)
     PT.write_table(out, table)
     if run.tables_dir:  # the small committed copy (the run folder holds models, databases, caches)
