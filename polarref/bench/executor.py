@@ -12,7 +12,6 @@ average before and after: the numbers are only comparable side by side within on
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import shutil
@@ -22,6 +21,8 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
+from polarref.bench.records import ExecutorMode, TaskOverhead
+from polarref.core import records
 from polarref.core.atomic import atomic_write
 from polarref.core import execution
 from polarref.core.data import REPO_ROOT
@@ -32,17 +33,17 @@ def _noop(x: int) -> int:
     return x
 
 
-def overhead_per_task(ex, n: int) -> dict:
+def overhead_per_task(ex, n: int) -> TaskOverhead:
     """Wall time per no-op task through ``ex.map`` (the scheduler round trip and bookkeeping)."""
     ex.map(_noop, list(range(min(n, 20))), desc="warm-up")
     t0 = time.perf_counter()
     out = ex.map(_noop, list(range(n)), desc="noop")
     wall = time.perf_counter() - t0
     assert out == list(range(n))
-    return {"tasks": n, "wall_s": wall, "per_task_ms": 1e3 * wall / n}
+    return TaskOverhead(n, wall, 1e3 * wall / n)
 
 
-def run_mode(mode: str, views: int, noop_tasks: int, work: Path) -> dict:
+def run_mode(mode: str, views: int, noop_tasks: int, work: Path) -> ExecutorMode:
     from polarref.sfm.pipeline import SfMConfig, load_images_and_features
     from synth.config import preset
     from synth.render import render_scene
@@ -64,11 +65,8 @@ def run_mode(mode: str, views: int, noop_tasks: int, work: Path) -> dict:
         features_s = time.perf_counter() - t2
         overhead = overhead_per_task(ex, noop_tasks)
         desc = ex.describe()
-    return {"mode": mode, "workers": len(desc.workers) if workers else 0, "detail": desc.detail,
-            "cluster_start_s": started, "render_s": render_s, "render_views": views,
-            "render_s_per_view": render_s / views, "features_s": features_s,
-            "keypoints_total": int(sum(len(f.keypoints) for f in feats)), "overhead": overhead,
-            "config": dataclasses.asdict(cfg)}
+    return ExecutorMode(mode, len(desc.workers) if workers else 0, desc.detail, started, render_s, views,
+                        render_s / views, features_s, int(sum(len(f.keypoints) for f in feats)), overhead, cfg)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -91,14 +89,15 @@ def main(argv: list[str] | None = None) -> int:
         results = [run_mode(m, args.views, args.noop_tasks, work) for m in args.modes]
     finally:
         shutil.rmtree(work, ignore_errors=True)
-    by = {r["mode"]: r for r in results}
+    one = next((r for r in results if r.mode == "1"), None)
+    two = next((r for r in results if r.mode == "2"), None)
     speedup = {}
-    if "1" in by and "2" in by:
-        speedup = {k: by["1"][k] / by["2"][k] for k in ("render_s", "features_s")}
+    if one is not None and two is not None:
+        speedup = {"render_s": one.render_s / two.render_s, "features_s": one.features_s / two.features_s}
     report = {
         "benchmark": "polarref.core.execution: render + features of a comet scene, per-task overhead",
         "command": " ".join(["python -m polarref.bench.executor", *(argv if argv is not None else sys.argv[1:])]),
-        "created": started, "results": results, "speedup_2_vs_1_worker": speedup,
+        "created": started, "results": [records.to_dict(r) for r in results], "speedup_2_vs_1_worker": speedup,
         "provenance": {**collect(seeds={"render": 0}),
                        "load_average_before": list(load_before), "load_average_after": list(os.getloadavg()),
                        "note": "shared machine loaded by other jobs: compare modes within this file only"},
@@ -106,11 +105,12 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     atomic_write(target, json.dumps(report, indent=1) + "\n")
     for r in results:
-        print(f"{r['mode']:>6}: start {r['cluster_start_s']:.1f} s, render {r['render_s']:.1f} s "
-              f"({r['render_s_per_view']:.3f} s/view), features {r['features_s']:.1f} s, "
-              f"overhead {r['overhead']['per_task_ms']:.2f} ms/task")
-    if speedup:
-        print(f"speed-up 2 vs 1 worker: render x{speedup['render_s']:.2f}, features x{speedup['features_s']:.2f}")
+        print(f"{r.mode:>6}: start {r.cluster_start_s:.1f} s, render {r.render_s:.1f} s "
+              f"({r.render_s_per_view:.3f} s/view), features {r.features_s:.1f} s, "
+              f"overhead {r.overhead.per_task_ms:.2f} ms/task")
+    if one is not None and two is not None:
+        print(f"speed-up 2 vs 1 worker: render x{one.render_s / two.render_s:.2f}, "
+              f"features x{one.features_s / two.features_s:.2f}")
     print(f"wrote {target}")
     return 0
 

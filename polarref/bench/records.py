@@ -16,6 +16,7 @@ from polarref.core import records
 from polarref.core.atomic import atomic_write
 from polarref.core.provenance import Provenance
 from polarref.core.status import RunStatus
+from synth.config import SceneConfig
 
 
 @dataclass(frozen=True)
@@ -109,6 +110,32 @@ class SfMBench:
     growth_exponents: dict[str, dict[str, float | None]] = field(default_factory=dict)
     peak_memory: dict[str, MemoryFit] = field(default_factory=dict)
     checks: SfMChecks = SfMChecks()
+
+
+@dataclass(frozen=True)
+class TaskOverhead:
+    """Wall time per no-op task through an executor's ``map`` (scheduler round trip and bookkeeping)."""
+
+    tasks: int
+    wall_s: float
+    per_task_ms: float
+
+
+@dataclass(frozen=True)
+class ExecutorMode:
+    """``python -m polarref.bench.executor``: one execution mode (serial or N local workers)."""
+
+    mode: str                     # "serial" or the number of workers
+    workers: int
+    detail: str
+    cluster_start_s: float
+    render_s: float
+    render_views: int
+    render_s_per_view: float
+    features_s: float
+    keypoints_total: int
+    overhead: TaskOverhead
+    config: SceneConfig           # the rendered scene's settings
 
 
 def json_default(obj):
