@@ -25,11 +25,11 @@ def render_readme(tables: dict[str, TwinTable | None], reports_root: str | os.Pa
     for twin, p in PAPER.items():
         t = tables.get(twin)
         m = t.methods if t else {}
-        lines += [f"## Table {p['table']}: {p['dataset']} ({p['images']} images) vs twin `{twin}`", "",
+        lines += [f"## Table {p.table}: {p.dataset} ({p.images} images) vs twin `{twin}`", "",
                   "| Indicators | paper: OpenMVG | paper: ours | twin: Euclidean BA | twin: polar BA | twin: difference |",
                   "|---|---|---|---|---|---|"]
         for k, row in enumerate(ROWS):
-            lines.append(f"| {ROW_LABELS[row]} | {paper_cell(p['openmvg'][k], row)} | {paper_cell(p['ours'][k], row)} "
+            lines.append(f"| {ROW_LABELS[row]} | {paper_cell(p.openmvg[k], row)} | {paper_cell(p.ours[k], row)} "
                          f"| {table_cell(m.get(BASELINE), row)} | {table_cell(m.get(OURS), row)} "
                          f"| {difference(row, m.get(BASELINE), m.get(OURS))} |")
         v = verdicts(t)

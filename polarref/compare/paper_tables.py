@@ -31,14 +31,25 @@ LABELS = {BASELINE: "Euclidean BA (OpenMVG column)", OURS: "polar BA (ours)",
 NOT_RUN = "not run"
 NOT_TESTED = "not tested"
 
-# The paper's Tables 1-3 as printed (OpenMVG vs its method).
-PAPER = {
-    "rosetta": {"table": 1, "dataset": "Rosetta OSIRIS, comet 67P", "images": 631,
-                "openmvg": (0.482, 77.0, 200_355, 1_086_356), "ours": (0.481, 56.0, 200_708, 1_089_739)},
-    "poets-park": {"table": 2, "dataset": "Poets_park_flats (UAV)", "images": 857,
-                   "openmvg": (0.93, 1688.9, 2_724_615, 12_026_356), "ours": (0.92, 1244.7, 2_728_281, 12_041_004)},
-    "mappilot": {"table": 3, "dataset": "MapPilot (UAV)", "images": 493,
-                 "openmvg": (1.01, 164.1, 670_355, 1_760_356), "ours": (1.01, 125.4, 671_331, 1_765_684)},
+@dataclass(frozen=True)
+class PaperTable:
+    """One of the paper's Tables 1-3 as printed: OpenMVG vs its method, values in ROWS order."""
+
+    table: int
+    dataset: str
+    images: int
+    openmvg: tuple[float, float, int, int]
+    ours: tuple[float, float, int, int]
+
+
+# The paper's Tables 1-3 as printed (OpenMVG vs its method), by twin.
+PAPER: dict[str, PaperTable] = {
+    "rosetta": PaperTable(1, "Rosetta OSIRIS, comet 67P", 631,
+                          (0.482, 77.0, 200_355, 1_086_356), (0.481, 56.0, 200_708, 1_089_739)),
+    "poets-park": PaperTable(2, "Poets_park_flats (UAV)", 857,
+                             (0.93, 1688.9, 2_724_615, 12_026_356), (0.92, 1244.7, 2_728_281, 12_041_004)),
+    "mappilot": PaperTable(3, "MapPilot (UAV)", 493,
+                           (1.01, 164.1, 670_355, 1_760_356), (1.01, 125.4, 671_331, 1_765_684)),
 }
 ROWS = ("accuracy_px", "efficiency_min", "tie_points", "reprojected_px")
 ROW_LABELS = {"accuracy_px": "Accuracy (px)", "efficiency_min": "Efficiency (min)",
@@ -198,9 +209,9 @@ def render_table(table: TwinTable) -> str:
     """Markdown: the paper's layout, then the GT/extra rows, pycolmap, stages and memory."""
     p = PAPER.get(table.twin)
     m = table.methods
-    lines = [f"# {table.twin}: twin of the paper's Table {p['table'] if p else '?'}", ""]
+    lines = [f"# {table.twin}: twin of the paper's Table {p.table if p else '?'}", ""]
     if p:
-        lines += [f"Twin of {p['dataset']} ({p['images']} images); {table.images} rendered views with exact "
+        lines += [f"Twin of {p.dataset} ({p.images} images); {table.images} rendered views with exact "
                   f"ground truth; {table.pairs if table.pairs is not None else 'unknown'} image pairs, the "
                   "same for every method.", ""]
     lines += ["| Indicators | " + " | ".join(LABELS[k] for k in (BASELINE, OURS)) + " | Improving |",
