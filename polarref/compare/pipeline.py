@@ -25,6 +25,7 @@ from polarref.core import execution
 from polarref.compare import claims as claims_mod
 from polarref.compare import presets, scenes, view3d
 from polarref.compare.presets import ComparePreset
+from polarref.io.scene_folder import Scene
 from polarref.compare import jobs
 from polarref.compare.jobs import camera_to_json
 from polarref.compare.methods import METHOD_NAMES, PAIRS, RUN_ORDER, MethodSpec, select
@@ -67,7 +68,7 @@ class CompareConfig:
 
 @dataclass
 class _Context:
-    scene: scenes.PreparedScene
+    scene: Scene
     runs: Path
     timeout: float
     seed: int
@@ -83,7 +84,7 @@ class _Context:
         return (self.run or run_isolated)(*args, reuse=self.reuse)
 
 
-def default_out(scene: scenes.PreparedScene, preset: ComparePreset) -> Path:
+def default_out(scene: Scene, preset: ComparePreset) -> Path:
     """``./polarref-out/<scene>/`` in the working directory (never the committed ``reports/``)."""
     name = scene.name if scene.kind == "real" else scene.name.split("-")[0]
     return Path.cwd() / "polarref-out" / f"{name}-{preset.name}"
@@ -185,7 +186,7 @@ def _run_methods_on_cluster(executor, ctx: _Context, ordered: list[MethodSpec], 
         return list(pool.map(lambda spec: _run_method(ctx, spec), ordered))
 
 
-def _score_into(res: MethodResult, rec, scene: scenes.PreparedScene, mesh, seed: int,
+def _score_into(res: MethodResult, rec, scene: Scene, mesh, seed: int,
                 notes: list[str]) -> None:
     from polarref.compare.scoring import score
 
@@ -206,7 +207,7 @@ def _score_into(res: MethodResult, rec, scene: scenes.PreparedScene, mesh, seed:
 PYCOLMAP_THREADS = 1   # pycolmap extraction, matching, mapping: one thread, so reruns repeat exactly
 
 
-def _environment(cfg: CompareConfig, scene: scenes.PreparedScene, timeout: float, total_s: float,
+def _environment(cfg: CompareConfig, scene: Scene, timeout: float, total_s: float,
                  prov: Provenance) -> Environment:
     variant = scene.mitsuba_variant if scene.kind == "synthetic" else "not used (real images)"
     if scene.kind == "synthetic" and not variant:

@@ -10,46 +10,21 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
-from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from polarref.compare.presets import ComparePreset
 from polarref.core.atomic import atomic_write
-from polarref.camera import Camera
 from polarref.core.data import cache_root
 from polarref.core.errors import PolarrefError
-from polarref.io.scene_folder import IMAGE_SUFFIXES, discover
+from polarref.io.scene_folder import IMAGE_SUFFIXES, Scene, discover
 from polarref.model.colmap import read_model
-
-if TYPE_CHECKING:
-    from polarref.model import Reconstruction
 
 log = logging.getLogger(__name__)
 
 SYNTHETIC = ("comet", "uav")
-
-
-@dataclass
-class PreparedScene:
-    """Everything the methods need, in COLMAP conventions."""
-
-    name: str
-    kind: str                       # synthetic | real
-    source: str                     # as given by the user
-    root: Path                      # scene folder (for synth: the rendered folder)
-    image_dir: Path                 # images actually used (maybe downscaled copies)
-    image_names: list[str]
-    camera: Camera                  # fixed intrinsics every method uses
-    gt: Reconstruction | None       # ground truth keyed by image_names, or None
-    mesh_path: Path | None
-    preset: str
-    seed: int
-    downscale: float = 1.0
-    render_s: float = 0.0
-    mitsuba_variant: str = ""
 
 
 def synthetic_root(scene: str, preset: str, seed: int) -> Path:
@@ -62,7 +37,7 @@ def synthetic_root(scene: str, preset: str, seed: int) -> Path:
     return cache_root() / "scenes" / f"{scene}-{preset}-seed{seed}-{cfg.digest(code_version())}"
 
 
-def _synthetic(scene: str, preset: str, seed: int, name: str | None = None) -> PreparedScene:
+def _synthetic(scene: str, preset: str, seed: int, name: str | None = None) -> Scene:
     """Render (or reuse) a synthetic scene in the cache; the folder is keyed by the scene digest."""
     try:
         from synth.config import preset as scene_preset
@@ -80,16 +55,16 @@ def _synthetic(scene: str, preset: str, seed: int, name: str | None = None) -> P
     return _from_rendered(loaded, name or f"{scene}-{preset}", scene, preset, seed, render_s)
 
 
-def _from_rendered(loaded, name: str, source: str, preset: str, seed: int, render_s: float) -> PreparedScene:
+def _from_rendered(loaded, name: str, source: str, preset: str, seed: int, render_s: float) -> Scene:
     from polarref.model import Reconstruction
 
     gt = read_model(loaded.gt_dir) if loaded.gt_dir.is_dir() else None
-    return PreparedScene(
-        name=name, kind="synthetic", source=source, root=loaded.root, image_dir=loaded.root / "images",
-        image_names=[v.name for v in loaded.views], camera=loaded.polarref_camera(),
-        gt=gt, mesh_path=loaded.mesh_path if loaded.mesh_path.is_file() else None,
-        preset=preset, seed=seed, render_s=render_s,
-        mitsuba_variant=str(loaded.meta.get("mitsuba_variant", "")))
+    return Scene(
+        root=loaded.root, image_dir=loaded.root / "images", image_names=[v.name for v in loaded.views],
+        gt_kind="colmap" if gt is not None else "", rendered=True,
+        mesh_path=loaded.mesh_path if loaded.mesh_path.is_file() else None,
+        name=name, kind="synthetic", source=source, camera=loaded.polarref_camera(), gt=gt,
+        preset=preset, seed=seed, render_s=render_s, mitsuba_variant=str(loaded.meta.get("mitsuba_variant", "")))
 
 
 def _downscale_factor(width: int, height: int, max_width: int) -> int:
@@ -121,7 +96,7 @@ def _downscale(src_dir: Path, names: list[str], factor: int, dst_dir: Path) -> N
         atomic_write(out, png.tobytes())
 
 
-def _real(folder: Path, source: str, preset: ComparePreset) -> PreparedScene:
+def _real(folder: Path, source: str, preset: ComparePreset) -> Scene:
     from polarref.model import Image, Reconstruction
 
     found = discover(folder)
@@ -144,12 +119,13 @@ def _real(folder: Path, source: str, preset: ComparePreset) -> PreparedScene:
     gt_used = Reconstruction(cameras=dict(gt.cameras))
     for (image_id, im), new_name in zip(sorted(gt.images.items()), used_names if factor > 1 else names):
         gt_used.images[image_id] = Image(image_id, new_name, im.camera_id, im.cam_from_world)
-    return PreparedScene(name=folder.name, kind="real", source=source, root=folder, image_dir=used_dir,
-                         image_names=used_names, camera=fixed, gt=gt_used, mesh_path=None,
-                         preset=preset.name, seed=-1, downscale=float(factor))
+    # a real folder's mesh (if any) is not in the GT frame the methods are scored in: none
+    return dataclasses.replace(found, image_dir=used_dir, image_names=used_names, mesh_path=None, name=folder.name,
+                               kind="real", source=source, camera=fixed, gt=gt_used, preset=preset.name, seed=-1,
+                               downscale=float(factor))
 
 
-def prepare(arg: str | None, preset: ComparePreset, seed: int) -> PreparedScene:
+def prepare(arg: str | None, preset: ComparePreset, seed: int) -> Scene:
     """Resolve SCENE|DIR (None = the default comet scene); ``preset`` sizes a synthetic scene
     and downscales real images (a twin or a rendered folder decides its own size)."""
     if arg is None or arg in SYNTHETIC:

@@ -23,7 +23,8 @@ from typing import Callable
 from polarref.compare import jobs, ours, presets, runner
 from polarref.compare import paper_readme as PR
 from polarref.compare import paper_tables as PT
-from polarref.compare.scenes import PreparedScene, prepare
+from polarref.compare.scenes import prepare
+from polarref.io.scene_folder import Scene
 from polarref.compare.scoring import score
 from polarref.core import records
 from polarref.core.atomic import atomic_write
@@ -108,7 +109,7 @@ class StageRerun:
 
     stage: StageRecord     # the run's record of the stage (stages/<stage>.json)
     run: TwinRun           # the run's settings (run.json)
-    scene: PreparedScene   # the prepared scene (images, camera, GT)
+    scene: Scene   # the prepared scene (images, camera, GT)
     result: MethodRun      # the rerun's
     wall_s: float          # the rerun's wall time
 
@@ -171,7 +172,7 @@ class _Stages:
         return rec
 
 
-def _scene(run: TwinRun) -> PreparedScene:
+def _scene(run: TwinRun) -> Scene:
     return prepare(run.scene_dir or run.twin, presets.DEFAULT, run.seed)
 
 
@@ -189,7 +190,7 @@ class PairsMeta:
     config: PairingConfig
 
 
-def _pairs(run: TwinRun, scene: PreparedScene, out: Path) -> tuple[Path, int]:
+def _pairs(run: TwinRun, scene: Scene, out: Path) -> tuple[Path, int]:
     """The scene's pairs file (chosen once; reused on reruns)."""
     meta_path = out / "pairs.json"
     if meta_path.is_file():
@@ -263,7 +264,7 @@ def table_row(name: str, stages: list[StageRecord], num_images: int, gt) -> PT.M
         stages_s=times, peak_rss_mb=peak, segments=max(run.segments for run in runs))
 
 
-def _run_stages(run: TwinRun, scene: PreparedScene, out: Path, pairs_file: Path) -> dict[str, list[StageRecord]]:
+def _run_stages(run: TwinRun, scene: Scene, out: Path, pairs_file: Path) -> dict[str, list[StageRecord]]:
     """Every wanted method's stage records (its shared stage, then its own unless that failed)."""
     st = _Stages(out, run.method_timeout_s)
     cam, img, cache = jobs.camera_to_json(scene.camera), str(scene.image_dir), str(out / "cache")

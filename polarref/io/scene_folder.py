@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from polarref.camera import Camera
 from polarref.core.errors import PolarrefError
 from polarref.model.colmap import read_model
 from polarref.model.run import SkippedImage  # noqa: F401 (re-exported: the readers name it)
@@ -30,16 +31,33 @@ def list_images(image_dir: str | Path) -> list[Path]:
     return sorted(p for p in Path(image_dir).iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
 
 
-@dataclass
-class SceneFolder:
-    """What a scene folder holds (nothing is read yet but the listing)."""
+@dataclass(frozen=True)
+class Scene:
+    """One scene as every stage sees it: the one scene record of polarref.
+
+    :func:`discover` fills the folder's listing (nothing is read but the file names);
+    :func:`polarref.compare.scenes.prepare` also the fixed camera, the ground truth keyed by the
+    image names the methods see (after any downscaling) and how the scene came about. It lives
+    with the readers because its ground truth is read by them (COLMAP folder, Strecha cameras).
+    """
 
     root: Path
-    image_dir: Path                 # root/images if present, else root
+    image_dir: Path                 # root/images if present, else root (or downscaled copies)
     image_names: list[str]          # sorted file names in image_dir
-    gt_kind: str                    # "colmap" (gt/), "strecha" (gt_dense_cameras/) or "" (none)
-    rendered: bool                  # has scene.json (a synth render)
-    mesh_path: Path | None          # root/mesh.ply when present
+    gt_kind: str = ""               # "colmap" (gt/), "strecha" (gt_dense_cameras/) or "" (none)
+    rendered: bool = False          # has scene.json (a synth render)
+    mesh_path: Path | None = None   # root/mesh.ply when present
+    # prepared (polarref compare, twins):
+    name: str = ""                  # e.g. "comet-small", a twin, or the folder's name
+    kind: str = ""                  # synthetic | real
+    source: str = ""                # as given by the user
+    camera: Camera | None = None    # the fixed intrinsics every method uses
+    gt: Reconstruction | None = None  # ground truth keyed by image_names, or None
+    preset: str = ""                # render / compare preset name ("" when the folder did not record one)
+    seed: int = -1                  # render seed (-1 for real data)
+    downscale: float = 1.0          # original width / used width
+    render_s: float = 0.0           # seconds spent rendering in this run (0 when reused)
+    mitsuba_variant: str = ""
 
     def read_ground_truth(self) -> Reconstruction | None:
         """The ground-truth cameras/poses (image names as in ``image_names``), or None without any.
@@ -58,7 +76,7 @@ class SceneFolder:
         return None
 
 
-def discover(root: str | Path) -> SceneFolder:
+def discover(root: str | Path) -> Scene:
     """Read the layout of the scene folder ``root``; PolarrefError when it is not a folder."""
     root = Path(root)
     if not root.is_dir():
@@ -67,5 +85,5 @@ def discover(root: str | Path) -> SceneFolder:
     names = [p.name for p in list_images(image_dir)]
     gt_kind = "strecha" if (root / "gt_dense_cameras").is_dir() else "colmap" if (root / "gt").is_dir() else ""
     mesh = root / "mesh.ply"
-    return SceneFolder(root, image_dir, names, gt_kind, (root / "scene.json").is_file(),
-                       mesh if mesh.is_file() else None)
+    return Scene(root, image_dir, names, gt_kind, (root / "scene.json").is_file(),
+                 mesh if mesh.is_file() else None)
