@@ -119,6 +119,6 @@ def test_compare_report_dense_section(sphere_run, tmp_path):
     back = schema.load(tmp_path / "metrics.json")
     assert back.dense.runs[0].cloud_fscore == pytest.approx(c.fscore)
     paths = build_report(tmp_path, back)
-    md = paths["markdown"].read_text()
+    md = paths.markdown.read_text()
     assert "Dense reconstruction" in md and f"{c.fscore:.3f}" in md and "figures/dense_side_by_side.png" in md
     assert (tmp_path / "figures" / "dense_side_by_side.png").stat().st_size > 10_000

@@ -32,7 +32,7 @@ def run(args: argparse.Namespace) -> int:
 
         for d in args.dirs:
             written = build_index(d)
-            print(f"wrote {written['html']} and {written['markdown']}")
+            print(f"wrote {written.html} and {written.markdown}")
         return 0
     for d in args.dirs:
         if not d.is_dir():
@@ -41,13 +41,12 @@ def run(args: argparse.Namespace) -> int:
             raise PolarrefError(f"no metrics.json in {d} (run polarref compare first)")
     for d in args.dirs:
         written = build_report(d)
-        print(f"wrote {written['markdown']} and {written['html']} "
-              f"({sum(k.startswith('figure:') for k in written)} figures)")
+        print(f"wrote {written.markdown} and {written.html} ({len(written.figures)} figures)")
         if args.screenshot:
             from polarref.compare.browser import screenshot
 
-            check = screenshot(written["html"], d / "screenshot.png")
+            check = screenshot(written.html, d / "screenshot.png")
             for problem in check.console_errors + [f"network request: {u}" for u in check.network_requests]:
-                log.warning("%s: %s", written["html"], problem)
+                log.warning("%s: %s", written.html, problem)
             print(f"wrote {d / 'screenshot.png'}")
     return 0

@@ -12,7 +12,7 @@ import os
 from pathlib import Path
 
 from polarref.compare.report import commit_text, fmt, fmt_s, improving_runtime
-from polarref.compare.report_render import Heading, Para, Table, to_html, to_markdown
+from polarref.compare.report_render import Heading, Para, Table, WrittenPages, to_html, to_markdown
 from polarref.compare.schema import MetricsFile, load, write_text_atomic
 from polarref.core.errors import PolarrefError
 from polarref.core.status import RunStatus
@@ -74,7 +74,7 @@ def _twin_columns(root: Path) -> tuple[list[tuple[str, dict[str, str]]], list]:
     return cols, [Heading(2, "Twins of the paper's datasets"), Para(text)]
 
 
-def build_index(root: str | Path) -> dict[str, Path]:
+def build_index(root: str | Path) -> WrittenPages:
     """Write ``root/index.md`` and ``root/index.html``; returns their paths."""
     root = Path(root)
     if not root.is_dir():
@@ -122,4 +122,4 @@ def build_index(root: str | Path) -> dict[str, Path]:
     md, page = root / "index.md", root / "index.html"
     write_text_atomic(md, to_markdown(blocks))
     write_text_atomic(page, to_html(blocks, root, "polarref reports"))
-    return {"markdown": md, "html": page}
+    return WrittenPages(md, page)

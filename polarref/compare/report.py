@@ -19,7 +19,7 @@ from polarref.compare import figures as figs
 from polarref.compare import view3d
 from polarref.compare.dense_section import dense_blocks, draw_dense_figure
 from polarref.compare.report_render import (Badge, Badges, Bullets, Details, Fig, Heading, Para, RawHtml,
-                                            Section, Table, to_html, to_markdown)
+                                            Section, Table, WrittenPages, to_html, to_markdown)
 from polarref.compare.schema import (ClaimResult, MethodPair, MethodResult, MetricsFile, load, write_text_atomic)
 from polarref.compare.thresholds import EQUIVALENT_PX, EQUIVALENT_REL
 from polarref.core.status import RunStatus
@@ -347,7 +347,7 @@ def build_blocks(m: MetricsFile, figure_keys: set[str]) -> list:
     return blocks
 
 
-def build_report(out_dir: str | Path, metrics: MetricsFile | None = None) -> dict[str, Path]:
+def build_report(out_dir: str | Path, metrics: MetricsFile | None = None) -> WrittenPages:
     """(Re)draw figures and write report.md / report.html in ``out_dir`` from its metrics.json.
 
     Files other than these (models, logs, user notes) are left alone.
@@ -365,4 +365,4 @@ def build_report(out_dir: str | Path, metrics: MetricsFile | None = None) -> dic
     md, page = out_dir / "report.md", out_dir / "report.html"
     write_text_atomic(md, to_markdown(blocks))
     write_text_atomic(page, to_html(blocks, fig_dir, f"polarref compare: {metrics.scene.name}", REPORT_LAYOUT))
-    return {"markdown": md, "html": page, **{f"figure:{k}": p for k, p in drawn.items()}}
+    return WrittenPages(md, page, drawn)

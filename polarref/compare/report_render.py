@@ -13,6 +13,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 
+@dataclass(frozen=True)
+class WrittenPages:
+    """What a report or index build wrote: its two pages and the figures drawn (key -> png)."""
+
+    markdown: Path
+    html: Path
+    figures: dict[str, Path] = field(default_factory=dict)
+
+
 @dataclass
 class Heading:
     level: int
