@@ -170,7 +170,7 @@ class TwinVerdict:
 
     verdict: str                      # one of schema.VERDICTS
     figures: str = ""                 # "" when not tested
-    values: dict = field(default_factory=dict)   # the figures as numbers (None: not measured)
+    values: dict[str, float | None] = field(default_factory=dict)   # the figures as numbers (None: not measured)
 
     def __str__(self) -> str:
         return f"{self.verdict} ({self.figures})" if self.figures else self.verdict
