@@ -80,7 +80,7 @@ def pycolmap_map(db_path: str, image_dir: str, work_dir: str, mapper: str, seed:
         db = copy_database(Path(db_path), work / "database.db")
         run = run_mapper(db, Path(image_dir), work / "sparse", mapper, opts)
     model = write_largest_model(run, work, mapper)
-    return MethodRun(f"pycolmap-{mapper}", form=f"pycolmap-{mapper}",
+    return MethodRun(f"pycolmap-{mapper}", form="ceres",
                      stage_runtime_s={k: float(v) for k, v in run.stage_runtime_s.items()},
                      model_dir=str(model), num_models=int(run.num_models), verified_pairs=int(run.verified_pairs),
                      registered=int(run.reconstruction.num_reg_images()), counted_wall_s=counted,

@@ -8,6 +8,7 @@ claims -> metrics.json -> report. Work products (databases, models, logs) live i
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import logging
 import shlex
@@ -30,6 +31,7 @@ from polarref.compare import jobs
 from polarref.compare.jobs import camera_to_json
 from polarref.compare.methods import METHOD_NAMES, PAIRS, RUN_ORDER, MethodSpec, select
 from polarref.compare.runner import JobOutcome, has_finished_result, run_isolated, run_isolated_with
+from polarref.compare.scoring import Score, load_mesh, score
 from polarref.compare.schema import (SCHEMA_VERSION, BATrace, Environment, MethodResult, MetricsFile, SceneInfo, save)
 from polarref.core.errors import PolarrefError
 from polarref.core.progress import track
@@ -128,13 +130,9 @@ def _shared_once(ctx: _Context, key: str):
     return ctx.db_results[key]
 
 
-def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodResult, Reconstruction | None, MethodRun | None]:
-    """Run one method; returns (result with status/timings, Reconstruction or None, job result)."""
-    from polarref.model import Reconstruction
-
-    res = MethodResult(name=spec.name, label=spec.label, family=spec.family, features=spec.features,
-                       mapper=spec.mapper, ba=spec.ba, status=RunStatus.FAILED, timeout_s=ctx.timeout,
-                       num_images=len(ctx.scene.image_names))
+def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodRun, Reconstruction | None]:
+    """Run one method: its run (the shared stages' times included) and its model, or None."""
+    run = MethodRun(spec.name, form=spec.ba, status=RunStatus.FAILED, timeout_s=ctx.timeout)
     work = ctx.runs / spec.name
     stages: dict[str, float] = {}
     prereqs = ["ours-features"] if spec.features == "ours" else []
@@ -143,9 +141,7 @@ def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodResult, Reconstr
     for key in prereqs:
         pre, db = _shared(ctx, key)
         if pre.status != RunStatus.OK:
-            res.status = pre.status
-            res.reason = f"shared stage {key} failed: {pre.reason}"
-            return res, None, None
+            return dataclasses.replace(run, status=pre.status, reason=f"shared stage {key} failed: {pre.reason}"), None
         for k, v in pre.result.stage_runtime_s.items():
             stages[k if key != "db-ours" else f"pycolmap {k}"] = float(v)
     if spec.family == "pycolmap":
@@ -159,23 +155,20 @@ def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodResult, Reconstr
                           dict(image_dir=str(ctx.scene.image_dir), camera=ctx.camera, ba=spec.ba,
                                work_dir=str(work), preset=ctx.preset, cache_dir=str(ctx.cache)),
                           ctx.timeout, work, "job")
-    res.status, res.reason = outcome.status, outcome.reason
     if outcome.status != RunStatus.OK:
-        return res, None, None
+        return dataclasses.replace(run, status=outcome.status, reason=outcome.reason), None
     stages.update(outcome.result.stage_runtime_s)
-    res.stage_runtime_s = {k: float(v) for k, v in stages.items()}
-    res.runtime_s = float(sum(res.stage_runtime_s.values()))
+    run = dataclasses.replace(outcome.result, method=spec.name, form=spec.ba, status=RunStatus.OK, reason="",
+                              timeout_s=ctx.timeout, stage_runtime_s={k: float(v) for k, v in stages.items()})
     try:
-        rec = read_model(outcome.result.model_dir)
+        rec = read_model(run.model_dir)
     except PolarrefError as exc:
-        res.status, res.reason = RunStatus.FAILED, f"cannot read the method's model: {exc}"
-        return res, None, outcome.result
-    return res, rec, outcome.result
+        return dataclasses.replace(run, status=RunStatus.FAILED, reason=f"cannot read the method's model: {exc}"), None
+    return run, rec
 
 
 def _run_methods_on_cluster(executor, ctx: _Context, ordered: list[MethodSpec], timeout: float,
-                            deadline: float | None) -> list[tuple[MethodResult, Reconstruction | None,
-                                                                  MethodRun | None]]:
+                            deadline: float | None) -> list[tuple[MethodRun, Reconstruction | None]]:
     """Every method as a task on the cluster at once (shared stages run once, first come).
 
     One thread per method waits for its task(s); the methods' own processes run on the workers.
@@ -186,22 +179,33 @@ def _run_methods_on_cluster(executor, ctx: _Context, ordered: list[MethodSpec], 
         return list(pool.map(lambda spec: _run_method(ctx, spec), ordered))
 
 
-def _score_into(res: MethodResult, rec, scene: Scene, mesh, seed: int,
-                notes: list[str]) -> None:
-    from polarref.compare.scoring import score
-
+def _scored(run: MethodRun, rec: Reconstruction, scene: Scene, mesh, seed: int,
+            notes: list[str]) -> tuple[MethodRun, Score | None]:
+    """The run with its model's ReconstructionMetrics, and the report's extras (None when scoring failed)."""
     try:
         s = score(rec, scene.gt, mesh, seed)
     except Exception as exc:  # scoring must not take the other methods down
-        log.exception("scoring %s failed", res.name)
-        res.status, res.reason = RunStatus.FAILED, f"scoring failed: {type(exc).__name__}: {exc}"
-        return
-    res.set_metrics(s.metrics)
-    res.gt = s.gt
-    res.plot = s.plot
-    notes += [f"{res.name}: {n}" for n in s.notes]
-    if res.metric("registered_images") == 0:
-        res.status, res.reason = RunStatus.FAILED, "no image registered"
+        log.exception("scoring %s failed", run.method)
+        return dataclasses.replace(run, status=RunStatus.FAILED,
+                                   reason=f"scoring failed: {type(exc).__name__}: {exc}"), None
+    notes += [f"{run.method}: {n}" for n in s.notes]
+    run = dataclasses.replace(run, metrics=s.metrics)
+    if s.metrics.registered_images == 0:
+        run = dataclasses.replace(run, status=RunStatus.FAILED, reason="no image registered")
+    return run, s
+
+
+def method_result(spec: MethodSpec, run: MethodRun, s: Score | None, num_images: int) -> MethodResult:
+    """The report's view of one method's run: its labels, status, timings and scores (metrics.json)."""
+    res = MethodResult(name=spec.name, label=spec.label, family=spec.family, features=spec.features,
+                       mapper=spec.mapper, ba=spec.ba, status=run.status, reason=run.reason,
+                       # the method's runtime is known once its own job finished (its model written)
+                       runtime_s=run.runtime_s if run.model_dir else None,
+                       stage_runtime_s=dict(run.stage_runtime_s), timeout_s=run.timeout_s, num_images=num_images,
+                       gt=s.gt if s is not None else None, plot=s.plot if s is not None else None)
+    if run.metrics is not None:
+        res.set_metrics(run.metrics)
+    return res
 
 
 PYCOLMAP_THREADS = 1   # pycolmap extraction, matching, mapping: one thread, so reruns repeat exactly
@@ -248,7 +252,6 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
     timeout = float(cfg.method_timeout_s or cfg.preset.method_timeout_s)
     ctx = _Context(scene, out / "runs", timeout, cfg.seed, cfg.preset.name, out / "runs" / "ours-features" / "cache",
                    camera=camera_to_json(scene.camera), reuse=not cfg.overwrite)
-    from polarref.compare.scoring import load_mesh
     from polarref.metrics import scene_size
 
     resumed = ctx.reuse and has_finished_result(ctx.runs / "ours-features" / "job.result.json")
@@ -272,18 +275,23 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
     reserve = claims_budget if claims_budget < float("inf") else presets.DEFAULT.claims_budget_s
     deadline = None if budget is None else t_start + budget - reserve - REPORT_RESERVE_S
     results: list[MethodResult] = []
-    job_results: dict[str, MethodRun | None] = {}
+    runs: dict[str, MethodRun] = {}
     view = view3d.new_view(scene.gt, scene.camera, mesh, cfg.seed) if scene.gt is not None else None
+
+    def finish(spec: MethodSpec, run: MethodRun, rec: Reconstruction | None) -> None:
+        s = None
+        if rec is not None:
+            run, s = _scored(run, rec, scene, mesh, cfg.seed, notes)
+            if view is not None and run.ok:
+                view3d.add_method(view, spec.name, spec.label, rec, scene.gt, cfg.seed)
+        runs[spec.name] = run
+        results.append(method_result(spec, run, s, len(scene.image_names)))
+
     ordered = sorted(specs, key=lambda m: RUN_ORDER.index(m.name))
     executor = execution.current()
     if not executor.in_process:
-        for res, rec, job in _run_methods_on_cluster(executor, ctx, ordered, timeout, deadline):
-            if rec is not None:
-                _score_into(res, rec, scene, mesh, cfg.seed, notes)
-                if view is not None and res.status == RunStatus.OK:
-                    view3d.add_method(view, res.name, res.label, rec, scene.gt, cfg.seed)
-            job_results[res.name] = job
-            results.append(res)
+        for spec, (run, rec) in zip(ordered, _run_methods_on_cluster(executor, ctx, ordered, timeout, deadline)):
+            finish(spec, run, rec)
         ordered = []
     for k, spec in enumerate(track(ordered, desc="methods", total=len(ordered))):
         ctx.timeout = timeout
@@ -291,16 +299,12 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
             left = deadline - time.perf_counter() - MIN_METHOD_S * (len(ordered) - k - 1)
             ctx.timeout = min(timeout, max(left, 2.0))
         log.info("running %s (limit %.0f s)", spec.name, ctx.timeout)
-        res, rec, job = _run_method(ctx, spec)
-        if res.status == RunStatus.TIMEOUT and ctx.timeout < timeout:
-            res.reason += f" (limit cut from {timeout:.0f} s by the {budget:.0f} s run budget)"
-        if rec is not None:
-            _score_into(res, rec, scene, mesh, cfg.seed, notes)
-            if view is not None and res.status == RunStatus.OK:
-                view3d.add_method(view, res.name, res.label, rec, scene.gt, cfg.seed)
-        job_results[spec.name] = job
-        log.info("%s: %s %s", spec.name, res.status, res.reason)
-        results.append(res)
+        run, rec = _run_method(ctx, spec)
+        if run.status == RunStatus.TIMEOUT and ctx.timeout < timeout:
+            run = dataclasses.replace(run, reason=run.reason + f" (limit cut from {timeout:.0f} s by the "
+                                                                f"{budget:.0f} s run budget)")
+        finish(spec, run, rec)
+        log.info("%s: %s %s", spec.name, results[-1].status, results[-1].reason)
     results.sort(key=lambda r: METHOD_NAMES.index(r.name))
     info = SceneInfo(name=scene.name, kind=scene.kind, source=scene.source, preset=scene.preset,
                      seed=scene.seed, num_images=len(scene.image_names), width=scene.camera.width,
@@ -314,14 +318,14 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
                                  and any(r.name == p.candidate for r in results)],
                           claims=[], notes=notes, view3d=view)
     for spec in specs:
-        job = job_results.get(spec.name)
-        if job is not None and job.final_ba_trace:
+        run = runs.get(spec.name)
+        if run is not None and run.final_ba_trace:
             metrics.ba_traces.append(BATrace(spec.ba, f"{scene.name}: final global BA of our SfM",
-                                             list(job.final_ba_trace)))
+                                             list(run.final_ba_trace)))
     if cfg.dense:  # after the budgeted part: the dense stage has its own (benchmarked) cost
         from polarref.compare.dense_section import run_dense_stage
 
-        metrics.dense = run_dense_stage(scene.root, {n: getattr(job_results.get(n), "model_dir", None)
+        metrics.dense = run_dense_stage(scene.root, {n: (runs[n].model_dir or None) if n in runs else None
                                                      for n in ("ours-euclidean", "ours-polar")}, out)
     if cfg.claims:
         c_budget = claims_budget

@@ -46,9 +46,10 @@ class MethodRun:
     """
 
     method: str = ""                       # method key ("ours-polar", "pycolmap-global-sift") or shared stage
-    form: str = ""                         # BA form (polarref.ba.parameterization.FORMS) or peer mapper id
+    form: str = ""                         # BA form (polarref.ba.parameterization.FORMS), "ceres" for pycolmap
     status: RunStatus = RunStatus.OK
     reason: str = ""                       # why it failed / was skipped (empty when ok)
+    timeout_s: float | None = None         # the wall-clock limit it ran under (None: not recorded)
     stage_runtime_s: dict[str, float] = field(default_factory=dict)
     wall_s: float | None = None
     counted_wall_s: float | None = None    # resumable runs: wall time summed over the segments
