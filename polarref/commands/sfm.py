@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import logging
 from pathlib import Path
 
 from polarref.commands._types import MAX_IMAGE_SIDE, SEED, camera_spec, int_range, refine_groups
-from polarref.core.errors import PolarrefError
+from polarref.core.errors import PolarrefError, UsageError
 
 NAME = "sfm"
 HELP = "incremental SfM (SIFT, MOCI triangulation, PnP, bundle adjustment) -> COLMAP model + metrics"
+
+log = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -41,7 +44,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=SEED, help="RANSAC seed (0..2^32-1)")
     parser.add_argument("--no-cache", action="store_true", help="recompute features and matches")
     parser.add_argument("--format", dest="model_format", choices=("text", "binary", "both"), default="both",
-                        help="COLMAP model format in OUT/model (default: both); points3D.ply is always written")
+                        help="COLMAP model format in OUT/model (default: both; binary only when an image name holds "
+                             "a space, which COLMAP text cannot hold); points3D.ply is always written")
     parser.add_argument("--overwrite", action="store_true", help="write into a non-empty --out")
     geo = parser.add_argument_group("georeferencing (README: Ground control and pose priors)")
     geo.add_argument("--priors", type=Path, metavar="CSV",
@@ -113,8 +117,9 @@ def run(args: argparse.Namespace) -> int:
             camera = parse_camera(args.camera, first.shape[1], first.shape[0])
     cfg = _config(args)
     georef = _read_georef(args, image_dir)
+    model_format = _model_format(args, [p.name for p in F.list_images(image_dir)])
     res = run_sfm(image_dir, args.out, cfg, camera=camera, gt=gt, mesh=mesh, overwrite=args.overwrite,
-                  model_format=args.model_format)
+                  model_format=model_format)
     r = res.report
     m = r.metrics
     if r.gt_skipped:
@@ -134,11 +139,29 @@ def run(args: argparse.Namespace) -> int:
                       if c.focal_error_rel is not None else "")
             print(f"camera {c.camera_id} ({c.source}, {c.num_images} images): refined "
                   f"{c.model} {vals}{gt_err}")
-    print(f"wrote {args.out / 'model'} ({args.model_format} + points3D.ply) and {args.out / 'metrics.json'} "
+    print(f"wrote {args.out / 'model'} ({model_format} + points3D.ply) and {args.out / 'metrics.json'} "
           f"in {r.runtime_s['total']:.1f} s")
     if georef is not None:
-        _georeference(args, res.reconstruction, georef)
+        _georeference(args, res.reconstruction, georef, model_format)
     return 0
+
+
+def _model_format(args: argparse.Namespace, names: list[str]) -> str:
+    """The format written: COLMAP text cannot hold a name with whitespace (COLMAP reads it up to
+    the first space), so such folders get the binary model only: refused before any work when
+    text alone was asked for, with a warning under the default ``both``."""
+    from polarref.model.colmap_text import names_text_cannot_hold
+
+    bad = names_text_cannot_hold(names)
+    if not bad or args.model_format == "binary":
+        return args.model_format
+    if args.model_format == "text":
+        raise UsageError(f"{args.dir}: image name {bad[0]!r} holds whitespace, which COLMAP's text format "
+                         "cannot hold (COLMAP reads only up to the first space); use --format binary "
+                         "or rename the images")
+    log.warning("%d image names hold whitespace (e.g. %r), which COLMAP's text format cannot hold: "
+                "writing the binary model only", len(bad), bad[0])
+    return "binary"
 
 
 def _read_georef(args: argparse.Namespace, image_dir: Path):
@@ -156,18 +179,18 @@ def _read_georef(args: argparse.Namespace, image_dir: Path):
     return load_georef(names, args.priors, args.gcps, args.gcp_observations)
 
 
-def _georeference(args: argparse.Namespace, rec, georef) -> None:
+def _georeference(args: argparse.Namespace, rec, georef, model_format: str) -> None:
     """Georeferenced BA of the finished model: OUT/model-georef/ and OUT/aerotriangulation.json."""
     import dataclasses as dc
 
     from polarref import metrics as M
     from polarref.georef.adjust import georeference
     from polarref.core.provenance import collect
+    from polarref.sfm.model_files import write_model
 
     r = georeference(rec, georef, args.ba, image_sigma_px=args.image_sigma,
                      mark_sigma_px=args.mark_sigma)
-    (args.out / "model-georef").mkdir(exist_ok=True)
-    rec.write_text(args.out / "model-georef")
+    write_model(rec, args.out / "model-georef", model_format)
     M.write_json(args.out / "aerotriangulation.json",
                  {"record": dc.asdict(r), "provenance": collect()})
     line = f"georeferenced ({r.num_priors} priors, {r.num_control} control points): sigma0 {r.sigma0:.3f}"
