@@ -19,6 +19,7 @@ import numpy as np
 from polarref.core.atomic import (atomic_open, check_dir_target, check_writable_parent, holds_finished_result,
                                   publish_dir, refuse_inside_inputs)
 from polarref.dense import consistency, depth as depth_mod, fusion, meshing, scoring, views as views_mod
+from polarref.dense.model_check import ModelCheck, check_model
 from polarref.dense.provenance import Provenance, collect
 from polarref.core.errors import PolarrefError
 from polarref.core.progress import track
@@ -65,6 +66,7 @@ class DenseMetrics:
     cpu_s: dict[str, float] = field(default_factory=dict)         # process CPU time per stage (all threads)
     peak_memory_mb: float = 0.0
     warnings: list[str] = field(default_factory=list)
+    model_check: ModelCheck | None = None        # does the model belong to the scene (not for --model gt)
     gt: scoring.GTScores | None = None
     provenance: Provenance | None = None
 
@@ -162,6 +164,8 @@ def _run(scene_dir: Path, model: str, out: Path, cfg: DenseConfig, m: DenseMetri
     scale = cfg.scale if cfg.scale is not None else min(1.0, WORK_WIDTH / width)
     m.scale = scale
     views = views_mod.load_views(image_dir, rec, scale)
+    if model != "gt":
+        m.model_check = _check_model(rec, views, gt, model, scene_dir, cfg.seed)
     t = _timed(m, "load", t)
 
     bounds = None
@@ -225,6 +229,27 @@ def _run(scene_dir: Path, model: str, out: Path, cfg: DenseConfig, m: DenseMetri
     if gt is not None:
         _score_gt(rec, gt, synth_scene, views, filtered, cloud, mesh, model, out, cfg, m)
         _timed(m, "scoring", t)
+
+
+def _check_model(rec, views, gt, model: str, scene_dir: Path, seed: int) -> ModelCheck:
+    """Refuse a model that does not belong to the scene before any dense work (its score would
+    be meaningless); the figures go to metrics.json either way."""
+    from polarref.metrics import align_to_gt
+
+    sim, unmatched = None, None
+    if gt is not None:
+        try:
+            sim = align_to_gt(rec, gt)[0]
+        except ValueError as exc:
+            unmatched = f"its image names do not match the scene's GT ({exc})"
+    check = check_model(rec, views, gt, sim, seed)
+    problems = ([unmatched] if unmatched else []) + list(check.problems)
+    for note in check.notes:
+        log.info("%s: %s", model, note)
+    if problems:
+        raise PolarrefError(f"model {model} does not fit the scene {scene_dir}: {'; '.join(problems)} "
+                            "(a model of another scene or of other images?)")
+    return check
 
 
 def _score_gt(rec, gt, synth_scene, views, filtered, cloud, mesh, model, out, cfg, m) -> None:
