@@ -86,6 +86,9 @@ def _run_twin(args: argparse.Namespace) -> int:
         extra = f" ({m.reason})" if m.reason else ""
         print(f"  {name}: {m.status}{extra}")
     print(f"paper table: {out / 'paper-table.md'} (log: {out / 'compare.log'})")
+    if table.methods and not any(m.status == RunStatus.OK for m in table.methods.values()):
+        raise PolarrefError(f"{out}: every method failed ({len(table.methods)} of {len(table.methods)}); "
+                            "the paper table names each failure")
     return 0
 
 
