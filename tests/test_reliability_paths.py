@@ -1,0 +1,174 @@
+"""Dedicated tests of issue 31's refusal paths that need more than one row of the hostile
+tables: names with spaces, the dense model/scene check, compare with every method failed, the
+principal-point hold, --no-cache, workers capped, a closed stdout."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from polarref.cli import main
+from polarref.core.errors import PolarrefError
+from polarref.model.colmap import read_model
+from polarref.sfm.model_files import write_binary
+
+from test_hostile_cli import GOOD_BAL, cli
+
+
+# ---- case 4: names with spaces ------------------------------------------------------------------
+def _named_model(src: Path, prefix: str):
+    rec = read_model(src)
+    for im in rec.images.values():
+        im.name = prefix + im.name
+    return rec
+
+
+def test_names_with_spaces_refused_by_text_writer_kept_by_binary(comet_small_scene, tmp_path):
+    rec = _named_model(comet_small_scene / "gt", "my photo ")
+    with pytest.raises(PolarrefError, match="'my photo 0000.png'.*whitespace"):
+        rec.write_text(tmp_path / "text")
+    assert not (tmp_path / "text").exists()  # refused before anything is written
+    write_binary(rec, tmp_path / "bin")
+    back = read_model(tmp_path / "bin")
+    assert sorted(im.name for im in back.images.values()) == [f"my photo {i:04d}.png" for i in range(12)]
+
+
+def test_text_model_checked_line_by_line(comet_small_scene, tmp_path):
+    good = tmp_path / "good"
+    shutil.copytree(comet_small_scene / "gt", good)
+    assert len(read_model(good).images) == 12
+    cases = {
+        "cameras.txt": (lambda t: t.replace("PINHOLE", "PINHOLE_X"), "unknown camera model 'PINHOLE_X'"),
+        "images.txt": (lambda t: t.replace(" 0003.png", " my 0003.png"), "'my 0003.png' holds whitespace"),
+        "points3D.txt": (lambda t: t + "7 1 2 3 300 0 0 0.5 1 0\n", "colour"),
+    }
+    for name, (edit, needle) in cases.items():
+        bad = tmp_path / name.split(".")[0]
+        shutil.copytree(good, bad)
+        (bad / name).write_text(edit((bad / name).read_text()))
+        with pytest.raises(PolarrefError, match=needle) as exc:
+            read_model(bad)
+        assert str(bad / name) in str(exc.value) and "Check failed" not in str(exc.value)
+
+
+# ---- case 3: dense with a model of other images of the same names and sizes ---------------------
+@pytest.fixture(scope="module")
+def comet_model(comet_small_scene, tmp_path_factory):
+    out = tmp_path_factory.mktemp("cm") / "sfm"
+    assert main(["-q", "--no-progress", "sfm", str(comet_small_scene), "--out", str(out), "--preset", "small",
+                 "--format", "text", "--no-cache"]) == 0
+    return out / "model"
+
+
+def _shift_names(model: Path, dst: Path) -> Path:
+    """The same model with every image renamed to the next view's name (same names, same sizes)."""
+    shutil.copytree(model, dst)
+    lines = (dst / "images.txt").read_text().splitlines()
+    for k, ln in enumerate(lines):
+        tok = ln.split()
+        if len(tok) == 10 and tok[9].endswith(".png"):
+            tok[9] = f"{(int(tok[9][:4]) + 1) % 12:04d}.png"
+            lines[k] = " ".join(tok)
+    (dst / "images.txt").write_text("\n".join(lines) + "\n")
+    return dst
+
+
+def test_model_check_figures_separate_right_and_wrong_models(comet_small_scene, comet_model, tmp_path):
+    from polarref.dense import views as V
+    from polarref.dense.model_check import check_model
+    from polarref.io.scene_folder import discover
+    from polarref.metrics import align_to_gt
+
+    gt = discover(comet_small_scene).read_ground_truth()
+    for model, right in ((comet_model, True), (_shift_names(comet_model, tmp_path / "shifted"), False)):
+        rec = read_model(model)
+        views = V.load_views(comet_small_scene / "images", rec, 0.5)
+        c = check_model(rec, views, gt, align_to_gt(rec, gt)[0])
+        assert c.patch_pairs >= 500 and c.gt_observations >= 1000
+        if right:  # measured 0.81 and 0.72 px (320x240 images)
+            assert c.patch_ncc_median > 0.6 and c.gt_reprojection_px_median < 2.0 and not c.problems
+        else:  # measured 0.09 and 38.8 px
+            assert c.patch_ncc_median < 0.2 and c.gt_reprojection_px_median > 15.0 and len(c.problems) == 2
+
+
+def test_dense_refuses_model_of_other_images(comet_small_scene, comet_model, tmp_path):
+    wrong = _shift_names(comet_model, tmp_path / "shifted")
+    out = tmp_path / "d"
+    r = cli("dense", str(comet_small_scene), "--model", str(wrong), "--out", str(out), cwd=tmp_path)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 1 and len(lines) == 1, r.stderr
+    assert "does not fit the scene" in lines[0] and "median NCC" in lines[0], lines[0]
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["status"] == "failed" and "does not fit the scene" in m["message"]
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == ["metrics.json"]
+
+
+# ---- case 3: compare on a twin with every method failed -----------------------------------------
+def test_twin_compare_with_every_method_failed_exits_1(tmp_path, monkeypatch, capsys):
+    from types import SimpleNamespace
+
+    from polarref.compare import twins
+    from polarref.core.status import RunStatus
+
+    failed = SimpleNamespace(status=RunStatus.FAILED, reason="no initial pair")
+    table = SimpleNamespace(methods={"ours-euclidean": failed, "pycolmap": failed})
+    monkeypatch.setattr(twins, "run_twin", lambda run: table)
+    rc = main(["-q", "compare", "rosetta", "--out", str(tmp_path / "t")])
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert rc == 1 and len(err) == 1 and "every method failed (2 of 2)" in err[0], err
+    ok = SimpleNamespace(status=RunStatus.OK, reason="")
+    table.methods["ours-polar"] = ok
+    assert main(["-q", "compare", "rosetta", "--out", str(tmp_path / "t")]) == 0
+
+
+# ---- case 9: BAL one-image groups keep their principal point ------------------------------------
+def test_bal_refine_pp_holds_one_image_groups(shared_data, tmp_path):
+    problem = shared_data / "bal" / "dubrovnik-3-7-pre.txt"
+    runs = {}
+    for name, extra in (("held", []), ("forced", ["--refine-pp-single"])):
+        r = cli("ba", str(problem), "--refine", "pp,dist", *extra, "--out", str(tmp_path / f"{name}.json"),
+                cwd=tmp_path)
+        assert r.returncode == 0, r.stderr
+        runs[name] = (r.stderr, json.loads((tmp_path / f"{name}.json").read_text())["intrinsics"])
+    stderr, groups = runs["held"]
+    assert "principal point held on 3 of 3 intrinsics groups" in stderr
+    for g in groups:
+        assert g["refined"][1:3] == g["initial"][1:3] and "cx" not in g["refined_names"]
+    moved = [np.hypot(*np.subtract(g["refined"][1:3], g["initial"][1:3])) for g in runs["forced"][1]]
+    assert max(moved) > 1.0  # forced: the unconstrained principal point does move
+
+
+# ---- case 7 and 8: --no-cache, workers, a closed stdout ------------------------------------------
+def test_no_cache_never_touches_the_cache(small_copy, tmp_path):
+    cache = tmp_path / "never"
+    r = cli("sfm", str(small_copy), "--out", str(tmp_path / "o"), "--preset", "small", "--no-cache",
+            cwd=tmp_path, env={"POLARREF_CACHE": str(cache)})
+    assert r.returncode == 0, r.stderr
+    assert not cache.exists()
+
+
+def test_workers_capped_at_the_cores_with_one_warning(tmp_path):
+    (tmp_path / "p.txt").write_text(GOOD_BAL)
+    r = cli("--workers", "999", "ba", "synth-20", "--max-iterations", "1", "--out", str(tmp_path / "b.json"),
+            cwd=tmp_path)
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
+    assert r.returncode == 0, r.stderr
+    assert len(lines) == 1 and lines[0].startswith("WARNING polarref.core.execution: 999 workers requested on")
+    assert f"using {min(999, os.cpu_count() or 1)}" in lines[0] or "using " in lines[0], lines[0]
+
+
+def test_closed_stdout_is_not_an_error(tmp_path):
+    env = dict(os.environ, POLARREF_CACHE=str(tmp_path / "cache"), PYTHONPATH=str(Path(__file__).parents[1]))
+    r = subprocess.run(f"{sys.executable} -m polarref ba synth-20 --max-iterations 1 --out b.json | true; "
+                       "echo rc=${PIPESTATUS[0]}", shell=True, executable="/bin/bash", capture_output=True,
+                       text=True, cwd=tmp_path, env=env, timeout=300)
+    assert r.stdout.strip() == "rc=0", (r.stdout, r.stderr)
+    assert "Broken pipe" not in r.stderr and r.stderr.strip() == ""
+    assert json.loads((tmp_path / "b.json").read_text())["iterations"] == 1
