@@ -37,7 +37,7 @@ WARNING_TEXT = ("Traceback", "[ WARN", "Warning:", "Check failed", "RuntimeWarni
 
 
 def cli(*args: str, cwd: Path, env: dict | None = None, timeout: int = 300) -> subprocess.CompletedProcess:
-    full = dict(os.environ, POLARREF_CACHE=str(cwd / "cache"), PYTHONPATH=str(REPO_ROOT), **(env or {}))
+    full = {**os.environ, "POLARREF_CACHE": str(cwd / "cache"), "PYTHONPATH": str(REPO_ROOT), **(env or {})}
     return subprocess.run([sys.executable, "-m", "polarref", *args], capture_output=True, text=True,
                           cwd=cwd, env=full, timeout=timeout)
 

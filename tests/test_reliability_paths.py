@@ -32,7 +32,7 @@ def _named_model(src: Path, prefix: str):
 
 def test_names_with_spaces_refused_by_text_writer_kept_by_binary(comet_small_scene, tmp_path):
     rec = _named_model(comet_small_scene / "gt", "my photo ")
-    with pytest.raises(PolarrefError, match="'my photo 0000.png'.*whitespace"):
+    with pytest.raises(PolarrefError, match=r"12 image name\(s\), e.g. 'my photo 00\d\d.png', hold whitespace"):
         rec.write_text(tmp_path / "text")
     assert not (tmp_path / "text").exists()  # refused before anything is written
     write_binary(rec, tmp_path / "bin")
@@ -107,7 +107,8 @@ def test_dense_refuses_model_of_other_images(comet_small_scene, comet_model, tmp
     assert "does not fit the scene" in lines[0] and "median NCC" in lines[0], lines[0]
     m = json.loads((out / "metrics.json").read_text())
     assert m["status"] == "failed" and "does not fit the scene" in m["message"]
-    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == ["metrics.json"]
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == ["depth", "metrics.json"]
+    assert not list((out / "depth").iterdir())  # refused before any depth map
 
 
 # ---- case 3: compare on a twin with every method failed -----------------------------------------

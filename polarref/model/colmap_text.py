@@ -33,8 +33,7 @@ def refuse_names_for_text(names, where: str) -> None:
     """PolarrefError when any name cannot be written to COLMAP text (``where``: the output)."""
     bad = names_text_cannot_hold(names)
     if bad:
-        more = f" and {len(bad) - 1} more" if len(bad) > 1 else ""
-        raise PolarrefError(f"{where}: image name {bad[0]!r}{more} holds whitespace, which COLMAP's text "
+        raise PolarrefError(f"{where}: {len(bad)} image name(s), e.g. {bad[0]!r}, hold whitespace, which COLMAP's text "
                             "format cannot hold (COLMAP reads only up to the first space); write the "
                             "binary model or rename the images")
 
