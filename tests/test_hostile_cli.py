@@ -146,6 +146,8 @@ ROWS = [
                                           "--out", str(d / "out")], 2, "--preset, --budget"),
     ("8-opencv-unreadable", lambda d: ["sfm", str(_garbage_images(d)), "--out", str(d / "out"), "--camera",
                                        "PINHOLE:60,60,32,24"], 1, "readable image"),
+    ("8-opencv-dense-unreadable", lambda d: ["dense", str(_scene_with_garbage(d)), "--model", "gt", "--out",
+                                             str(d / "out")], 1, "cannot read image"),
     # case 9: weak validation
     ("9-report-negative-registered", lambda d: ["report", str(_metrics(d, _negative_registered))], 1,
      "registered_images -5"),
@@ -175,6 +177,12 @@ ROWS = [
         f"G{i},{i},0,0,0.1,0.1,0.1,control\n" for i in range(2)), marks=MARK_HEAD + "G0,0000.png,1,1\nG1,0001.png,1,1\n"),
      1, "at least 3 control points"),
 ]
+
+
+def _scene_with_garbage(d: Path) -> Path:
+    scene = _scene(d)
+    (scene / "images" / "0001.png").write_bytes(b"\x89PNG but not really")
+    return scene
 
 
 def _garbage_images(d: Path) -> Path:

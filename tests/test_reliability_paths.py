@@ -204,3 +204,17 @@ def test_sift_memory_bounded_by_the_largest_image(tmp_path, monkeypatch, caplog)
         S._bound_detection(cfg, 0, big)
     monkeypatch.setattr(S, "_available_bytes", lambda: 64_000_000_000)
     assert S._bound_detection(cfg, 0, big) is cfg  # it fits: full size as asked
+
+
+@pytest.mark.slow  # ~35 s: two methods each start, find no verified pair and fail
+def test_scene_compare_with_every_method_failed_exits_1(tmp_path):
+    from test_hostile_cli import _scene
+
+    scene = _scene(tmp_path)  # three random-texture 64x48 images: nothing matches
+    r = cli("compare", str(scene), "--methods", "ours-euclidean", "pycolmap-incremental-sift", "--no-claims",
+            "--out", str(tmp_path / "o"), cwd=tmp_path)
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip() and not ln.startswith("INFO ")]  # progress log
+    assert r.returncode == 1 and len(lines) == 1 and "every method failed (2 of 2)" in lines[0], r.stderr
+    assert "0/2 methods succeeded" in r.stdout
+    m = json.loads((tmp_path / "o" / "metrics.json").read_text())
+    assert [x["status"] for x in m["methods"]] == ["failed", "failed"]
