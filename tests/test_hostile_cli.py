@@ -137,6 +137,9 @@ ROWS = [
                                      "--out", str(d / "out"), "--format", "text"], 2, "whitespace"),
     ("4-read-text-spaces", lambda d: ["ba", str(_text_model(d, "my photo.png")), "--out", str(d / "out")], 1,
      "'my photo.png' holds whitespace"),
+    ("4-compare-spaces", lambda d: ["compare", str(_scene(d, ("my photo 0000.png", "my photo 0001.png"),
+                                                          gt=False)), "--out", str(d / "out")], 1,
+     "'my photo 0000.png', hold whitespace"),
     # case 8: friction
     ("8-refine-bogus", lambda d: ["sfm", str(_scene(d)), "--out", str(d / "out"), "--refine", "bogus"], 2,
      "--refine"),

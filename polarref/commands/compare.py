@@ -120,6 +120,8 @@ def run(args: argparse.Namespace) -> int:
 
         if args.scene is not None and Path(args.scene).expanduser().is_dir():
             refuse_inside_inputs(args.out, [Path(args.scene).expanduser()])
+    if args.scene is not None and Path(args.scene).expanduser().is_dir():
+        _refuse_spaced_names(Path(args.scene).expanduser())
 
         if args.out.exists() and not args.out.is_dir():
             raise PolarrefError(f"{args.out} exists and is not a folder (choose another report folder)")
@@ -145,3 +147,16 @@ def run(args: argparse.Namespace) -> int:
         raise PolarrefError(f"{out}: every method failed ({len(metrics.methods)} of {len(metrics.methods)}); "
                             "the report names each failure")
     return 0
+
+
+def _refuse_spaced_names(scene: Path) -> None:
+    """pycolmap's methods pass image names through COLMAP text (pair lists, models), which cuts a
+    name at its first space: refused before rendering or matching, not after every method ran."""
+    from polarref.io.scene_folder import discover, list_images
+    from polarref.model.colmap_text import names_text_cannot_hold
+
+    found = discover(scene)
+    bad = names_text_cannot_hold([p.name for p in list_images(found.image_dir)])
+    if bad:
+        raise PolarrefError(f"{found.image_dir}: {len(bad)} image name(s), e.g. {bad[0]!r}, hold whitespace, "
+                            "which the COLMAP text files of the comparison cannot hold; rename the images")
