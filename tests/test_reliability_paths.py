@@ -218,3 +218,35 @@ def test_scene_compare_with_every_method_failed_exits_1(tmp_path):
     assert "0/2 methods succeeded" in r.stdout
     m = json.loads((tmp_path / "o" / "metrics.json").read_text())
     assert [x["status"] for x in m["methods"]] == ["failed", "failed"]
+
+
+# ---- case 3: physically impossible inputs, at their boundaries -----------------------------------
+def _bal(points: list[tuple[float, float, float]]) -> str:
+    """Two cameras (the second 1 along x), each point seen by both; BAL cameras look down -z."""
+    obs = "".join(f"{c} {p} 1.0 2.0\n" for p in range(len(points)) for c in range(2))
+    cams = ["0"] * 6 + ["100", "0", "0"] + ["0"] * 3 + ["1", "0", "0", "100", "0", "0"]
+    pts = [str(v) for xyz in points for v in xyz]
+    return f"2 {len(points)} {2 * len(points)}\n" + obs + "\n".join(cams + pts) + "\n"
+
+
+def test_points_behind_refused_only_when_every_point_is(tmp_path):
+    from polarref.ba.loaders import load_problem
+
+    some = tmp_path / "some.txt"
+    some.write_text(_bal([(0, 0, -5), (0, 0, 5)]))  # one in front (z < 0), one behind
+    problem, _ = load_problem(str(some))
+    assert problem.X.shape == (2, 3)
+    every = tmp_path / "every.txt"
+    every.write_text(_bal([(0, 0, 5), (1, 1, 3)]))
+    with pytest.raises(PolarrefError, match=r"every point is behind every camera .*\(4 observations"):
+        load_problem(str(every))
+
+
+def test_focal_range_boundaries():
+    from polarref.sfm.calibration import check_focal
+
+    for f in (0.1 * 640, 640.0, 20 * 640):  # [0.1, 20] x max(w, h), both ends inside
+        check_focal(f, 640, 480, "x.jpg")
+    for f in (0.0999 * 640, 20.001 * 640, float("nan"), float("inf"), -640.0):
+        with pytest.raises(PolarrefError, match="x.jpg: focal length .* impossible for a 640x480 image"):
+            check_focal(f, 640, 480, "x.jpg")
