@@ -250,3 +250,36 @@ def test_focal_range_boundaries():
     for f in (0.0999 * 640, 20.001 * 640, float("nan"), float("inf"), -640.0):
         with pytest.raises(PolarrefError, match="x.jpg: focal length .* impossible for a 640x480 image"):
             check_focal(f, 640, 480, "x.jpg")
+
+
+@pytest.mark.slow  # ~40 s: a real sfm and dense run
+def test_spaced_names_sfm_then_dense_works(small_copy, tmp_path):
+    for p in (small_copy / "images").iterdir():
+        p.rename(p.with_name("my photo " + p.name))
+    shutil.rmtree(small_copy / "gt")  # its names have no spaces
+    r = cli("sfm", str(small_copy), "--out", str(tmp_path / "s"), "--preset", "small", "--camera",
+            "PINHOLE:386.2741699796952,386.2741699796952,160,120", "--no-cache", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "writing the binary model only" in r.stderr
+    model = tmp_path / "s" / "model"
+    assert not (model / "images.txt").exists() and (model / "images.bin").is_file()
+    assert {im.name for im in read_model(model).images.values()} == {p.name for p in (small_copy / "images").iterdir()}
+    r = cli("dense", str(small_copy), "--model", str(model), "--out", str(tmp_path / "d"), "--scale", "0.5",
+            "--poisson-depth", "6", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    m = json.loads((tmp_path / "d" / "metrics.json").read_text())
+    assert m["status"] == "ok" and m["model_check"]["patch_ncc_median"] > 0.5
+    assert len(list((tmp_path / "d" / "depth").glob("my photo *.npy"))) == 6
+
+
+def test_model_check_verdict_refuses_only_when_every_check_made_failed():
+    from polarref.dense.model_check import ModelCheck, verdict
+
+    both = ModelCheck(0.05, 900, 40.0, 3000, ("patches", "reprojection"), ())
+    assert verdict(both) == (("patches", "reprojection"), ())
+    one = ModelCheck(0.05, 900, 1.0, 3000, ("patches",), ())
+    assert verdict(one) == ((), ("patches",))  # kept, flagged in metrics.json and on the terminal
+    only_patch = ModelCheck(0.05, 900, None, 0, ("patches",), ("GT reprojection check not made",))
+    assert verdict(only_patch) == (("patches",), ())
+    fine = ModelCheck(0.8, 900, 0.7, 3000, (), ())
+    assert verdict(fine) == ((), ())

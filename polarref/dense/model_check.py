@@ -40,6 +40,15 @@ class ModelCheck:
     notes: tuple[str, ...]
 
 
+def verdict(check: ModelCheck) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """(reasons to refuse, warnings to flag): refused when every check made failed; when one of
+    two failed the result is kept and flagged (a poor but genuine model can miss one bound)."""
+    made = (check.patch_ncc_median is not None) + (check.gt_reprojection_px_median is not None)
+    if check.problems and len(check.problems) >= made:
+        return check.problems, ()
+    return (), check.problems
+
+
 def check_model(rec: Reconstruction, views: list[DenseView], gt: Reconstruction | None,
                 sim=None, seed: int = 0) -> ModelCheck:
     """Both checks, on the views' working-resolution grey images; ``sim``: the model-to-GT

@@ -19,7 +19,7 @@ import numpy as np
 from polarref.core.atomic import (atomic_open, check_dir_target, check_writable_parent, holds_finished_result,
                                   publish_dir, refuse_inside_inputs)
 from polarref.dense import consistency, depth as depth_mod, fusion, meshing, scoring, views as views_mod
-from polarref.dense.model_check import ModelCheck, check_model
+from polarref.dense.model_check import ModelCheck, check_model, verdict
 from polarref.dense.provenance import Provenance, collect
 from polarref.core.errors import PolarrefError
 from polarref.core.progress import track
@@ -165,7 +165,7 @@ def _run(scene_dir: Path, model: str, out: Path, cfg: DenseConfig, m: DenseMetri
     m.scale = scale
     views = views_mod.load_views(image_dir, rec, scale)
     if model != "gt":
-        m.model_check = _check_model(rec, views, gt, model, scene_dir, cfg.seed)
+        m.model_check = _check_model(rec, views, gt, model, scene_dir, cfg.seed, m)
     t = _timed(m, "load", t)
 
     bounds = None
@@ -231,9 +231,9 @@ def _run(scene_dir: Path, model: str, out: Path, cfg: DenseConfig, m: DenseMetri
         _timed(m, "scoring", t)
 
 
-def _check_model(rec, views, gt, model: str, scene_dir: Path, seed: int) -> ModelCheck:
+def _check_model(rec, views, gt, model: str, scene_dir: Path, seed: int, m: DenseMetrics) -> ModelCheck:
     """Refuse a model that does not belong to the scene before any dense work (its score would
-    be meaningless); the figures go to metrics.json either way."""
+    be meaningless), or flag it in ``m.warnings`` when only one of two checks failed."""
     from polarref.metrics import align_to_gt
 
     sim, unmatched = None, None
@@ -243,12 +243,16 @@ def _check_model(rec, views, gt, model: str, scene_dir: Path, seed: int) -> Mode
         except ValueError as exc:
             unmatched = f"its image names do not match the scene's GT ({exc})"
     check = check_model(rec, views, gt, sim, seed)
-    problems = ([unmatched] if unmatched else []) + list(check.problems)
+    refuse, flags = verdict(check)
+    problems = ([unmatched] if unmatched else []) + list(refuse)
     for note in check.notes:
         log.info("%s: %s", model, note)
     if problems:
         raise PolarrefError(f"model {model} does not fit the scene {scene_dir}: {'; '.join(problems)} "
                             "(a model of another scene or of other images?)")
+    for flag in flags:
+        m.warnings.append(f"model check: {flag}")
+        log.warning(m.warnings[-1])
     return check
 
 
