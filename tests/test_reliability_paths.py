@@ -283,3 +283,16 @@ def test_model_check_verdict_refuses_only_when_every_check_made_failed():
     assert verdict(only_patch) == (("patches",), ())
     fine = ModelCheck(0.8, 900, 0.7, 3000, (), ())
     assert verdict(fine) == ((), ())
+
+
+@pytest.mark.parametrize("name", ["cameras.bin", "images.bin", "points3D.bin"])
+def test_truncated_binary_model_is_one_line_of_ours(comet_small_scene, tmp_path, name):
+    rec = read_model(comet_small_scene / "gt")
+    write_binary(rec, tmp_path / "m")
+    data = (tmp_path / "m" / name).read_bytes()
+    (tmp_path / "m" / name).write_bytes(data[: len(data) // 2])
+    with pytest.raises(PolarrefError) as exc:
+        read_model(tmp_path / "m")
+    text = str(exc.value)
+    assert text.startswith(f"cannot read COLMAP model {tmp_path / 'm'}: ") and "\n" not in text
+    assert "Check failed" not in text and "reconstruction_io" not in text

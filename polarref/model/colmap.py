@@ -260,6 +260,8 @@ def _reader_failure(exc: Exception, binary: bool) -> str:
     """pycolmap's failure in our words: its ``Check failed: <C++ expression>`` names neither
     the file nor the line, so only the file it was reading is kept."""
     text = " ".join(str(exc).split())
+    if isinstance(exc, PolarrefError):  # ours, converting what pycolmap read: already our words
+        return text
     if "Check failed" not in text:
         return f"malformed or truncated model files (pycolmap: {text[:120]})"
     low = text.lower()
