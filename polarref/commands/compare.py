@@ -115,13 +115,13 @@ def run(args: argparse.Namespace) -> int:
         return _run_twin(args)
     from polarref.compare.pipeline import CompareConfig, command_line, run_compare
 
+    if args.scene is not None and Path(args.scene).expanduser().is_dir():
+        _refuse_spaced_names(Path(args.scene).expanduser())
     if args.out is not None:  # before rendering, not after it
         from polarref.core.atomic import check_writable_parent, refuse_inside_inputs
 
         if args.scene is not None and Path(args.scene).expanduser().is_dir():
             refuse_inside_inputs(args.out, [Path(args.scene).expanduser()])
-    if args.scene is not None and Path(args.scene).expanduser().is_dir():
-        _refuse_spaced_names(Path(args.scene).expanduser())
 
         if args.out.exists() and not args.out.is_dir():
             raise PolarrefError(f"{args.out} exists and is not a folder (choose another report folder)")
