@@ -296,3 +296,35 @@ def test_truncated_binary_model_is_one_line_of_ours(comet_small_scene, tmp_path,
     text = str(exc.value)
     assert text.startswith(f"cannot read COLMAP model {tmp_path / 'm'}: ") and "\n" not in text
     assert "Check failed" not in text and "reconstruction_io" not in text
+
+
+# ---- case 7: failures named in metrics.json and on the terminal ----------------------------------
+def test_failure_text_names_interrupt_disk_and_memory():
+    import argparse
+    import errno
+
+    import cv2
+
+    from polarref.cli import describe
+    from polarref.core.errors import failure_text
+
+    assert failure_text(KeyboardInterrupt()) == "interrupted (Ctrl-C or SIGINT) before the run finished"
+    disk = OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), "out/fused.ply")
+    assert failure_text(disk) == "out/fused.ply: No space left on device"
+    oom = cv2.error("OpenCV(4.10.0) alloc.cpp:73: error: (-4:Insufficient memory) Failed to allocate 2304000000 bytes")
+    assert failure_text(oom) == "out of memory"
+    args = argparse.Namespace(command="sfm", _positionals=["dir"], dir="photos")
+    assert describe(oom, args) == "photos: out of memory (use a smaller input or preset, or free memory)"
+    assert failure_text(RuntimeError()) == "unexpected RuntimeError"  # never empty
+    assert failure_text(PolarrefError()) == "PolarrefError"
+
+
+# ---- case 3: sfm on few photos does not self-calibrate ---------------------------------------------
+def test_few_photos_keep_their_exif_camera(small_copy, tmp_path):
+    shutil.rmtree(small_copy / "gt")  # a folder of photos: cameras from EXIF (none here: the default)
+    r = cli("sfm", str(small_copy), "--out", str(tmp_path / "s"), "--preset", "small", "--no-cache", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert "intrinsics not refined (focal,dist requested): 6 registered images, refinement starts at 10" in r.stderr
+    cams = json.loads((tmp_path / "s" / "metrics.json").read_text())["cameras"]
+    assert len(cams) == 1 and cams[0]["refined"] == cams[0]["initial"]
+    assert cams[0]["initial"][0] == pytest.approx(1.2 * 320)  # the default focal, not moved (f 386 -> 807 before)
