@@ -21,6 +21,7 @@ from polarref.core.atomic import (atomic_open, check_dir_target, check_writable_
 from polarref.dense import consistency, depth as depth_mod, fusion, meshing, scoring, views as views_mod
 from polarref.dense.model_check import ModelCheck, check_model, verdict
 from polarref.dense.provenance import Provenance, collect
+from polarref.metrics import align_to_gt
 from polarref.core.errors import PolarrefError
 from polarref.core.progress import track
 from polarref.model.colmap import read_model
@@ -234,21 +235,18 @@ def _run(scene_dir: Path, model: str, out: Path, cfg: DenseConfig, m: DenseMetri
 def _check_model(rec, views, gt, model: str, scene_dir: Path, seed: int, m: DenseMetrics) -> ModelCheck:
     """Refuse a model that does not belong to the scene before any dense work (its score would
     be meaningless), or flag it in ``m.warnings`` when only one of two checks failed."""
-    from polarref.metrics import align_to_gt
-
-    sim, unmatched = None, None
+    sim = None
     if gt is not None:
         try:
             sim = align_to_gt(rec, gt)[0]
-        except ValueError as exc:
-            unmatched = f"its image names do not match the scene's GT ({exc})"
+        except ValueError as exc:  # the GT names other images than the folder: only the patches can tell
+            log.info("%s: GT reprojection check not made: %s", model, exc)
     check = check_model(rec, views, gt, sim, seed)
     refuse, flags = verdict(check)
-    problems = ([unmatched] if unmatched else []) + list(refuse)
     for note in check.notes:
         log.info("%s: %s", model, note)
-    if problems:
-        raise PolarrefError(f"model {model} does not fit the scene {scene_dir}: {'; '.join(problems)} "
+    if refuse:
+        raise PolarrefError(f"model {model} does not fit the scene {scene_dir}: {'; '.join(refuse)} "
                             "(a model of another scene or of other images?)")
     for flag in flags:
         m.warnings.append(f"model check: {flag}")
