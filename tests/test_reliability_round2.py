@@ -6,6 +6,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -58,8 +59,6 @@ def test_sfm_out_into_images_refused(scene):
 
 
 def test_dense_out_into_model_refused(scene, tmp_path):
-    import shutil
-
     model = tmp_path / "model"
     shutil.copytree(scene / "gt", model)
     before = _digest(model)
@@ -123,3 +122,62 @@ def test_ba_out_into_model_refused(scene, inside):
     lines = r.stderr.strip().splitlines()
     assert r.returncode == 1 and len(lines) == 1 and "never written into their inputs" in lines[0], r.stderr
     assert _digest(scene) == before
+
+
+# ---- a full disk, simulated in a fresh process (tests/_enospc_cli.py) --------------------------
+def _cli_full_disk(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    env = dict(os.environ, POLARREF_CACHE=str(cwd / "cache"),
+               PYTHONPATH=os.pathsep.join([str(Path(__file__).parents[1]), os.environ.get("PYTHONPATH", "")]))
+    return subprocess.run([sys.executable, str(Path(__file__).with_name("_enospc_cli.py")), *args],
+                          capture_output=True, text=True, cwd=cwd, env=env, timeout=300)
+
+
+def test_dense_full_disk_named_and_finished_result_kept(scene, tmp_path):
+    out = tmp_path / "d"
+    r = _cli_full_disk("dense", str(scene), "--model", "gt", "--out", str(out), *FAST, cwd=tmp_path)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 1 and len(lines) == 1, r.stderr
+    assert "No space left on device" in lines[0] and "free disk space" in lines[0], lines[0]
+    assert not out.exists() or not list(out.rglob("*.ply"))  # nothing half-written published
+    assert not [p for p in tmp_path.rglob("*") if ".tmp-" in p.name]
+    # a finished result, then a rerun on a full disk: the result stays as it was
+    shutil.rmtree(out, ignore_errors=True)
+    assert _cli("dense", str(scene), "--model", "gt", "--out", str(out), *FAST, cwd=tmp_path).returncode == 0
+    before = _digest(out)
+    r = _cli_full_disk("dense", str(scene), "--model", "gt", "--out", str(out), "--overwrite", *FAST, cwd=tmp_path)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 1 and len(lines) == 1 and "No space left on device" in lines[0], r.stderr
+    assert _digest(out) == before
+    assert not [p for p in tmp_path.rglob("*") if ".tmp-" in p.name or p.name.startswith(".d.")]
+
+
+# ---- every output-writing command, --out into its inputs: every input byte-identical -----------
+BEHIND_FREE_BAL = "1 1 1\n0 0 1.0 2.0\n" + "\n".join(["0"] * 5 + ["-5", "100", "0", "0", "1", "2", "-3"]) + "\n"
+
+
+def test_every_command_out_into_inputs_leaves_them_byte_identical(scene, tmp_path):
+    from polarref.core.data import REPO_ROOT
+
+    work = tmp_path / "scene"
+    shutil.copytree(scene, work)
+    (work / "p.txt").write_text(BEHIND_FREE_BAL)
+    report = tmp_path / "report"
+    report.mkdir()
+    shutil.copy(REPO_ROOT / "reports" / "comet-small" / "metrics.json", report / "metrics.json")
+    before, report_before = _digest(work), (report / "metrics.json").read_bytes()
+    runs = [
+        ("sfm", str(work), "--out", str(work / "gt"), "--overwrite"),
+        ("dense", str(work), "--model", str(work / "gt"), "--out", str(work / "gt" / "d"), *FAST),
+        ("ba", str(work / "gt"), "--out", str(work / "gt" / "ba.json")),
+        ("compare", str(work), "--out", str(work / "images"), "--overwrite"),
+        ("render", "comet", "--mesh", str(work / "mesh.ply"), "--out", str(work), "--overwrite"),
+        ("bench", "ba", "--problem", str(work / "p.txt"), "--out", str(work), "--overwrite"),
+    ]
+    for argv in runs:
+        r = _cli(*argv, cwd=tmp_path)
+        lines = r.stderr.strip().splitlines()
+        assert r.returncode == 1 and len(lines) == 1 and "never written into their inputs" in lines[0], (argv, r.stderr)
+    # report writes into its folder by design: its one input, metrics.json, stays as it was
+    assert _cli("report", str(report), cwd=tmp_path).returncode == 0
+    assert (report / "metrics.json").read_bytes() == report_before and (report / "report.md").is_file()
+    assert _digest(work) == before

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from polarref.core.atomic import check_writable_parent
+from polarref.core.atomic import check_writable_parent, refuse_inside_inputs
 from polarref.commands._types import int_range, nonneg_int, positive_int
 from polarref.core.errors import PolarrefError
 
@@ -57,6 +57,7 @@ def run(args) -> int:
         raise PolarrefError(f"{out} is not a folder (choose another output folder)")
     check_writable_parent(out / "bench.json")
     problems = args.problem or (QUICK if args.quick else FULL)
+    refuse_inside_inputs(out, [p for p in problems if Path(p).exists()])
     results = run_bench(problems, out, BAOptions(loss=args.loss,
                                                  max_iterations=args.max_iterations),
                         args.scipy_max_obs, repeat=args.repeat, merge=args.merge)

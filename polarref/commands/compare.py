@@ -91,6 +91,9 @@ def _run_twin(args: argparse.Namespace) -> int:
         extra = f" ({m.reason})" if m.reason else ""
         print(f"  {name}: {m.status}{extra}")
     print(f"paper table: {out / 'paper-table.md'} (log: {out / 'compare.log'})")
+    if table.methods and not any(m.status == RunStatus.OK for m in table.methods.values()):
+        raise PolarrefError(f"{out}: every method failed ({len(table.methods)} of {len(table.methods)}); "
+                            "the paper table names each failure")
     return 0
 
 
@@ -117,6 +120,8 @@ def run(args: argparse.Namespace) -> int:
         return _run_twin(args)
     from polarref.compare.pipeline import CompareConfig, command_line, run_compare
 
+    if args.scene is not None and Path(args.scene).expanduser().is_dir():
+        _refuse_spaced_names(Path(args.scene).expanduser())
     if args.out is not None:  # before rendering, not after it
         from polarref.core.atomic import check_writable_parent, refuse_inside_inputs
 
@@ -147,3 +152,16 @@ def run(args: argparse.Namespace) -> int:
         raise PolarrefError(f"{out}: every method failed ({len(metrics.methods)} of {len(metrics.methods)}); "
                             "the report names each failure")
     return 0
+
+
+def _refuse_spaced_names(scene: Path) -> None:
+    """pycolmap's methods pass image names through COLMAP text (pair lists, models), which cuts a
+    name at its first space: refused before rendering or matching, not after every method ran."""
+    from polarref.io.scene_folder import discover, list_images
+    from polarref.model.colmap_text import names_text_cannot_hold
+
+    found = discover(scene)
+    bad = names_text_cannot_hold([p.name for p in list_images(found.image_dir)])
+    if bad:
+        raise PolarrefError(f"{found.image_dir}: {len(bad)} image name(s), e.g. {bad[0]!r}, hold whitespace, "
+                            "which the COLMAP text files of the comparison cannot hold; rename the images")

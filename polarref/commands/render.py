@@ -51,6 +51,9 @@ def run(args: argparse.Namespace) -> int:
         if args.scene != "comet":
             raise PolarrefError("a mesh is only supported for the comet scene")
         overrides["mesh"] = args.mesh
+        from polarref.core.atomic import refuse_inside_inputs
+
+        refuse_inside_inputs(args.out, [args.mesh])  # --overwrite would render over the mesh's folder
     try:
         cfg = preset(args.scene, args.preset, seed=args.seed, **overrides)
     except ValueError as exc:  # a twin of the other scene kind

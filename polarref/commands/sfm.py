@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import logging
 from pathlib import Path
 
 from polarref.commands._types import MAX_IMAGE_SIDE, SEED, camera_spec, int_range, refine_groups
-from polarref.core.errors import PolarrefError
+from polarref.core.errors import PolarrefError, UsageError
 
 NAME = "sfm"
 HELP = "incremental SfM (SIFT, MOCI triangulation, PnP, bundle adjustment) -> COLMAP model + metrics"
+
+log = logging.getLogger(__name__)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -41,7 +44,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=SEED, help="RANSAC seed (0..2^32-1)")
     parser.add_argument("--no-cache", action="store_true", help="recompute features and matches")
     parser.add_argument("--format", dest="model_format", choices=("text", "binary", "both"), default="both",
-                        help="COLMAP model format in OUT/model (default: both); points3D.ply is always written")
+                        help="COLMAP model format in OUT/model (default: both; binary only when an image name holds "
+                             "a space, which COLMAP text cannot hold); points3D.ply is always written")
     parser.add_argument("--overwrite", action="store_true", help="write into a non-empty --out")
     geo = parser.add_argument_group("georeferencing (README: Ground control and pose priors)")
     geo.add_argument("--priors", type=Path, metavar="CSV",
@@ -111,10 +115,11 @@ def run(args: argparse.Namespace) -> int:
         # With no readable image, run_sfm reports that (and writes metrics.json).
         if first is not None:
             camera = parse_camera(args.camera, first.shape[1], first.shape[0])
-    cfg = _config(args)
+    cfg = _bound_detection(_config(args), args.max_image_size, F.list_images(image_dir))
     georef = _read_georef(args, image_dir)
+    model_format = _model_format(args, [p.name for p in F.list_images(image_dir)])
     res = run_sfm(image_dir, args.out, cfg, camera=camera, gt=gt, mesh=mesh, overwrite=args.overwrite,
-                  model_format=args.model_format)
+                  model_format=model_format)
     r = res.report
     m = r.metrics
     if r.gt_skipped:
@@ -134,11 +139,90 @@ def run(args: argparse.Namespace) -> int:
                       if c.focal_error_rel is not None else "")
             print(f"camera {c.camera_id} ({c.source}, {c.num_images} images): refined "
                   f"{c.model} {vals}{gt_err}")
-    print(f"wrote {args.out / 'model'} ({args.model_format} + points3D.ply) and {args.out / 'metrics.json'} "
+    print(f"wrote {args.out / 'model'} ({model_format} + points3D.ply) and {args.out / 'metrics.json'} "
           f"in {r.runtime_s['total']:.1f} s")
     if georef is not None:
-        _georeference(args, res.reconstruction, georef)
+        _georeference(args, res.reconstruction, georef, model_format)
     return 0
+
+
+# OpenCV SIFT holds ~11 float32 scale images of the 2x-upsampled first octave, plus the smaller
+# octaves (x 4/3): ~235 bytes per detection pixel. Measured: one 6000x4000 PNG among six 320x240
+# ones, `polarref sfm --preset small`: 5.92 GB peak RSS at full size.
+SIFT_BYTES_PER_PX = 235
+DEFAULT_DETECT_SIDE = 3200  # COLMAP's default max_image_size: ~1.6 GB for a 3:2 image
+
+
+def _bound_detection(cfg, asked: int | None, paths: list[Path]):
+    """Bound SIFT's memory by the largest image. With no --max-image-size and a full-size preset,
+    images larger than DEFAULT_DETECT_SIDE are detected at that size (keypoints scale back exactly;
+    smaller images are untouched), with a warning. Full size asked for (0) but not fitting in the
+    memory available: refused with the size that fits."""
+    import dataclasses as dc
+
+    side = cfg.features.max_image_size
+    sizes = [(p, _image_size_of(p)) for p in paths]
+    sizes = [(p, wh) for p, wh in sizes if wh is not None]
+    if not sizes or side:
+        return cfg
+    p, (w, h) = max(sizes, key=lambda item: item[1][0] * item[1][1])
+    if asked is None and max(w, h) > DEFAULT_DETECT_SIDE:
+        big = sum(max(wh) > DEFAULT_DETECT_SIDE for _, wh in sizes)
+        log.warning("%d image(s) larger than %d px (e.g. %s, %dx%d): features detected at %d px (full size would "
+                    "need about %.1f GB; --max-image-size 0 keeps it)", big, DEFAULT_DETECT_SIDE, p.name, w, h,
+                    DEFAULT_DETECT_SIDE, SIFT_BYTES_PER_PX * w * h / 1e9)
+        return dc.replace(cfg, features=dc.replace(cfg.features, max_image_size=DEFAULT_DETECT_SIDE))
+    need, avail = SIFT_BYTES_PER_PX * w * h, _available_bytes()
+    if avail is not None and need > 0.8 * avail:
+        fits = int(max(w, h) * (0.8 * avail / need) ** 0.5)
+        raise PolarrefError(f"{p}: a {w}x{h} image needs about {need / 1e9:.1f} GB for SIFT at full size, more "
+                            f"than the {avail / 1e9:.1f} GB of memory available; use --max-image-size {fits} "
+                            "or less")
+    return cfg
+
+
+def _image_size_of(path: Path) -> tuple[int, int] | None:
+    """(width, height) from the file's header (no decoding); None when unreadable."""
+    import warnings
+
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with warnings.catch_warnings():  # a huge image is what this check is for, not news
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as im:
+                return im.size
+    except (OSError, UnidentifiedImageError, ValueError, Image.DecompressionBombError):
+        return None
+
+
+def _available_bytes() -> int | None:
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def _model_format(args: argparse.Namespace, names: list[str]) -> str:
+    """The format written: COLMAP text cannot hold a name with whitespace (COLMAP reads it up to
+    the first space), so such folders get the binary model only: refused before any work when
+    text alone was asked for, with a warning under the default ``both``."""
+    from polarref.model.colmap_text import names_text_cannot_hold
+
+    bad = names_text_cannot_hold(names)
+    if not bad or args.model_format == "binary":
+        return args.model_format
+    if args.model_format == "text":
+        raise UsageError(f"{args.dir}: image name {bad[0]!r} holds whitespace, which COLMAP's text format "
+                         "cannot hold (COLMAP reads only up to the first space); use --format binary "
+                         "or rename the images")
+    log.warning("%d image names hold whitespace (e.g. %r), which COLMAP's text format cannot hold: "
+                "writing the binary model only", len(bad), bad[0])
+    return "binary"
 
 
 def _read_georef(args: argparse.Namespace, image_dir: Path):
@@ -156,18 +240,18 @@ def _read_georef(args: argparse.Namespace, image_dir: Path):
     return load_georef(names, args.priors, args.gcps, args.gcp_observations)
 
 
-def _georeference(args: argparse.Namespace, rec, georef) -> None:
+def _georeference(args: argparse.Namespace, rec, georef, model_format: str) -> None:
     """Georeferenced BA of the finished model: OUT/model-georef/ and OUT/aerotriangulation.json."""
     import dataclasses as dc
 
     from polarref import metrics as M
     from polarref.georef.adjust import georeference
     from polarref.core.provenance import collect
+    from polarref.sfm.model_files import write_model
 
     r = georeference(rec, georef, args.ba, image_sigma_px=args.image_sigma,
                      mark_sigma_px=args.mark_sigma)
-    (args.out / "model-georef").mkdir(exist_ok=True)
-    rec.write_text(args.out / "model-georef")
+    write_model(rec, args.out / "model-georef", model_format)
     M.write_json(args.out / "aerotriangulation.json",
                  {"record": dc.asdict(r), "provenance": collect()})
     line = f"georeferenced ({r.num_priors} priors, {r.num_control} control points): sigma0 {r.sigma0:.3f}"

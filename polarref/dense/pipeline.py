@@ -19,7 +19,9 @@ import numpy as np
 from polarref.core.atomic import (atomic_open, check_dir_target, check_writable_parent, holds_finished_result,
                                   publish_dir, refuse_inside_inputs)
 from polarref.dense import consistency, depth as depth_mod, fusion, meshing, scoring, views as views_mod
+from polarref.dense.model_check import ModelCheck, check_model, verdict
 from polarref.dense.provenance import Provenance, collect
+from polarref.metrics import align_to_gt
 from polarref.core.errors import PolarrefError
 from polarref.core.progress import track
 from polarref.model.colmap import read_model
@@ -65,6 +67,7 @@ class DenseMetrics:
     cpu_s: dict[str, float] = field(default_factory=dict)         # process CPU time per stage (all threads)
     peak_memory_mb: float = 0.0
     warnings: list[str] = field(default_factory=list)
+    model_check: ModelCheck | None = None        # does the model belong to the scene (not for --model gt)
     gt: scoring.GTScores | None = None
     provenance: Provenance | None = None
 
@@ -162,6 +165,8 @@ def _run(scene_dir: Path, model: str, out: Path, cfg: DenseConfig, m: DenseMetri
     scale = cfg.scale if cfg.scale is not None else min(1.0, WORK_WIDTH / width)
     m.scale = scale
     views = views_mod.load_views(image_dir, rec, scale)
+    if model != "gt":
+        m.model_check = _check_model(rec, views, gt, model, scene_dir, cfg.seed, m)
     t = _timed(m, "load", t)
 
     bounds = None
@@ -225,6 +230,28 @@ def _run(scene_dir: Path, model: str, out: Path, cfg: DenseConfig, m: DenseMetri
     if gt is not None:
         _score_gt(rec, gt, synth_scene, views, filtered, cloud, mesh, model, out, cfg, m)
         _timed(m, "scoring", t)
+
+
+def _check_model(rec, views, gt, model: str, scene_dir: Path, seed: int, m: DenseMetrics) -> ModelCheck:
+    """Refuse a model that does not belong to the scene before any dense work (its score would
+    be meaningless), or flag it in ``m.warnings`` when only one of two checks failed."""
+    sim = None
+    if gt is not None:
+        try:
+            sim = align_to_gt(rec, gt)[0]
+        except ValueError as exc:  # the GT names other images than the folder: only the patches can tell
+            log.info("%s: GT reprojection check not made: %s", model, exc)
+    check = check_model(rec, views, gt, sim, seed)
+    refuse, flags = verdict(check)
+    for note in check.notes:
+        log.info("%s: %s", model, note)
+    if refuse:
+        raise PolarrefError(f"model {model} does not fit the scene {scene_dir}: {'; '.join(refuse)} "
+                            "(a model of another scene or of other images?)")
+    for flag in flags:
+        m.warnings.append(f"model check: {flag}")
+        log.warning(m.warnings[-1])
+    return check
 
 
 def _score_gt(rec, gt, synth_scene, views, filtered, cloud, mesh, model, out, cfg, m) -> None:

@@ -28,6 +28,7 @@ import numpy as np
 from polarref.camera import Camera
 from polarref.core.errors import PolarrefError
 from polarref.core.geometry import Rigid3
+from polarref.model.colmap_text import check_text_model
 from polarref.model.reconstruction import Image, Point3D, Reconstruction
 
 LOSS_TYPES = ("trivial", "huber", "cauchy")
@@ -244,9 +245,28 @@ def read_model(path: str | Path) -> Reconstruction:
     names = {p.name for p in path.iterdir()}
     if not ({"cameras.txt", "images.txt"} <= names or {"cameras.bin", "images.bin"} <= names):
         raise PolarrefError(f"not a COLMAP model (no cameras/images .txt or .bin): {path}")
+    binary = {"cameras.bin", "images.bin", "points3D.bin"} <= names
+    if not binary:  # pycolmap reads the binary files when all three are there, else the text
+        check_text_model(path)
     try:
         rec = pycolmap.Reconstruction(str(path))
         # inside the try: names that are not UTF-8 fail only when converted
         return from_pycolmap(rec)
     except Exception as exc:  # pycolmap raises generic errors on malformed files
-        raise PolarrefError(f"cannot read COLMAP model {path}: {exc}") from exc
+        raise PolarrefError(f"cannot read COLMAP model {path}: {_reader_failure(exc, binary)}") from exc
+
+
+def _reader_failure(exc: Exception, binary: bool) -> str:
+    """pycolmap's failure in our words: its ``Check failed: <C++ expression>`` names neither
+    the file nor the line, so only the file it was reading is kept."""
+    text = " ".join(str(exc).split())
+    if isinstance(exc, PolarrefError):  # ours, converting what pycolmap read: already our words
+        return text
+    if "Check failed" not in text:
+        return f"malformed or truncated model files (pycolmap: {text[:120]})"
+    low = text.lower()
+    kind = "points3D" if "point3d" in low else "images" if "image" in low else \
+        "cameras" if "camera" in low else "model"
+    ext = "bin" if binary else "txt"
+    return (f"{kind}.{ext} is malformed or truncated" if kind != "model"
+            else f"the {ext} files are malformed or truncated")

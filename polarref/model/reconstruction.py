@@ -16,6 +16,7 @@ from polarref.camera import Camera
 from polarref.core.errors import PolarrefError
 from polarref.core.geometry import Rigid3
 from polarref.model.observations import Observations
+from polarref.model.colmap_text import refuse_names_for_text
 
 
 @dataclass
@@ -131,6 +132,8 @@ class Reconstruction:
     def write_text(self, path: str | Path) -> None:
         """Write cameras.txt, images.txt and points3D.txt (COLMAP text format) atomically per file."""
         path = Path(path)
+        # before anything is written: COLMAP text cuts a name at its first space
+        refuse_names_for_text([im.name for im in self.images.values()], str(path))
         path.mkdir(parents=True, exist_ok=True)
         self.check_cameras()
         cams = ["# CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]"]

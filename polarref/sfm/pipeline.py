@@ -148,7 +148,7 @@ def load_images_and_features(image_dir: Path, config: SfMConfig, timings: dict) 
             atomic_write(skipped_file, json.dumps(skipped))
             seal(skipped_file)
         timings["features_cached"] = False
-    for s in skipped:
+    for s in skipped if len(feats) >= 2 else ():  # too few left: the one error line names them
         log.warning("skipped image %s: %s", s["name"], s["reason"])
     timings["features"] = time.perf_counter() - t0
     return feats, skipped, key
@@ -320,7 +320,8 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         report.skipped_images = [SkippedImage(str(s["name"]), str(s["reason"])) for s in skipped]
         report.num_images = len(feats) + len(skipped)
         if len(feats) < 2:
-            raise PolarrefError(f"{len(feats)} readable image(s) in {image_dir}; need at least 2")
+            why = f" ({len(skipped)} skipped, e.g. {skipped[0]['name']}: {skipped[0]['reason']})" if skipped else ""
+            raise PolarrefError(f"{len(feats)} readable image(s) in {image_dir}{why}; need at least 2")
         sizes = [(f.width, f.height) for f in feats]
         if camera is None and gt is None:  # a folder of photos: cameras from EXIF, self-calibrated
             from polarref.sfm.calibration import EXIF_REFINE, cameras_from_exif
