@@ -103,7 +103,8 @@ def test_equation_verdicts():
 
 def _cond(eu, pa, corr_eu, corr_pa, pa_error=""):
     row = lambda c, r: {"cond_JtJ": c, "cond_JtJ_scaled": c, "cond_schur": 1.0, "cond_schur_scaled": 1.0,
-                        "mean_abs_point_corr": r, "max_abs_point_corr": r, "error": ""}
+                        "mean_abs_point_corr": r, "max_abs_point_corr": r, "error": "", "cond_JtJ_block": c,
+                        "mean_abs_point_corr_ray": r, "max_abs_point_corr_ray": r}
     return records.coerce(Conditioning, {
         "problem": "p", "seeds": list(range(len(eu))), "gauge": "g",
         "params": {"euclidean": {"per_seed": [row(c, r) for c, r in zip(eu, corr_eu)], "error": ""},
@@ -299,3 +300,34 @@ def test_c4_without_the_same_pipeline_baseline_is_not_tested():
     assert figs["ratio_b0"] == pytest.approx(10.0 / 7.0)   # still reported beside it
     assert _verdict(claims.scene_claims(m), "C4").verdict == "not tested"
     assert _verdict(claims.scene_claims(m), "C5").verdict == "not tested"
+
+
+# ---- issue 30: the frame-dependent verdict -------------------------------------------------------
+
+def test_frame_rule():
+    from polarref.compare.claims_invariance import FRAME_DEPENDENT, decide
+    assert decide("supported", ["supported"] * 21) == "supported"
+    assert decide("not supported", ["not supported"] * 20 + ["inconclusive"]) == FRAME_DEPENDENT
+    assert decide("supported", []) == "supported"
+    assert FRAME_DEPENDENT in schema.VERDICTS
+
+
+def test_a_frame_dependent_measure_gets_the_frame_dependent_verdict():
+    """C7 on a constructed measure that moves with the frame: 'supported' in the experiment's own
+    frame, 'inconclusive' under one of three draws -> 'frame-dependent', share 2/3; the same draws
+    with the measure unchanged keep 'supported'."""
+    from polarref.compare import claims_invariance as ci
+    from polarref.compare.experiment_records import DrawFrame, Invariance, InvarianceDraw
+
+    base = _cond([1, 1, 1], [1, 1, 1], [0.5] * 3, [0.2] * 3)
+    moved = _cond([1, 1, 1], [1, 1, 1], [0.5] * 3, [0.2, 0.6, 0.2])
+    draws = [InvarianceDraw(DrawFrame(k, "similarity", 2.0, 30.0, 5.0), conditioning=c)
+             for k, c in enumerate((base, moved, base))]
+    exp = Experiments(0, conditioning=base, invariance=Invariance(7, draws))
+    c7 = ci.apply(claims.experiment_claims(exp, ""), exp)[1]
+    assert c7.claim_id == "C7" and c7.verdict == ci.FRAME_DEPENDENT
+    assert c7.invariance.base_verdict == "supported" and c7.invariance.agree_share == pytest.approx(2 / 3)
+    assert [d.verdict for d in c7.invariance.draws] == ["supported", "inconclusive", "supported"]
+    assert "frame-dependent" in c7.rationale and "67%" in c7.rationale
+    steady = Experiments(0, conditioning=base, invariance=Invariance(7, [draws[0], draws[2]]))
+    assert ci.apply(claims.experiment_claims(steady, ""), steady)[1].verdict == "supported"

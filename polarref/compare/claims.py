@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from polarref.compare import claims_experiments as cx
+from polarref.compare import claims_invariance
 from polarref.compare import claims_robustness as cr
 from polarref.compare import single_run
 from polarref.compare.runner import run_isolated
@@ -254,5 +255,5 @@ def evaluate_into(metrics: MetricsFile, runs: Path, seed: int, budget_s: float, 
     claims = equation_claims(evidence, d.reason)
     claims += scene_claims(metrics, exp)
     claims += experiment_claims(exp, why)
-    metrics.claims = claims
+    metrics.claims = claims_invariance.apply(claims, exp)
     metrics.ba_traces += traces_from(exp)
