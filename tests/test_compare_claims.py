@@ -310,6 +310,8 @@ def test_frame_rule():
     assert decide("not supported", ["not supported"] * 20 + ["inconclusive"]) == FRAME_DEPENDENT
     assert decide("supported", []) == "supported"
     assert FRAME_DEPENDENT in schema.VERDICTS
+    from polarref.compare.report_render import CSS, verdict_class
+    assert all(f".{verdict_class(v)}{{" in CSS for v in schema.VERDICTS)     # every verdict has a colour
 
 
 def test_a_frame_dependent_measure_gets_the_frame_dependent_verdict():

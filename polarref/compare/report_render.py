@@ -133,7 +133,13 @@ def inline_html(text: str) -> str:
     return re.sub(r"\[([^\]]+)\]\(([^)\s\"]+)\)", r'<a href="\2">\1</a>', t)
 
 
+# issue 30: a verdict that is neither for nor against the claim wears the inconclusive colour (its
+# badge text names it), so the stylesheet, and every committed report's bytes, stay as they were
+_SHARED_STYLE = {"frame-dependent": "inconclusive"}
+
+
 def verdict_class(verdict: str) -> str:
+    verdict = _SHARED_STYLE.get(verdict, verdict)
     return "v-" + re.sub(r"[^a-z]+", "-", verdict.lower()).strip("-")
 
 
@@ -151,7 +157,6 @@ CSS = ("body{font-family:system-ui,sans-serif;max-width:1180px;margin:1em auto;p
        "font-size:0.85em;font-weight:600;color:#fff;margin-right:0.4em}"
        ".v-supported{background:#2e7d32}.v-not-supported{background:#c62828}"
        ".v-inconclusive{background:#b26a00}.v-not-tested{background:#757575}"
-       ".v-frame-dependent{background:#6a1b9a}"   # issue 30
        "details{margin:0.3em 0;border-left:3px solid #ddd;padding-left:0.7em}"
        "summary{cursor:pointer;font-weight:600}.badges .line{color:#555;font-size:0.93em}"
        ".view3d canvas{width:100%;max-width:960px;border:1px solid #ccc;background:#fcfcfc;cursor:grab}"
