@@ -228,6 +228,14 @@ def block_scaled(H: np.ndarray, A: np.ndarray, num_cam_cols: int, dp: int) -> np
     return congruence(H, D)
 
 
+def gram(J: np.ndarray) -> np.ndarray:
+    """``J^T J`` through scipy.sparse (a row of J touches at most 21 of its columns)."""
+    from scipy import sparse
+
+    Js = sparse.csr_matrix(J)
+    return np.asarray((Js.T @ Js).todense())
+
+
 def congruence(H: np.ndarray, A: np.ndarray) -> np.ndarray:
     """``A^T H A`` for symmetric ``H`` and a sparse ``A`` (a column selection, a block-diagonal
     scaling): through scipy.sparse, O(nnz(A) n) instead of two dense cubic products."""
@@ -275,7 +283,7 @@ def conditioning_one(truth, param: str, lean: bool = False) -> tuple[Conditionin
     prepare(problem)
     obj = make_param(problem, BAOptions(param=param))
     J, dp = _full_jacobian(problem, obj)
-    Hf = J.T @ J
+    Hf = gram(J)
     P = problem.num_points
     free = np.concatenate([problem.cam_mask.reshape(-1), np.ones(dp * P, bool)])
     H, nc = Hf[np.ix_(free, free)], int(problem.cam_mask.sum())      # = gauge_map(...) "solver", without the products
