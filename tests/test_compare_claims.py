@@ -333,3 +333,114 @@ def test_a_frame_dependent_measure_gets_the_frame_dependent_verdict():
     assert "frame-dependent" in c7.rationale and "67%" in c7.rationale
     steady = Experiments(0, conditioning=base, invariance=Invariance(7, [draws[0], draws[2]]))
     assert ci.apply(claims.experiment_claims(steady, ""), steady)[1].verdict == "supported"
+
+
+# ---- issue 30: pre-registration and power ----------------------------------------------------------
+
+def test_preregistration_file_drives_the_thresholds_and_seeds():
+    from polarref.compare import experiments, thresholds
+    from polarref.compare.preregistration import PREREG
+
+    for c in PREREG.claims:
+        assert c.test_seeds and not set(c.test_seeds) & set(c.pilot_seeds), c.claim_id
+        assert c.measure
+    assert {c.claim_id for c in PREREG.claims} == {"C3", "C4", "C5", "C6", "C7", "C8"}
+    assert thresholds.RMS_MARGIN_PX == PREREG.claim("C3").value("rms_margin_px")
+    assert thresholds.SPEEDUP_CLAIM == PREREG.claim("C4").value("speedup_claim") == 1.4
+    assert thresholds.PAPER_TIE_REL == pytest.approx(0.0018) and thresholds.PAPER_OBS_REL == pytest.approx(0.0012)
+    assert experiments.CONTROLLED_SEEDS == len(PREREG.claim("C3").test_seeds)
+    assert experiments.OUTLIER_FRACTIONS == PREREG.claim("C8").outlier_levels
+    assert np.isfinite(thresholds.PILOT_SD_RMS_PX * thresholds.PILOT_SD_LOG_SPEEDUP * thresholds.PILOT_SD_TIE_REL)
+
+
+def test_preregistration_refuses_overlapping_seeds(tmp_path):
+    from polarref.compare.preregistration import load
+    from polarref.core.errors import PolarrefError
+
+    bad = tmp_path / "p.toml"
+    bad.write_text('[C3]\nmeasure = "m"\ntest_seeds = [0, 1]\npilot_seeds = [1, 2]\n')
+    with pytest.raises(PolarrefError, match=r"\[C3\].*disjoint"):
+        load(bad)
+    bad.write_text("[C3\n")
+    with pytest.raises(PolarrefError, match="p.toml"):
+        load(bad)
+
+
+def test_file_commit_in_a_scratch_repository(tmp_path):
+    import subprocess
+    from polarref.compare.preregistration import file_commit
+
+    git = lambda *a: subprocess.run(["git", "-c", "user.email=t@t", "-c", "user.name=t", *a], cwd=tmp_path,  # noqa: E731
+                                    check=True, capture_output=True, text=True).stdout.strip()
+    git("init", "-q")
+    f = tmp_path / "prereg.toml"
+    f.write_text("a = 1\n")
+    git("add", "prereg.toml")
+    git("commit", "-qm", "register")
+    head = git("rev-parse", "HEAD")
+    (tmp_path / "other").write_text("x")
+    git("add", "other")
+    git("commit", "-qm", "later")            # a later commit that does not touch the file
+    fc = file_commit(f)
+    assert fc.commit == head and fc.modified is False and fc.date[:4].isdigit()
+    f.write_text("a = 2\n")
+    assert file_commit(f).modified is True
+
+
+def test_mde_gives_80_percent_power_by_simulation():
+    """At an effect equal to the MDE, a paired two-sided t-test at alpha 0.05 rejects in ~80 % of
+    seeded simulated experiments (the MDE formula vs an independent Monte-Carlo)."""
+    from scipy.stats import ttest_1samp
+    from polarref.compare.preregistration import mde
+
+    n, sd = 10, 0.3
+    effect = mde(sd, n, 0.05, 0.8)
+    assert effect == pytest.approx((2.2622 + 0.8834) * sd / np.sqrt(n), rel=1e-4)    # t tables, 9 dof
+    rng = np.random.default_rng(4)
+    d = rng.normal(effect, sd, (4000, n))
+    power = np.mean(ttest_1samp(d, 0.0, axis=1).pvalue < 0.05)
+    assert 0.76 < power < 0.84
+    assert mde(sd, 1, 0.05, 0.8) == float("inf") and mde(float("nan"), 10, 0.05, 0.8) == float("inf")
+
+
+def test_underpowered_instead_of_not_supported(monkeypatch):
+    from polarref.compare import claims_experiments as cx
+
+    exp = _timing(RMS, RMS, ROT, ROT, WALL, WALL)                    # no speed-up at all
+    c4 = _verdict(claims.scene_claims(_metrics(10, 10), exp), "C4")
+    assert c4.verdict == "not supported"                             # the pilot's spread detects 1.4x
+    mde4 = next(f for f in c4.figures if f.key == "c_mde").value
+    assert 1.0 < mde4 < 1.4
+    monkeypatch.setattr(cx, "PILOT_SD_LOG_SPEEDUP", 1.0)             # a pilot far noisier than the effect
+    c4 = _verdict(claims.scene_claims(_metrics(10, 10), exp), "C4")
+    assert c4.verdict == "underpowered" and next(f for f in c4.figures if f.key == "c_mde").value > 1.4
+    fast = _timing(RMS, RMS, ROT, ROT, WALL, [w / 1.5 for w in WALL])
+    assert _verdict(claims.scene_claims(_metrics(10, 10), fast), "C4").verdict == "supported"
+    # C3: a noisy pilot makes an unclear result underpowered, a clear difference stays not supported
+    monkeypatch.setattr(cx, "PILOT_SD_RMS_PX", 0.1)
+    noisy = _timing(RMS, [0.46, 0.51, 0.45, 0.52, 0.45], ROT, ROT, WALL, WALL)
+    assert _verdict(claims.scene_claims(_metrics(10, 10), noisy), "C3").verdict == "underpowered"
+    worse = _timing(RMS, [r + 0.05 for r in RMS], ROT, ROT, WALL, WALL)
+    c3 = _verdict(claims.scene_claims(_metrics(10, 10), worse), "C3")
+    assert c3.verdict == "not supported" and "polar worse by" in c3.rationale
+
+
+def test_c5_with_the_committed_pilot_is_underpowered_unless_an_interval_excludes_the_effect():
+    """150 points and 10 pairs cannot detect +0.18 %: equal counts are underpowered, never 'not
+    supported'; counts clearly lower (interval below +0.18 %) are 'not supported'."""
+    def rob(delta_tp):
+        noise = [0, 0, 0, 0, 0] if delta_tp is None else [6, -6, 4, -4, 1]
+        delta_tp = delta_tp or 0
+        runs = lambda tp, obs, e: {"runs": [{"seed": s, "success": True, "rotation_error_deg": 0.03,  # noqa: E731
+                                             "tie_points": tp + e[s], "inlier_observations": obs + 5 * e[s]}
+                                            for s in range(5)], "errors": []}
+        unit = {"start": runs(10, 100, [0] * 5), "euclidean": runs(140, 900, [0] * 5),
+                "polar": runs(140 + delta_tp, 900 + 6 * delta_tp, noise)}
+        return records.coerce(Robustness, {"seeds_run": 5, "outliers": {"0.3": unit, "0.5": unit}, "low_parallax": {}})
+    v, figs, text, n = claims_robustness.more_tie_points(rob(0))
+    f = {x.key: x.value for x in figs}
+    assert n == 10 and v == "underpowered" and f["c5_tp_mde"] > f["c5_tp_paper"] == pytest.approx(0.18)
+    v, *_ = claims_robustness.more_tie_points(rob(-10))
+    assert v == "not supported"
+    v, *_ = claims_robustness.more_tie_points(rob(None))      # identical counts: [0, 0] excludes +0.18 %
+    assert v == "not supported"

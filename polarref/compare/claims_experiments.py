@@ -47,9 +47,22 @@ from polarref.compare.experiment_records import Conditioning, Experiments, Robus
 from polarref.compare.schema import ClaimResult, Figure
 
 # Equivalence and difference margins, declared before any run, live in thresholds.py:
-from polarref.compare.thresholds import (ALPHA, CONTINUOUS_FACTOR, MARGIN, RMS_MARGIN_PX,  # noqa: F401
-                                         RMS_MARGIN_REL, ROT_MARGIN_DEG, ROT_MARGIN_REL, SPEEDUP_CLAIM,
-                                         START_MAX_SUCCESS, SUCCESS_MARGIN, TIE_MARGIN_REL, TIMING_SLACK)
+from polarref.compare.preregistration import mde
+from polarref.compare.thresholds import (ALPHA, CONTINUOUS_FACTOR, MARGIN, MDE_ALPHA, MDE_POWER,  # noqa: F401
+                                         PAPER_SPEEDUP, PILOT_SD_LOG_SPEEDUP, PILOT_SD_ROT_DEG, PILOT_SD_RMS_PX,
+                                         RMS_MARGIN_PX, RMS_MARGIN_REL, ROT_MARGIN_DEG, ROT_MARGIN_REL,
+                                         SPEEDUP_CLAIM, START_MAX_SUCCESS, SUCCESS_MARGIN, TIE_MARGIN_REL,
+                                         TIMING_SLACK)
+
+UNDERPOWERED = "underpowered"
+POWER_TEXT = f"{MDE_POWER:.0%} power, two-sided alpha {MDE_ALPHA:g}, standard deviation from the pilot seeds"
+
+
+def powered(verdict: str, detectable: bool, decided: bool = False) -> str:
+    """A verdict that did not find the claimed effect is "underpowered" when the experiment could
+    not have detected an effect of the paper's size (issue 30), never "not supported" then;
+    unless an interval already excludes the paper's effect (``decided``)."""
+    return verdict if detectable or decided or verdict == "supported" else UNDERPOWERED
 
 PAPER_FORM = "polar"
 
@@ -65,7 +78,7 @@ def not_tested(cid: str, claim: str, source: str, test: str, reason: str) -> Cla
 
 # ---- C3/C4 controlled part ------------------------------------------------------------------
 
-def _paired(timing: Timing, key: str, cand: str = PAPER_FORM, base: str = "euclidean"):
+def paired_series(timing: Timing, key: str, cand: str = PAPER_FORM, base: str = "euclidean"):
     """(candidate, baseline) arrays over the seeds both forms completed."""
     ps = timing.params
     c = {r.seed: getattr(r, key) for r in ps[cand].per_seed} if cand in ps else {}
@@ -98,11 +111,11 @@ def equal_accuracy(timing: Timing | None) -> tuple[str, list[Figure], str, int]:
     """Controlled C3 verdict (TOST), figures, text (with placeholders) and the number of seeds."""
     if timing is None or timing.error:
         return "not tested", [], "controlled experiment did not run", 0
-    figs, outcomes, parts = [], [], []
-    for key, unit, floor, rel, name in (("final_rms_px", "px", RMS_MARGIN_PX, RMS_MARGIN_REL, "final RMS"),
-                                        ("rotation_error_deg", "deg", ROT_MARGIN_DEG, ROT_MARGIN_REL,
-                                         "relative-rotation error")):
-        c, b = _paired(timing, key)
+    figs, outcomes, parts, detectable = [], [], [], True
+    for key, unit, floor, rel, name, sd in (
+            ("final_rms_px", "px", RMS_MARGIN_PX, RMS_MARGIN_REL, "final RMS", PILOT_SD_RMS_PX),
+            ("rotation_error_deg", "deg", ROT_MARGIN_DEG, ROT_MARGIN_REL, "relative-rotation error", PILOT_SD_ROT_DEG)):
+        c, b = paired_series(timing, key)
         n = len(c)
         if n < 2:
             return "inconclusive", figs, f"fewer than 2 seeds completed by both forms ({n})", n
@@ -115,23 +128,33 @@ def equal_accuracy(timing: Timing | None) -> tuple[str, list[Figure], str, int]:
                  fig(f"c_{k}_d", f"controlled: mean paired difference polar - euclidean, {name}", d, unit),
                  fig(f"c_{k}_ci_lo", f"controlled: {1 - 2 * ALPHA:.0%} CI of that difference, lower, {name}", lo, unit),
                  fig(f"c_{k}_ci_hi", f"controlled: {1 - 2 * ALPHA:.0%} CI of that difference, upper, {name}", hi, unit),
-                 fig(f"c_{k}_margin", f"controlled: equivalence margin (declared before the run), {name}", margin, unit)]
+                 fig(f"c_{k}_margin", f"controlled: equivalence margin (pre-registered), {name}", margin, unit),
+                 fig(f"c_{k}_mde", f"controlled: minimum detectable difference ({POWER_TEXT}), {name}",
+                     mde(sd, n, MDE_ALPHA, MDE_POWER), unit)]
+        detectable &= mde(sd, n, MDE_ALPHA, MDE_POWER) <= margin
         outcomes.append(outcome)
+        worse = (f"; polar worse by {{c_{k}_d}} [{{c_{k}_ci_lo}}, {{c_{k}_ci_hi}}]" if lo > 0 else
+                 f"; polar better by {{c_{k}_d}} [{{c_{k}_ci_lo}}, {{c_{k}_ci_hi}}]" if hi < 0 else "")
         parts.append(f"{name} {{c_{k}_polar}} vs {{c_{k}_eu}} (paired difference {{c_{k}_d}}, {1 - 2 * ALPHA:.0%} CI "
                      f"{{c_{k}_ci_lo}} to {{c_{k}_ci_hi}}, margin +-{{c_{k}_margin}} = max({floor:g} {unit}, "
-                     f"{rel:.0%} of the Euclidean mean): {outcome})")
+                     f"{rel:.0%} of the Euclidean mean), minimum detectable difference {{c_{k}_mde}}: "
+                     + ("equivalent within the margin" if outcome == "equal" else outcome) + worse + ")")
     verdict = ("supported" if all(o == "equal" for o in outcomes) else
                "not supported" if any(o in ("worse", "better") for o in outcomes) else "inconclusive")
-    return verdict, figs, ("Controlled BA, polar vs euclidean paired by seed, two one-sided tests: " + "; ".join(parts)
-                           + ". Equal = the interval lies inside the margin; worse/better = it lies beyond it"), n
+    decided = any(o in ("worse", "better") for o in outcomes)    # an interval beyond the margin
+    return powered(verdict, detectable, decided), figs, (
+        "Controlled BA, polar vs euclidean paired by seed, two one-sided tests: " + "; ".join(parts)
+        + ". Equal = the interval lies inside the margin; worse/better = it lies beyond it; an interval that "
+        "excludes 0 is reported as a difference even inside the margin. Underpowered when the minimum "
+        "detectable difference exceeds the margin"), n
 
 
 def speedup(timing: Timing | None) -> tuple[str, list[Figure], str, int]:
     """Controlled C4 verdict from BA-only wall times (median of repeats, per seed)."""
     if timing is None or timing.error:
         return "not tested", [], "controlled experiment did not run", 0
-    c, b = _paired(timing, "wall_s")
-    ci, bi = _paired(timing, "iterations")
+    c, b = paired_series(timing, "wall_s")
+    ci, bi = paired_series(timing, "iterations")
     if not len(c):
         return "inconclusive", [], "no seed completed by both forms", 0
     r = b / c
@@ -147,7 +170,12 @@ def speedup(timing: Timing | None) -> tuple[str, list[Figure], str, int]:
     m = float(np.median(r))
     verdict = ("supported" if m >= SPEEDUP_CLAIM * (1 - TIMING_SLACK) else
                "not supported" if m < 1 + TIMING_SLACK else "inconclusive")
-    text = ("Controlled BA-only speed-up euclidean/polar {c_ratio} (range {c_ratio_min} - {c_ratio_max}); "
+    m_mde = float(np.exp(mde(PILOT_SD_LOG_SPEEDUP, len(r), MDE_ALPHA, MDE_POWER)))
+    figs += [fig("c_mde", f"controlled: minimum detectable speed-up ({POWER_TEXT}, on log ratios)", m_mde, "x"),
+             fig("c_paper", "the paper's speed-up (Table 1: 77 -> 56 min)", PAPER_SPEEDUP, "x")]
+    verdict = powered(verdict, m_mde <= PAPER_SPEEDUP)
+    text = ("Minimum detectable speed-up {c_mde} vs the paper's {c_paper}. "
+            "Controlled BA-only speed-up euclidean/polar {c_ratio} (range {c_ratio_min} - {c_ratio_max}); "
             "median iterations {c_it_polar} (polar) vs {c_it_eu} (euclidean); median BA wall time "
             + ", ".join("{ba_" + p + "} " + p for p in timing.params if any(f.key == f"ba_{p}" for f in figs)))
     return verdict, figs, text, len(r)

@@ -8,8 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from polarref.compare.claims_experiments import (ALPHA, CONTINUOUS_FACTOR, PAPER_FORM, START_MAX_SUCCESS,
-                                                 SUCCESS_MARGIN, TIE_MARGIN_REL, fig, not_tested, tost)
+from polarref.compare.claims_experiments import (ALPHA, CONTINUOUS_FACTOR, PAPER_FORM, POWER_TEXT, START_MAX_SUCCESS,
+                                                 SUCCESS_MARGIN, TIE_MARGIN_REL, fig, not_tested, powered, tost)
+from polarref.compare.preregistration import mde
+from polarref.compare.thresholds import (MDE_ALPHA, MDE_POWER, PAPER_OBS_REL, PAPER_TIE_REL, PILOT_SD_OBS_REL,
+                                         PILOT_SD_TIE_REL)
 from polarref.compare.experiment_records import FormRuns, Robustness
 from polarref.compare.schema import ClaimResult, Figure
 
@@ -150,23 +153,31 @@ def robustness_claim(rob: Robustness | None, reason: str) -> ClaimResult:
 
 # ---- C5 controlled ---------------------------------------------------------------------------
 
+def paired_relative(rob: Robustness, key: str) -> tuple[list[float], list[float]]:
+    """(polar - euclidean) / euclidean of ``key`` over the outlier runs paired by seed and level,
+    and the Euclidean counts."""
+    rel, base = [], []
+    for forms in rob.outliers.values():
+        c = {r.seed: getattr(r, key) for r in forms.get(PAPER_FORM, _NONE).runs}
+        b = {r.seed: getattr(r, key) for r in forms.get("euclidean", _NONE).runs}
+        for s_ in c:
+            if s_ in b and c[s_] is not None and b[s_]:
+                rel.append((c[s_] - b[s_]) / b[s_])
+                base.append(b[s_])
+    return rel, base
+
+
 def more_tie_points(rob: Robustness | None) -> tuple[str, list[Figure], str, int]:
     """Controlled C5 from the outlier runs: counts after a 4 px filter, polar vs euclidean (TOST)."""
     if rob is None or rob.error:
         return "not tested", [], "controlled experiment did not run", 0
-    figs, outcomes, parts = [], [], []
+    figs, outcomes, parts, detectable, decided = [], [], [], True, False
     n = 0
-    for key, name in (("tie_points", "tie points"), ("inlier_observations", "observations within 4 px")):
-        rel, base = [], []
+    for key, name, sd, paper in (("tie_points", "tie points", PILOT_SD_TIE_REL, PAPER_TIE_REL),
+                                 ("inlier_observations", "observations within 4 px", PILOT_SD_OBS_REL, PAPER_OBS_REL)):
         start = [getattr(r, key) for forms in rob.outliers.values() for r in forms.get("start", _NONE).runs
                  if getattr(r, key) is not None]
-        for forms in rob.outliers.values():
-            c = {r.seed: getattr(r, key) for r in forms.get(PAPER_FORM, _NONE).runs}
-            b = {r.seed: getattr(r, key) for r in forms.get("euclidean", _NONE).runs}
-            for s_ in c:
-                if s_ in b and c[s_] is not None and b[s_]:
-                    rel.append((c[s_] - b[s_]) / b[s_])
-                    base.append(b[s_])
+        rel, base = paired_relative(rob, key)
         n = len(rel)
         if n < 2:
             return "not tested", [], f"fewer than 2 paired outlier runs with {name} counts ({n})", n
@@ -180,13 +191,22 @@ def more_tie_points(rob: Robustness | None) -> tuple[str, list[Figure], str, int
                  fig(f"c5_{k}_d", f"controlled: mean relative difference polar - euclidean, {name}", 100 * d, "%"),
                  fig(f"c5_{k}_ci_lo", f"controlled: {1 - 2 * ALPHA:.0%} CI lower, {name}", 100 * lo, "%"),
                  fig(f"c5_{k}_ci_hi", f"controlled: {1 - 2 * ALPHA:.0%} CI upper, {name}", 100 * hi, "%"),
-                 fig(f"c5_{k}_margin", f"controlled: margin (declared before the run), {name}", 100 * margin, "%")]
+                 fig(f"c5_{k}_margin", f"controlled: margin (pre-registered), {name}", 100 * margin, "%"),
+                 fig(f"c5_{k}_mde", f"controlled: minimum detectable difference ({POWER_TEXT}), {name}",
+                     100 * mde(sd, n, MDE_ALPHA, MDE_POWER), "%"),
+                 fig(f"c5_{k}_paper", f"the paper's effect (Table 1), {name}", 100 * paper, "%")]
+        detectable &= mde(sd, n, MDE_ALPHA, MDE_POWER) <= paper
+        decided |= hi < paper            # the interval excludes the paper's effect
         parts.append(f"{name}: start {{c5_{k}_start}}, euclidean {{c5_{k}_eu}}, polar {{c5_{k}_d}} ({1 - 2 * ALPHA:.0%} CI {{c5_{k}_ci_lo}} to "
-                     f"{{c5_{k}_ci_hi}}, margin {{c5_{k}_margin}}): {outcomes[-1]}")
+                     f"{{c5_{k}_ci_hi}}, margin {{c5_{k}_margin}}; minimum detectable {{c5_{k}_mde}} vs the paper's "
+                     f"{{c5_{k}_paper}}): {outcomes[-1]}")
     verdict = ("supported" if all(o == "more" for o in outcomes) else
                "not supported" if any(o in ("equal", "fewer") for o in outcomes) else "inconclusive")
+    verdict = powered(verdict, detectable, decided)
     text = ("Controlled BA on the C8 outlier problems (seeds x outlier levels, paired): points with >= 2 "
             "observations and observations that reproject within COLMAP's 4 px filter after BA, the BA-only "
             "analogue of tie points / reprojected pixels. " + "; ".join(parts)
-            + f". Margin max({TIE_MARGIN_REL:.1%}, 1 count); more = the interval lies above it")
+            + f". Margin max({TIE_MARGIN_REL:.1%}, 1 count); more = the interval lies above it; underpowered when "
+            "a minimum detectable difference exceeds the paper's effect and no interval excludes that effect "
+            "(then never 'not supported')")
     return verdict, figs, text, n

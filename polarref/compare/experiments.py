@@ -37,20 +37,21 @@ from polarref.compare.experiment_problems import (Similarity, anchored_frames, b
 from polarref.compare.experiment_records import (Conditioning, ConditioningRow, DrawFrame, Experiments, FormRuns,
                                                  Invariance,
                                                  InvarianceDraw, Robustness, Timing, TimingSeed)
+from polarref.compare.preregistration import PREREG
 from polarref.compare.thresholds import SUCCESS_BEARING_DEG, SUCCESS_RMS_NOISE_FACTOR, SUCCESS_ROT_DEG
 
 log = logging.getLogger(__name__)
 
 TIMING_PROBLEM = (12, 300)       # cameras, points (pycolmap synthetic, every point in every view)
-CONTROLLED_SEEDS = 10           # C3's interval needs them (90 % CI narrower than the margin)
+CONTROLLED_SEEDS = len(PREREG.claim("C3").test_seeds)   # pre-registered (preregistration.toml)
 TIMED_SEEDS = 5                  # of which the first this many are timed TIMING_REPEATS times, the rest once
 TIMING_REPEATS = 3
 SMALL_PROBLEM = (8, 100)         # dense J^T J: 8*6 + 100*3 columns
-CONDITIONING_SEEDS = 3
+CONDITIONING_SEEDS = len(PREREG.claim("C6").test_seeds)
 UNIT_RESCALE = 1e-3              # C6: the same scene in kilometres instead of metres
 ROBUST_PROBLEM = (8, 150)
-ROBUST_SEEDS = 5
-OUTLIER_FRACTIONS = (0.3, 0.5)   # of the observations, displaced 30-60 px
+ROBUST_SEEDS = len(PREREG.claim("C8").test_seeds)
+OUTLIER_FRACTIONS = PREREG.claim("C8").outlier_levels   # of the observations, displaced 30-60 px
 # Start points far enough off that they fail the success rule (issue 12: at 0.1 deg the start
 # already "succeeded" on every seed, so the experiment could not come out either way).
 OUTLIER_INIT_ROT_DEG = 1.0
@@ -61,7 +62,7 @@ NOISE_PX = 0.5
 LOW_PARALLAX_PROBLEM = (8, 150)
 # baseline / depth: largest parallax about 17, 1.7, 0.17 and 0.017 deg (the last is a 0.4 px
 # disparity at f = 1280 px, below the noise: points effectively at infinity)
-PARALLAX_RATIOS = (0.3, 0.03, 0.003, 0.0003)
+PARALLAX_RATIOS = PREREG.claim("C8").parallax_levels
 # A run succeeds when it reaches the noise floor with correct geometry:
 SUCCESS_RMS_PX = SUCCESS_RMS_NOISE_FACTOR * NOISE_PX   # final pixel RMS below this (thresholds.py)
 INVARIANCE_DRAWS = 20            # random similarities of the world, plus the unit change (issue 30)

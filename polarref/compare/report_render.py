@@ -135,7 +135,7 @@ def inline_html(text: str) -> str:
 
 # issue 30: a verdict that is neither for nor against the claim wears the inconclusive colour (its
 # badge text names it), so the stylesheet, and every committed report's bytes, stay as they were
-_SHARED_STYLE = {"frame-dependent": "inconclusive"}
+_SHARED_STYLE = {"frame-dependent": "inconclusive", "underpowered": "inconclusive"}
 
 
 def verdict_class(verdict: str) -> str:

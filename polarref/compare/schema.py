@@ -23,7 +23,8 @@ _METRIC_FIELDS = frozenset(f.name for f in fields(ReconstructionMetrics))
 
 
 VERDICTS = ("supported", "not supported", "inconclusive", "not tested",
-            "frame-dependent")   # issue 30: the verdict changed under a similarity of the world
+            "frame-dependent",   # issue 30: the verdict changed under a similarity of the world
+            "underpowered")      # issue 30: the experiment could not detect an effect of the paper's size
 
 
 @dataclass
