@@ -440,6 +440,9 @@ def test_c5_with_the_committed_pilot_is_underpowered_unless_an_interval_excludes
     v, figs, text, n = claims_robustness.more_tie_points(rob(0))
     f = {x.key: x.value for x in figs}
     assert n == 10 and v == "underpowered" and f["c5_tp_mde"] > f["c5_tp_paper"] == pytest.approx(0.18)
+    # the margin is never wider than the paper's effect (was max(0.1 %, 1 count) = 0.71 % on 140 points)
+    assert f["c5_tp_margin"] == pytest.approx(0.1) and f["c5_obs_margin"] == pytest.approx(0.1)
+    assert f["c5_obs_margin"] <= f["c5_obs_paper"] == pytest.approx(0.12)
     v, *_ = claims_robustness.more_tie_points(rob(-10))
     assert v == "not supported"
     v, *_ = claims_robustness.more_tie_points(rob(None))      # identical counts: [0, 0] excludes +0.18 %

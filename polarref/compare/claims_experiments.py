@@ -12,9 +12,11 @@ Verdict rules (two-sided; every threshold is a named constant):
   worse or better; else inconclusive.
 * C5 controlled "more tie points": on the outlier runs of C8 (paired by seed and outlier level), the
   relative differences (polar - euclidean) / euclidean of the points and of the observations that
-  pass COLMAP's 4 px reprojection filter after BA; same TOST with margin max(``TIE_MARGIN_REL``,
-  1 count / Euclidean mean). Supported when both intervals lie above +margin; not supported when
-  either is equal or lower; else inconclusive. The start point's counts are reported beside.
+  pass COLMAP's 4 px reprojection filter after BA; same TOST with margin min(``TIE_MARGIN_REL``,
+  the paper's effect), never wider than the effect to detect. Supported when both intervals lie
+  above +margin; not supported when either is equal or lower; else inconclusive; underpowered
+  when the pilot's minimum detectable effect exceeds the paper's and no interval excludes it.
+  The start point's counts are reported beside.
 * C4 controlled "1.4x faster": per seed, ratio = median Euclidean BA time / median polar BA time;
   supported when the median ratio >= ``SPEEDUP_CLAIM`` (1 - ``TIMING_SLACK``), not supported when
   it is < 1 + ``TIMING_SLACK``, inconclusive between.
