@@ -246,13 +246,37 @@ def test_controlled_equal_accuracy_two_sided(rms_po, rot_po, verdict):
     assert d == pytest.approx(np.mean(np.array(rms_po) - RMS))
 
 
-@pytest.mark.parametrize("factor, verdict", [(1 / 1.5, "supported"), (1 / 1.2, "inconclusive"),
-                                             (1.0, "not supported"), (2.0, "not supported")])
+@pytest.mark.parametrize("factor, verdict", [
+    (1 / 1.5, "supported"), (1 / 1.2, "not supported"),                 # no repeats: the pre-registered 10 % slack
+    (1.0, "not supported"), (2.0, "not supported"),
+    ([1 / 1.0, 1 / 1.8, 1 / 1.2, 1 / 1.7, 1 / 1.3], "inconclusive")])   # interval straddles 1.4 x 0.9
 def test_controlled_speedup(factor, verdict):
-    exp = _timing(RMS, RMS, ROT, ROT, WALL, [w * factor for w in WALL])
+    f = factor if isinstance(factor, list) else [factor] * len(WALL)
+    exp = _timing(RMS, RMS, ROT, ROT, WALL, [w * k for w, k in zip(WALL, f)])
     c4 = _verdict(claims.scene_claims(_metrics(10, 7), exp), "C4")       # the scene run alone says supported
     assert c4.verdict == verdict
-    assert next(f for f in c4.figures if f.key == "c_ratio").value == pytest.approx(1 / factor)
+    figs = {x.key: x.value for x in c4.figures}
+    assert figs["c_ratio"] == pytest.approx(np.median(1 / np.array(f)))
+    assert figs["c_gm"] == pytest.approx(np.exp(np.mean(-np.log(f))))
+    assert figs["c_gm_lo"] <= figs["c_gm"] <= figs["c_gm_hi"] and figs["c_slack"] == pytest.approx(10.0)
+
+
+def test_timing_slack_from_the_measured_run_to_run_spread():
+    """Repeats with a known log spread give that spread and a slack of 2 SD of a two-run log ratio."""
+    from polarref.compare import claims_experiments as cx
+
+    rng = np.random.default_rng(3)
+    exp = _timing(RMS, RMS, ROT, ROT, WALL, [w / 1.5 for w in WALL])
+    for form in exp.timing.params.values():
+        form.runs = [records.coerce(cx.Timing, {"params": {"x": {"runs": [{"wall_s": float(np.exp(rng.normal(0, 0.05))),
+                                                                          "seed": s}]}}}).params["x"].runs[0]
+                     for s in range(5) for _ in range(40)]
+    slack, spread = cx.timing_slack(exp.timing)
+    assert spread == pytest.approx(0.05, rel=0.1)
+    assert slack == pytest.approx(1 - np.exp(-2 * np.sqrt(2) * spread))
+    c4 = _verdict(claims.scene_claims(_metrics(10, 7), exp), "C4")
+    assert c4.verdict == "supported"
+    assert next(x for x in c4.figures if x.key == "c_slack").value == pytest.approx(100 * slack)
 
 
 def test_controlled_missing_falls_back_to_scene_rule():
