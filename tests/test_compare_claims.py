@@ -126,7 +126,8 @@ def _rob(out_eu, out_pa, levels, start=None, rot_pa=0.03):
         "low_parallax": {f"{0.3 / 10 ** i:g}": unit(e, p) for i, (e, p) in enumerate(levels)}})
 
 
-ALL, NONE, SOME = [1] * 5, [0] * 5, [1, 1, 0, 1, 0]
+# 10 seeds: with Wilson/Newcombe intervals, 3/10 vs 10/10 is a difference, 3/5 vs 5/5 would not be
+ALL, NONE, SOME = [1] * 10, [0] * 10, [1, 0, 0, 1, 0, 0, 1, 0, 0, 0]
 
 
 @pytest.mark.parametrize("eu, pa, verdict", [
@@ -182,7 +183,22 @@ def test_robustness_verdict(rob, verdict):
     assert f["out0_parallax"] == pytest.approx(np.mean([r.success for r in rob.outliers["0.1"]["parallax"].runs]))
     starts = [v for k, v in f.items() if k.endswith("_start_success")]
     assert len(starts) == 1 + len(rob.low_parallax)
-    assert c8.sample_size.startswith("5 seeds x (1 outlier levels + ")
+    assert c8.sample_size.startswith("10 seeds x (1 outlier levels + ")
+
+
+def test_wilson_newcombe_and_bootstrap_against_independent_values():
+    """Wilson 95 % intervals vs published values (Newcombe 1998, Table I), the difference interval
+    vs its example, and the bootstrap interval of a geometric mean vs its own definition."""
+    lo, hi = claims_robustness.wilson(81, 263)
+    assert (lo, hi) == pytest.approx((0.2553, 0.3662), abs=5e-4)
+    assert claims_robustness.wilson(0, 10) == pytest.approx((0.0, 0.2775), abs=5e-4)
+    lo, hi = claims_robustness.rate_difference(56 / 70, 70, 48 / 80, 80)       # Newcombe 1998 (method 10)
+    assert (lo, hi) == pytest.approx((0.0524, 0.3339), abs=5e-4)
+    r = np.array([0.5, 0.6, 0.55, 0.7, 0.45])
+    blo, bhi = claims_robustness.bootstrap_gm(r)
+    assert blo < np.exp(np.log(r).mean()) < bhi and 0.45 <= blo and bhi <= 0.7
+    assert claims_robustness.bootstrap_gm(r) == (blo, bhi)                      # seeded
+    assert claims_robustness.bootstrap_gm(np.full(5, 0.3)) == pytest.approx((0.3, 0.3))
 
 
 def test_tost_outcomes():
@@ -373,7 +389,7 @@ def test_preregistration_file_drives_the_thresholds_and_seeds():
     assert thresholds.SPEEDUP_CLAIM == PREREG.claim("C4").value("speedup_claim") == 1.4
     assert thresholds.PAPER_TIE_REL == pytest.approx(0.0018) and thresholds.PAPER_OBS_REL == pytest.approx(0.0012)
     assert experiments.CONTROLLED_SEEDS == len(PREREG.claim("C3").test_seeds)
-    assert experiments.OUTLIER_FRACTIONS == PREREG.claim("C8").outlier_levels
+    assert experiments.OUTLIER_FRACTIONS == PREREG.claim("C8").outlier_levels == PREREG.claim("C5").levels
     assert np.isfinite(thresholds.PILOT_SD_RMS_PX * thresholds.PILOT_SD_LOG_SPEEDUP * thresholds.PILOT_SD_TIE_REL)
 
 

@@ -33,9 +33,11 @@ Verdict rules (two-sided; every threshold is a named constant):
 * C8: every level (outlier fraction; baseline/depth) also scores the start point with the same
   success rule; a level whose start succeeds in more than ``START_MAX_SUCCESS`` of the runs
   cannot tell solvers apart and is left out of the verdict. At each remaining level a form is
-  better than Euclidean when its success rate is higher by >= ``SUCCESS_MARGIN`` or, with equal
-  rates, when its final relative-rotation error is lower on every seed with a paired geometric-mean
-  ratio <= 1 / ``CONTINUOUS_FACTOR`` (worse: the mirror image); else equal. A form is more
+  better than Euclidean when the 95 % interval of the difference of the success rates (Newcombe,
+  from Wilson intervals) lies above 0 or, without such a difference, when the seeded 95 % bootstrap
+  interval of the geometric-mean paired rotation-error ratio lies below 1 (worse: the mirror
+  image); else equal. Levels are pre-registered from the pilot where the Euclidean success rate
+  lay in [0.2, 0.8]. A form is more
   robust when it is better at >= 1 level and worse at none. Each half is supported when some
   angular form is more robust; inconclusive when no form differs and the Euclidean baseline
   succeeds always or never at every level (the experiment could not separate them); else not
@@ -52,10 +54,10 @@ from polarref.compare.schema import ClaimResult, Figure
 
 # Equivalence and difference margins, declared before any run, live in thresholds.py:
 from polarref.compare.preregistration import mde
-from polarref.compare.thresholds import (ALPHA, CONTINUOUS_FACTOR, MARGIN, MDE_ALPHA, MDE_POWER,  # noqa: F401
+from polarref.compare.thresholds import (ALPHA, MARGIN, MDE_ALPHA, MDE_POWER,  # noqa: F401
                                          PAPER_SPEEDUP, PILOT_SD_LOG_SPEEDUP, PILOT_SD_ROT_DEG, PILOT_SD_RMS_PX,
                                          RMS_MARGIN_PX, RMS_MARGIN_REL, ROT_MARGIN_DEG, ROT_MARGIN_REL,
-                                         SPEEDUP_CLAIM, START_MAX_SUCCESS, SUCCESS_MARGIN, TIE_MARGIN_REL,
+                                         SPEEDUP_CLAIM, START_MAX_SUCCESS, TIE_MARGIN_REL,
                                          TIMING_SLACK)
 
 UNDERPOWERED = "underpowered"

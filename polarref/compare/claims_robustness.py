@@ -8,10 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from polarref.compare.claims_experiments import (ALPHA, CONTINUOUS_FACTOR, PAPER_FORM, POWER_TEXT, START_MAX_SUCCESS,
-                                                 SUCCESS_MARGIN, TIE_MARGIN_REL, fig, not_tested, powered, tost)
+from polarref.compare.claims_experiments import (ALPHA, PAPER_FORM, POWER_TEXT, START_MAX_SUCCESS, TIE_MARGIN_REL,
+                                                 fig, not_tested, powered, tost)
 from polarref.compare.preregistration import mde
-from polarref.compare.thresholds import (MDE_ALPHA, MDE_POWER, PAPER_OBS_REL, PAPER_TIE_REL, PILOT_SD_OBS_REL,
+from polarref.compare.thresholds import (BOOTSTRAP_REPS, BOOTSTRAP_SEED, MDE_ALPHA, MDE_POWER, PAPER_OBS_REL, PAPER_TIE_REL, PILOT_SD_OBS_REL,
                                          PILOT_SD_TIE_REL)
 from polarref.compare.experiment_records import FormRuns, Robustness
 from polarref.compare.schema import ClaimResult, Figure
@@ -45,18 +45,48 @@ def _paired_ratio(form: FormRuns, base: FormRuns, key: str = "rotation_error_deg
     return np.array([a[s] / b[s] for s in seeds], float)
 
 
-def _compare(a: float | None, e: float | None, ratio: np.ndarray) -> str:
+def wilson(k: float, n: int, z: float = 1.959964) -> tuple[float, float]:
+    """Wilson score interval (95 % by default) of a success rate of ``k`` successes in ``n`` runs."""
+    if n == 0:
+        return float("nan"), float("nan")
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z / (1 + z * z / n) * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n))
+    return float(max(0.0, centre - half)), float(min(1.0, centre + half))
+
+
+def rate_difference(a: float, na: int, e: float, ne: int) -> tuple[float, float]:
+    """95 % interval of the difference of two success rates a - e (Newcombe's hybrid score
+    interval, built from the two Wilson intervals)."""
+    la, ua = wilson(a * na, na)
+    le, ue = wilson(e * ne, ne)
+    d = a - e
+    return float(d - np.hypot(a - la, ue - e)), float(d + np.hypot(ua - a, e - le))
+
+
+def bootstrap_gm(ratio: np.ndarray, reps: int = BOOTSTRAP_REPS, seed: int = BOOTSTRAP_SEED) -> tuple[float, float]:
+    """95 % percentile bootstrap interval of the geometric mean of ``ratio`` (seeded)."""
+    x = np.log(ratio)
+    idx = np.random.default_rng(seed).integers(0, len(x), (reps, len(x)))
+    gm = np.exp(x[idx].mean(axis=1))
+    return float(np.percentile(gm, 2.5)), float(np.percentile(gm, 97.5))
+
+
+def _compare(a: float | None, na: int, e: float | None, ne: int, ratio: np.ndarray) -> str:
+    """Better/worse when the success-rate difference's 95 % interval excludes 0; with no such
+    difference, when the bootstrap interval of the geometric-mean rotation-error ratio excludes 1."""
     if a is None or e is None:
         return "unknown"
-    if a >= e + SUCCESS_MARGIN:
+    lo, hi = rate_difference(a, na, e, ne)
+    if lo > 0:
         return "better"
-    if a <= e - SUCCESS_MARGIN:
+    if hi < 0:
         return "worse"
     if len(ratio) >= 2 and (ratio > 0).all():
-        gm = float(np.exp(np.log(ratio).mean()))
-        if (ratio < 1).all() and gm <= 1 / CONTINUOUS_FACTOR:
+        blo, bhi = bootstrap_gm(ratio)
+        if bhi < 1:
             return "better"
-        if (ratio > 1).all() and gm >= CONTINUOUS_FACTOR:
+        if blo > 1:
             return "worse"
     return "equal"
 
@@ -69,7 +99,10 @@ def _level(key: str, name: str, forms: dict[str, FormRuns], figs: list, flipped:
     parts, outcome = [f"start {{{key}_start_success}}"], {}
     eu = forms.get("euclidean", _NONE)
     for p, (sr, med, n) in rates.items():
+        wlo, whi = wilson(sr * n, n) if sr is not None else (None, None)
         figs += [fig(f"{key}_{p}", f"{name}: {p} success rate ({n} runs)", sr),
+                 fig(f"{key}_{p}_wlo", f"{name}: {p} success rate, Wilson 95 % lower", wlo),
+                 fig(f"{key}_{p}_whi", f"{name}: {p} success rate, Wilson 95 % upper", whi),
                  fig(f"{key}_{p}_med", f"{name}: {p} median relative-rotation error", med, "deg")]
         runs = forms[p].runs
         flips = [r.flipped_fraction for r in runs if r.flipped_fraction is not None]
@@ -80,16 +113,20 @@ def _level(key: str, name: str, forms: dict[str, FormRuns], figs: list, flipped:
                 flipped.append(f"{name}/{p} {{{key}_{p}_flip}}")
         its = [r.iterations for r in runs if r.iterations is not None]
         figs.append(fig(f"{key}_{p}_it", f"{name}: {p} median LM iterations", np.median(its) if its else None, "count"))
-        text = f"{p} {{{key}_{p}}} ({{{key}_{p}_med}}, {{{key}_{p}_it}} it"
+        text = f"{p} {{{key}_{p}}} [{{{key}_{p}_wlo}}, {{{key}_{p}_whi}}] ({{{key}_{p}_med}}, {{{key}_{p}_it}} it"
         if forms[p].errors:
             crashed.append(f"{name}/{p}: {len(forms[p].errors)} runs raised ({forms[p].errors[0]})")
         if p != "euclidean":
             ratio = _paired_ratio(forms[p], eu)
             gm = float(np.exp(np.log(ratio).mean())) if len(ratio) and (ratio > 0).all() else None
-            figs.append(fig(f"{key}_{p}_ratio", f"{name}: {p}/euclidean final rotation error, geometric mean of "
-                            "the per-seed ratios", gm, "x"))
-            text += f", {{{key}_{p}_ratio}} vs euclidean"
-            outcome[p] = _compare(sr, rates.get("euclidean", (None,))[0], ratio)
+            blo, bhi = bootstrap_gm(ratio) if gm is not None else (None, None)
+            figs += [fig(f"{key}_{p}_ratio", f"{name}: {p}/euclidean final rotation error, geometric mean of "
+                         "the per-seed ratios", gm, "x"),
+                     fig(f"{key}_{p}_ratio_lo", f"{name}: that ratio, bootstrap 95 % lower", blo, "x"),
+                     fig(f"{key}_{p}_ratio_hi", f"{name}: that ratio, bootstrap 95 % upper", bhi, "x")]
+            text += f", {{{key}_{p}_ratio}} [{{{key}_{p}_ratio_lo}}, {{{key}_{p}_ratio_hi}}] vs euclidean"
+            e_rate, _, e_n = rates.get("euclidean", (None, None, 0))
+            outcome[p] = _compare(sr, n, e_rate, e_n, ratio)
         parts.append(text + ")")
     init_rms = [r.initial_rms_px for r in eu.runs if r.initial_rms_px is not None]
     if init_rms:
@@ -117,6 +154,14 @@ def _half(levels: list) -> tuple[str, str]:
     return "not supported", desc
 
 
+def _in_band(rob: Robustness) -> str:
+    """How many levels have a Euclidean success rate in [0.2, 0.8] on the test seeds."""
+    rates = [_rate(forms.get("euclidean", _NONE))[0] for data in (rob.outliers, rob.low_parallax)
+             for forms in data.values()]
+    inside = sum(r is not None and 0.2 <= r <= 0.8 for r in rates)
+    return f"on the test seeds {inside} of {len(rates)} levels have a Euclidean success rate in [0.2, 0.8]"
+
+
 def robustness_claim(rob: Robustness | None, reason: str) -> ClaimResult:
     if rob is None or rob.error:
         return not_tested(*C8, (rob.error if rob is not None else "") or reason or "robustness experiment did not run")
@@ -138,9 +183,11 @@ def robustness_claim(rob: Robustness | None, reason: str) -> ClaimResult:
     rationale = ("Success rate (median relative-rotation error, median LM iterations, paired rotation-error ratio "
                  "vs euclidean) per form, beside the start point's success rate -- " + "; ".join(texts)
                  + f". Success: {rob.success_rule}. Levels whose start point succeeds in more than "
-                 f"{START_MAX_SUCCESS:.0%} of the runs are left out. Better/worse = success rate differs by >= "
-                 f"{SUCCESS_MARGIN:.0%}, or equal rates and the rotation error is lower/higher on every seed by a "
-                 f"geometric-mean factor >= {CONTINUOUS_FACTOR}."
+                 f"{START_MAX_SUCCESS:.0%} of the runs are left out. Success rates with Wilson 95 % intervals; "
+                 "better/worse = the 95 % interval of the difference of the success rates (Newcombe) excludes 0, or, "
+                 "without such a difference, the 95 % bootstrap interval of the geometric-mean rotation-error "
+                 f"ratio (seeded, {BOOTSTRAP_REPS} resamples of the seeds) excludes 1. Levels pre-registered from "
+                 "the pilot where the Euclidean success rate lay in [0.2, 0.8]; " + _in_band(rob) + "."
                  + (" Points ending behind the cameras (mean fraction of observations over the runs; reprojection cannot "
                     "see it, since -X projects like X): " + ", ".join(flipped) + "." if flipped else "")
                  + (" Runs that raised (solver bugs, not counted): " + "; ".join(crashed) if crashed else ""))

@@ -26,9 +26,9 @@ ROT_MARGIN_DEG, ROT_MARGIN_REL = _C3.value("rot_margin_deg"), _C3.value("rot_mar
 TIE_MARGIN_REL = _C5.value("tie_margin_rel")    # below the paper's own +0.18 % (Table 1)
 ALPHA = 0.05                                    # each one-sided test: a 90 % interval
 START_MAX_SUCCESS = _C8.value("start_max_success")
-CONTINUOUS_FACTOR = _C8.value("continuous_factor")
 MARGIN = _C6.value("margin")                    # conditioning: "better" is a ratio below 1 - MARGIN
-SUCCESS_MARGIN = _C8.value("success_margin")    # robustness: success rates differ by at least this
+BOOTSTRAP_REPS = int(_C8.value("bootstrap_reps"))   # C8's continuous measure: bootstrap interval
+BOOTSTRAP_SEED = int(_C8.value("bootstrap_seed"))
 # power (issue 30): minimum detectable effects from the pilot's standard deviations
 MDE_ALPHA, MDE_POWER = PREREG.alpha, PREREG.power
 PILOT_SD_RMS_PX, PILOT_SD_ROT_DEG = _C3.value("pilot_sd_rms_px"), _C3.value("pilot_sd_rot_deg")
