@@ -19,9 +19,10 @@ Verdict rules (two-sided; every threshold is a named constant):
   The start point's counts are reported beside.
 * C4 controlled "1.4x faster": per seed, ratio = median Euclidean BA time / median polar BA time
   over ``TIMING_REPEATS`` interleaved runs; the geometric mean over seeds with its 95 % t-interval;
-  supported when the interval lies at or above ``SPEEDUP_CLAIM`` (1 - slack), not supported when it
-  lies below, inconclusive otherwise. The slack is two SDs of a single-run log ratio, from the
-  measured run-to-run spread of the repeats (``TIMING_SLACK`` only when nothing was repeated).
+  supported when the interval lies at or above ``SPEEDUP_CLAIM`` (1 - ``TIMING_SLACK``), not
+  supported when it lies below, inconclusive otherwise. The slack a single timed run needs (two SDs
+  of a single-run log ratio, from the measured run-to-run spread of the repeats) is reported and
+  flagged when it exceeds ``TIMING_SLACK``; the interval, which carries that noise, decides.
 * C6/C7: per seed, ratio = angular-form figure / Euclidean figure. Supported when the ratio is
   below 1 - ``MARGIN`` on every seed; not supported when it is >= 1 - ``MARGIN`` on every seed;
   inconclusive when seeds disagree. C6 uses the best angular form (lowest mean ratio; this
@@ -207,14 +208,18 @@ def speedup(timing: Timing | None) -> tuple[str, list[Figure], str, int]:
             figs.append(fig(f"ba_{p}", f"controlled BA-only median wall time, {p}", np.median(w), "s"))
     slack, spread = timing_slack(timing)
     g, lo, hi = geometric_interval(r)
-    bar = SPEEDUP_CLAIM * (1 - slack)
+    # The interval over seeds already carries the run-to-run noise; the measured single-run slack is
+    # reported (and flagged when it exceeds the pre-registered one), never used to lower the bar:
+    # under heavy load it reached 69 %, which would have called a 0.66x slow-down "1.4x faster".
+    bar = SPEEDUP_CLAIM * (1 - TIMING_SLACK)
     figs += [fig("c_gm", "controlled speed-up, geometric mean over seeds", g, "x"),
              fig("c_gm_lo", f"controlled speed-up, {1 - MDE_ALPHA:.0%} CI lower", lo, "x"),
              fig("c_gm_hi", f"controlled speed-up, {1 - MDE_ALPHA:.0%} CI upper", hi, "x"),
              fig("c_spread", "run-to-run spread of one timed run (SD of log wall time over the interleaved repeats, "
                  "pooled)", spread),
-             fig("c_slack", "timing slack: 2 SD of a single-run log ratio (measured; the pre-registered value "
-                 "without repeats)", 100 * slack, "%")]
+             fig("c_slack", "single-run slack: 2 SD of a single-run log ratio (measured; the pre-registered value "
+                 "without repeats)", 100 * slack, "%"),
+             fig("c_slack_prereg", "pre-registered single-run slack", 100 * TIMING_SLACK, "%")]
     verdict = ("supported" if np.isfinite(lo) and lo >= bar else
                "not supported" if np.isfinite(hi) and hi < bar else "inconclusive")
     m_mde = float(np.exp(mde(PILOT_SD_LOG_SPEEDUP, len(r), MDE_ALPHA, MDE_POWER)))
@@ -224,8 +229,10 @@ def speedup(timing: Timing | None) -> tuple[str, list[Figure], str, int]:
     text = ("Minimum detectable speed-up {c_mde} vs the paper's {c_paper}. "
             "Controlled BA-only speed-up euclidean/polar: geometric mean {c_gm} "
             f"({1 - MDE_ALPHA:.0%} CI {{c_gm_lo}} - {{c_gm_hi}}); supported when the interval lies at or above "
-            f"{SPEEDUP_CLAIM} x (1 - slack), not supported when it lies below, with the slack {{c_slack}} from the "
-            "measured run-to-run spread {c_spread} of the interleaved repeats; median {c_ratio} "
+            f"{SPEEDUP_CLAIM} x (1 - {{c_slack_prereg}}), not supported when it lies below. The measured run-to-run "
+            "spread {c_spread} of the interleaved repeats makes the slack a single timed run needs {c_slack} "
+            + ("(above the pre-registered one: single-run C4 figures here are within the noise)"
+               if slack > TIMING_SLACK else "(within the pre-registered one)") + "; median {c_ratio} "
             "(range {c_ratio_min} - {c_ratio_max}); "
             "median iterations {c_it_polar} (polar) vs {c_it_eu} (euclidean); median BA wall time "
             + ", ".join("{ba_" + p + "} " + p for p in timing.params if any(f.key == f"ba_{p}" for f in figs)))
