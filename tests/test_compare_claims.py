@@ -103,7 +103,8 @@ def test_equation_verdicts():
 
 def _cond(eu, pa, corr_eu, corr_pa, pa_error=""):
     row = lambda c, r: {"cond_JtJ": c, "cond_JtJ_scaled": c, "cond_schur": 1.0, "cond_schur_scaled": 1.0,
-                        "mean_abs_point_corr": r, "max_abs_point_corr": r, "error": ""}
+                        "mean_abs_point_corr": r, "max_abs_point_corr": r, "error": "", "cond_JtJ_block": c,
+                        "mean_abs_point_corr_ray": r, "max_abs_point_corr_ray": r}
     return records.coerce(Conditioning, {
         "problem": "p", "seeds": list(range(len(eu))), "gauge": "g",
         "params": {"euclidean": {"per_seed": [row(c, r) for c, r in zip(eu, corr_eu)], "error": ""},
@@ -125,7 +126,8 @@ def _rob(out_eu, out_pa, levels, start=None, rot_pa=0.03):
         "low_parallax": {f"{0.3 / 10 ** i:g}": unit(e, p) for i, (e, p) in enumerate(levels)}})
 
 
-ALL, NONE, SOME = [1] * 5, [0] * 5, [1, 1, 0, 1, 0]
+# 10 seeds: with Wilson/Newcombe intervals, 3/10 vs 10/10 is a difference, 3/5 vs 5/5 would not be
+ALL, NONE, SOME = [1] * 10, [0] * 10, [1, 0, 0, 1, 0, 0, 1, 0, 0, 0]
 
 
 @pytest.mark.parametrize("eu, pa, verdict", [
@@ -181,7 +183,22 @@ def test_robustness_verdict(rob, verdict):
     assert f["out0_parallax"] == pytest.approx(np.mean([r.success for r in rob.outliers["0.1"]["parallax"].runs]))
     starts = [v for k, v in f.items() if k.endswith("_start_success")]
     assert len(starts) == 1 + len(rob.low_parallax)
-    assert c8.sample_size.startswith("5 seeds x (1 outlier levels + ")
+    assert c8.sample_size.startswith("10 seeds x (1 outlier levels + ")
+
+
+def test_wilson_newcombe_and_bootstrap_against_independent_values():
+    """Wilson 95 % intervals vs published values (Newcombe 1998, Table I), the difference interval
+    vs its example, and the bootstrap interval of a geometric mean vs its own definition."""
+    lo, hi = claims_robustness.wilson(81, 263)
+    assert (lo, hi) == pytest.approx((0.2553, 0.3662), abs=5e-4)
+    assert claims_robustness.wilson(0, 10) == pytest.approx((0.0, 0.2775), abs=5e-4)
+    lo, hi = claims_robustness.rate_difference(56 / 70, 70, 48 / 80, 80)       # Newcombe 1998 (method 10)
+    assert (lo, hi) == pytest.approx((0.0524, 0.3339), abs=5e-4)
+    r = np.array([0.5, 0.6, 0.55, 0.7, 0.45])
+    blo, bhi = claims_robustness.bootstrap_gm(r)
+    assert blo < np.exp(np.log(r).mean()) < bhi and 0.45 <= blo and bhi <= 0.7
+    assert claims_robustness.bootstrap_gm(r) == (blo, bhi)                      # seeded
+    assert claims_robustness.bootstrap_gm(np.full(5, 0.3)) == pytest.approx((0.3, 0.3))
 
 
 def test_tost_outcomes():
@@ -245,13 +262,45 @@ def test_controlled_equal_accuracy_two_sided(rms_po, rot_po, verdict):
     assert d == pytest.approx(np.mean(np.array(rms_po) - RMS))
 
 
-@pytest.mark.parametrize("factor, verdict", [(1 / 1.5, "supported"), (1 / 1.2, "inconclusive"),
-                                             (1.0, "not supported"), (2.0, "not supported")])
+@pytest.mark.parametrize("factor, verdict", [
+    (1 / 1.5, "supported"), (1 / 1.2, "not supported"),                 # no repeats: the pre-registered 10 % slack
+    (1.0, "not supported"), (2.0, "not supported"),
+    ([1 / 1.0, 1 / 1.8, 1 / 1.2, 1 / 1.7, 1 / 1.3], "inconclusive")])   # interval straddles 1.4 x 0.9
 def test_controlled_speedup(factor, verdict):
-    exp = _timing(RMS, RMS, ROT, ROT, WALL, [w * factor for w in WALL])
+    f = factor if isinstance(factor, list) else [factor] * len(WALL)
+    exp = _timing(RMS, RMS, ROT, ROT, WALL, [w * k for w, k in zip(WALL, f)])
     c4 = _verdict(claims.scene_claims(_metrics(10, 7), exp), "C4")       # the scene run alone says supported
     assert c4.verdict == verdict
-    assert next(f for f in c4.figures if f.key == "c_ratio").value == pytest.approx(1 / factor)
+    figs = {x.key: x.value for x in c4.figures}
+    assert figs["c_ratio"] == pytest.approx(np.median(1 / np.array(f)))
+    assert figs["c_gm"] == pytest.approx(np.exp(np.mean(-np.log(f))))
+    assert figs["c_gm_lo"] <= figs["c_gm"] <= figs["c_gm_hi"] and figs["c_slack"] == pytest.approx(10.0)
+
+
+def test_timing_slack_from_the_measured_run_to_run_spread():
+    """Repeats with a known log spread give that spread and a slack of 2 SD of a two-run log ratio."""
+    from polarref.compare import claims_experiments as cx
+
+    rng = np.random.default_rng(3)
+    exp = _timing(RMS, RMS, ROT, ROT, WALL, [w / 1.5 for w in WALL])
+    for form in exp.timing.params.values():
+        form.runs = [records.coerce(cx.Timing, {"params": {"x": {"runs": [{"wall_s": float(np.exp(rng.normal(0, 0.02))),
+                                                                          "seed": s}]}}}).params["x"].runs[0]
+                     for s in range(5) for _ in range(40)]
+    slack, spread = cx.timing_slack(exp.timing)
+    assert spread == pytest.approx(0.02, rel=0.1)
+    assert slack == pytest.approx(1 - np.exp(-2 * np.sqrt(2) * spread))
+    c4 = _verdict(claims.scene_claims(_metrics(10, 7), exp), "C4")
+    assert c4.verdict == "supported"
+    assert next(x for x in c4.figures if x.key == "c_slack").value == pytest.approx(100 * slack)
+    assert "within the pre-registered one" in c4.rationale
+    # a noisy machine widens the slack, but never turns a slow-down into the claimed speed-up
+    slow = _timing(RMS, RMS, ROT, ROT, WALL, [w / 0.66 for w in WALL])
+    for form in slow.timing.params.values():
+        form.runs = [dataclasses.replace(exp.timing.params["polar"].runs[0], wall_s=float(np.exp(rng.normal(0, 0.4))),
+                                         seed=s) for s in range(5) for _ in range(5)]
+    c4 = _verdict(claims.scene_claims(_metrics(10, 7), slow), "C4")
+    assert c4.verdict == "not supported" and "above the pre-registered one" in c4.rationale
 
 
 def test_controlled_missing_falls_back_to_scene_rule():
@@ -299,3 +348,150 @@ def test_c4_without_the_same_pipeline_baseline_is_not_tested():
     assert figs["ratio_b0"] == pytest.approx(10.0 / 7.0)   # still reported beside it
     assert _verdict(claims.scene_claims(m), "C4").verdict == "not tested"
     assert _verdict(claims.scene_claims(m), "C5").verdict == "not tested"
+
+
+# ---- issue 30: the frame-dependent verdict -------------------------------------------------------
+
+def test_frame_rule():
+    from polarref.compare.claims_invariance import FRAME_DEPENDENT, decide
+    assert decide("supported", ["supported"] * 21) == "supported"
+    assert decide("not supported", ["not supported"] * 20 + ["inconclusive"]) == FRAME_DEPENDENT
+    assert decide("supported", []) == "supported"
+    assert FRAME_DEPENDENT in schema.VERDICTS
+    from polarref.compare.report_render import CSS, verdict_class
+    assert all(f".{verdict_class(v)}{{" in CSS for v in schema.VERDICTS)     # every verdict has a colour
+
+
+def test_a_frame_dependent_measure_gets_the_frame_dependent_verdict():
+    """C7 on a constructed measure that moves with the frame: 'supported' in the experiment's own
+    frame, 'inconclusive' under one of three draws -> 'frame-dependent', share 2/3; the same draws
+    with the measure unchanged keep 'supported'."""
+    from polarref.compare import claims_invariance as ci
+    from polarref.compare.experiment_records import DrawFrame, Invariance, InvarianceDraw
+
+    base = _cond([1, 1, 1], [1, 1, 1], [0.5] * 3, [0.2] * 3)
+    moved = _cond([1, 1, 1], [1, 1, 1], [0.5] * 3, [0.2, 0.6, 0.2])
+    draws = [InvarianceDraw(DrawFrame(k, "similarity", 2.0, 30.0, 5.0), conditioning=c)
+             for k, c in enumerate((base, moved, base))]
+    exp = Experiments(0, conditioning=base, invariance=Invariance(7, draws))
+    c7 = ci.apply(claims.experiment_claims(exp, ""), exp)[1]
+    assert c7.claim_id == "C7" and c7.verdict == ci.FRAME_DEPENDENT
+    assert c7.invariance.base_verdict == "supported" and c7.invariance.agree_share == pytest.approx(2 / 3)
+    assert [d.verdict for d in c7.invariance.draws] == ["supported", "inconclusive", "supported"]
+    assert "frame-dependent" in c7.rationale and "67%" in c7.rationale
+    steady = Experiments(0, conditioning=base, invariance=Invariance(7, [draws[0], draws[2]]))
+    assert ci.apply(claims.experiment_claims(steady, ""), steady)[1].verdict == "supported"
+
+
+# ---- issue 30: pre-registration and power ----------------------------------------------------------
+
+def test_preregistration_file_drives_the_thresholds_and_seeds():
+    from polarref.compare import experiments, thresholds
+    from polarref.compare.preregistration import PREREG
+
+    for c in PREREG.claims:
+        assert c.test_seeds and not set(c.test_seeds) & set(c.pilot_seeds), c.claim_id
+        assert c.measure
+    assert {c.claim_id for c in PREREG.claims} == {"C3", "C4", "C5", "C6", "C7", "C8"}
+    assert thresholds.RMS_MARGIN_PX == PREREG.claim("C3").value("rms_margin_px")
+    assert thresholds.SPEEDUP_CLAIM == PREREG.claim("C4").value("speedup_claim") == 1.4
+    assert thresholds.PAPER_TIE_REL == pytest.approx(0.0018) and thresholds.PAPER_OBS_REL == pytest.approx(0.0012)
+    assert experiments.CONTROLLED_SEEDS == len(PREREG.claim("C3").test_seeds)
+    assert experiments.OUTLIER_FRACTIONS == PREREG.claim("C8").outlier_levels == PREREG.claim("C5").levels
+    assert np.isfinite(thresholds.PILOT_SD_RMS_PX * thresholds.PILOT_SD_LOG_SPEEDUP * thresholds.PILOT_SD_TIE_REL)
+
+
+def test_preregistration_refuses_overlapping_seeds(tmp_path):
+    from polarref.compare.preregistration import load
+    from polarref.core.errors import PolarrefError
+
+    bad = tmp_path / "p.toml"
+    bad.write_text('[C3]\nmeasure = "m"\ntest_seeds = [0, 1]\npilot_seeds = [1, 2]\n')
+    with pytest.raises(PolarrefError, match=r"\[C3\].*disjoint"):
+        load(bad)
+    bad.write_text("[C3\n")
+    with pytest.raises(PolarrefError, match="p.toml"):
+        load(bad)
+
+
+def test_file_commit_in_a_scratch_repository(tmp_path):
+    import subprocess
+    from polarref.compare.preregistration import file_commit
+
+    git = lambda *a: subprocess.run(["git", "-c", "user.email=t@t", "-c", "user.name=t", *a], cwd=tmp_path,  # noqa: E731
+                                    check=True, capture_output=True, text=True).stdout.strip()
+    git("init", "-q")
+    f = tmp_path / "prereg.toml"
+    f.write_text("a = 1\n")
+    git("add", "prereg.toml")
+    git("commit", "-qm", "register")
+    head = git("rev-parse", "HEAD")
+    (tmp_path / "other").write_text("x")
+    git("add", "other")
+    git("commit", "-qm", "later")            # a later commit that does not touch the file
+    fc = file_commit(f)
+    assert fc.commit == head and fc.modified is False and fc.date[:4].isdigit()
+    f.write_text("a = 2\n")
+    assert file_commit(f).modified is True
+
+
+def test_mde_gives_80_percent_power_by_simulation():
+    """At an effect equal to the MDE, a paired two-sided t-test at alpha 0.05 rejects in ~80 % of
+    seeded simulated experiments (the MDE formula vs an independent Monte-Carlo)."""
+    from scipy.stats import ttest_1samp
+    from polarref.compare.preregistration import mde
+
+    n, sd = 10, 0.3
+    effect = mde(sd, n, 0.05, 0.8)
+    assert effect == pytest.approx((2.2622 + 0.8834) * sd / np.sqrt(n), rel=1e-4)    # t tables, 9 dof
+    rng = np.random.default_rng(4)
+    d = rng.normal(effect, sd, (4000, n))
+    power = np.mean(ttest_1samp(d, 0.0, axis=1).pvalue < 0.05)
+    assert 0.76 < power < 0.84
+    assert mde(sd, 1, 0.05, 0.8) == float("inf") and mde(float("nan"), 10, 0.05, 0.8) == float("inf")
+
+
+def test_underpowered_instead_of_not_supported(monkeypatch):
+    from polarref.compare import claims_experiments as cx
+
+    exp = _timing(RMS, RMS, ROT, ROT, WALL, WALL)                    # no speed-up at all
+    c4 = _verdict(claims.scene_claims(_metrics(10, 10), exp), "C4")
+    assert c4.verdict == "not supported"                             # the pilot's spread detects 1.4x
+    mde4 = next(f for f in c4.figures if f.key == "c_mde").value
+    assert 1.0 < mde4 < 1.4
+    monkeypatch.setattr(cx, "PILOT_SD_LOG_SPEEDUP", 1.0)             # a pilot far noisier than the effect
+    c4 = _verdict(claims.scene_claims(_metrics(10, 10), exp), "C4")
+    assert c4.verdict == "underpowered" and next(f for f in c4.figures if f.key == "c_mde").value > 1.4
+    fast = _timing(RMS, RMS, ROT, ROT, WALL, [w / 1.5 for w in WALL])
+    assert _verdict(claims.scene_claims(_metrics(10, 10), fast), "C4").verdict == "supported"
+    # C3: a noisy pilot makes an unclear result underpowered, a clear difference stays not supported
+    monkeypatch.setattr(cx, "PILOT_SD_RMS_PX", 0.1)
+    noisy = _timing(RMS, [0.46, 0.51, 0.45, 0.52, 0.45], ROT, ROT, WALL, WALL)
+    assert _verdict(claims.scene_claims(_metrics(10, 10), noisy), "C3").verdict == "underpowered"
+    worse = _timing(RMS, [r + 0.05 for r in RMS], ROT, ROT, WALL, WALL)
+    c3 = _verdict(claims.scene_claims(_metrics(10, 10), worse), "C3")
+    assert c3.verdict == "not supported" and "polar worse by" in c3.rationale
+
+
+def test_c5_with_the_committed_pilot_is_underpowered_unless_an_interval_excludes_the_effect():
+    """150 points and 10 pairs cannot detect +0.18 %: equal counts are underpowered, never 'not
+    supported'; counts clearly lower (interval below +0.18 %) are 'not supported'."""
+    def rob(delta_tp):
+        noise = [0, 0, 0, 0, 0] if delta_tp is None else [6, -6, 4, -4, 1]
+        delta_tp = delta_tp or 0
+        runs = lambda tp, obs, e: {"runs": [{"seed": s, "success": True, "rotation_error_deg": 0.03,  # noqa: E731
+                                             "tie_points": tp + e[s], "inlier_observations": obs + 5 * e[s]}
+                                            for s in range(5)], "errors": []}
+        unit = {"start": runs(10, 100, [0] * 5), "euclidean": runs(140, 900, [0] * 5),
+                "polar": runs(140 + delta_tp, 900 + 6 * delta_tp, noise)}
+        return records.coerce(Robustness, {"seeds_run": 5, "outliers": {"0.3": unit, "0.5": unit}, "low_parallax": {}})
+    v, figs, text, n = claims_robustness.more_tie_points(rob(0))
+    f = {x.key: x.value for x in figs}
+    assert n == 10 and v == "underpowered" and f["c5_tp_mde"] > f["c5_tp_paper"] == pytest.approx(0.18)
+    # the margin is never wider than the paper's effect (was max(0.1 %, 1 count) = 0.71 % on 140 points)
+    assert f["c5_tp_margin"] == pytest.approx(0.1) and f["c5_obs_margin"] == pytest.approx(0.1)
+    assert f["c5_obs_margin"] <= f["c5_obs_paper"] == pytest.approx(0.12)
+    v, *_ = claims_robustness.more_tie_points(rob(-10))
+    assert v == "not supported"
+    v, *_ = claims_robustness.more_tie_points(rob(None))      # identical counts: [0, 0] excludes +0.18 %
+    assert v == "not supported"

@@ -9,7 +9,7 @@ import pytest
 
 from polarref.core import records
 from polarref.compare.experiment_records import Experiments
-from polarref.compare import claims, experiments
+from polarref.compare import claims, claims_experiments, experiments
 from polarref.compare.experiment_problems import (bearing_errors_deg, low_parallax_problem,
                                                   observation_geometry, relative_rotation_errors_deg)
 from polarref.core.geometry import Rigid3, so3_exp
@@ -126,7 +126,10 @@ def test_dense_jacobian_matches_loop_reference_and_gauge(param):
     problem = problem_from_reconstruction(truth)
     prepare(problem)
     obj = make_param(problem, BAOptions(param=param))
-    J, nc, dp, P = experiments._dense_system(problem, obj)
+    J_full, dp = experiments._full_jacobian(problem, obj)
+    P = problem.num_points
+    A, nc = experiments.gauge_map(problem, J_full.shape[1])
+    J = J_full @ A
     r, Jp, Jc = obj.evaluate(problem.R, problem.C, obj.init_points(), jac=True)
     M, k = r.shape
     N = problem.num_cameras
@@ -139,11 +142,18 @@ def test_dense_jacobian_matches_loop_reference_and_gauge(param):
         q = problem.obs_pt[m]
         ref[m * k:(m + 1) * k, 6 * N + dp * q:6 * N + dp * (q + 1)] += Jp[m]
     free = np.concatenate([problem.cam_mask.reshape(-1), np.ones(dp * P, bool)])
-    assert np.array_equal(J, ref[:, free]) and nc == int(problem.cam_mask.sum()) == 6 * N - 7
+    assert np.array_equal(J_full, ref) and np.array_equal(J, ref[:, free])
+    assert nc == int(problem.cam_mask.sum()) == 6 * N - 7
     w_all = np.linalg.eigvalsh(ref.T @ ref)
     w_free = np.linalg.eigvalsh(J.T @ J)
     assert w_all[6] / w_all[-1] < 1e-9 < w_all[7] / w_all[-1]       # 7 gauge null directions ...
     assert w_free[0] / w_free[-1] > 1e-9                            # ... all removed by the mask
+    # the frame-invariant "distance" gauge removes the same 7 and nothing else
+    Ad, ncd = experiments.gauge_map(problem, J_full.shape[1], "distance")
+    Jd = ref @ Ad
+    assert ncd == nc and Jd.shape == J.shape
+    w_d = np.linalg.eigvalsh(Jd.T @ Jd)
+    assert w_d[0] / w_d[-1] > 1e-9 and np.allclose(Ad.T @ Ad, np.eye(Ad.shape[1]))
 
 
 def test_start_point_fails_the_success_rule_at_every_level():
@@ -168,3 +178,105 @@ def test_start_point_fails_the_success_rule_at_every_level():
     c8 = claims.experiment_claims(Experiments(0, robustness=rob), "")[-1]
     starts = [f.value for f in c8.figures if f.key.endswith("_start_success")]
     assert starts and max(starts) <= 0.2
+
+
+# ---- issue 30: frame invariance ----------------------------------------------------------------
+
+def _frames():
+    from polarref.compare.experiment_problems import similarity_draws
+    return similarity_draws(5, 2)          # two random similarities, then metres -> millimetres
+
+
+DECIDING = ("ratio6_block", "block_euclidean", "ratio7", "corr_pa_ray", "corr_eu_ray")
+
+
+def test_c6_c7_verdicts_and_figures_do_not_depend_on_the_frame():
+    """A C6/C7 problem rotated, translated and scaled (and in millimetres) gives the same verdicts
+    and deciding figures to rounding; the old world-axis XYZ correlation does move (so the test
+    would see a frame-dependent figure)."""
+    base = claims_experiments.conditioning_claims(experiments.conditioning(0, seeds=2, size=(5, 30), units=False), "")
+    fig = lambda c: {f.key: f.value for f in c.figures}                                    # noqa: E731
+    moved_world = []
+    for T in _frames():
+        moved = claims_experiments.conditioning_claims(
+            experiments.conditioning(0, seeds=2, size=(5, 30), frame=T, units=False, lean=True), "")
+        for b, m in zip(base, moved):
+            assert b.verdict == m.verdict, (b.claim_id, T.kind)
+            fb, fm = fig(b), fig(m)
+            for k in DECIDING:
+                for key in (k, f"{k}_lo", f"{k}_hi"):
+                    if key in fb:
+                        assert fm[key] == pytest.approx(fb[key], rel=1e-6), (key, T.kind)
+        moved_world.append(fig(moved[1])["corr_eu"])
+    assert max(abs(w / fig(base[1])["corr_eu"] - 1) for w in moved_world) > 1e-3
+
+
+def test_ray_frame_map_equals_measuring_parallax_in_the_anchored_frame():
+    """The first-order map of the parallax covariance into the anchored frame equals rebuilding
+    the Jacobian with the form's frame replaced by the anchored one (an independent computation)."""
+    from polarref.ba import BAOptions, problem_from_reconstruction
+    from polarref.ba.parallax import choose_anchors
+    from polarref.ba.problem import prepare
+    from polarref.ba.solver import make_param
+    from polarref.ba.synthetic import synthetic_reconstruction
+    from polarref.compare.experiment_problems import anchored_frames
+
+    _, truth = synthetic_reconstruction(5, 30, seed=1, noise_px=0.0)
+    problem = problem_from_reconstruction(truth)
+    prepare(problem)
+    obj = make_param(problem, BAOptions(param="parallax"))
+    J, dp = experiments._full_jacobian(problem, obj)
+    A, nc = experiments.gauge_map(problem, J.shape[1], "distance")
+    T = experiments.ray_frame_map(problem, obj, dp)
+    cov = experiments.point_covariances(A.T @ J.T @ J @ A, nc, problem.num_points, dp)
+    mapped = np.einsum("pji,pjk,pkl->pil", T, cov, T)
+    main, assoc, _ = choose_anchors(problem)
+    obj.frame = anchored_frames(problem.X, problem.C[main], problem.C[assoc])
+    J2, _ = experiments._full_jacobian(problem, obj)
+    direct = experiments.point_covariances(A.T @ J2.T @ J2 @ A, nc, problem.num_points, dp)
+    assert np.allclose(mapped, direct, rtol=1e-7, atol=1e-12 * np.abs(direct).max())
+    assert not np.allclose(cov, direct, rtol=1e-3)              # the solver's own frame differs
+    # and the covariance through the reduced camera system equals the plain inverse
+    H = A.T @ J2.T @ J2 @ A
+    full = np.linalg.inv(H)[nc:, nc:].reshape(problem.num_points, dp, problem.num_points, dp)
+    assert np.allclose(direct, full[np.arange(problem.num_points), :, np.arange(problem.num_points), :],
+                       rtol=1e-6, atol=1e-12 * np.abs(direct).max())
+
+
+def test_invariance_draws_rerun_every_controlled_experiment_in_its_frame():
+    """Tiny experiments and 3 draws: each draw reran the conditioning seeds, one timing seed and one
+    robustness cell; BA in a moved frame reaches the same accuracy (it is frame-equivariant), and
+    every controlled claim gets a verdict per draw and the share that agrees."""
+    from polarref.compare import claims_invariance as ci
+
+    t0 = time.perf_counter()
+    sizes = {"timing": (5, 40), "conditioning": (5, 30), "outliers": (5, 40), "low_parallax": (5, 40)}
+    tim = experiments.timing(0, t0 + 100, seeds=2, repeats=1, size=(5, 40))
+    cond = experiments.conditioning(0, seeds=2, size=(5, 30), units=False)
+    rob = experiments.robustness(0, t0 + 100, seeds=1, ratios=(0.03,), fractions=(0.3,), outlier_size=(5, 40),
+                                 parallax_size=(5, 40))
+    inv = experiments.invariance(0, tim.seeds, rob.seeds_run, draws=2, conditioning_seeds=2, ratios=(0.03,),
+                                 fractions=(0.3,), sizes=sizes)
+    assert [d.frame.kind for d in inv.draws] == ["similarity", "similarity", "units"]
+    assert [d.timing_seed for d in inv.draws] == [0, 1, 0] and not any(d.error for d in inv.draws)
+    assert [(d.robust_half, d.robust_level) for d in inv.draws] == [("outliers", "0.3"), ("low_parallax", "0.03"),
+                                                                    ("outliers", "0.3")]
+    for d in inv.draws:
+        assert len(d.conditioning.params["euclidean"].per_seed) == 2
+        for p, row in d.timing.items():
+            b = next(r for r in tim.params[p].per_seed if r.seed == d.timing_seed)
+            assert row.final_rms_px == pytest.approx(b.final_rms_px, rel=1e-5)
+            assert row.rotation_error_deg == pytest.approx(b.rotation_error_deg, rel=1e-2, abs=1e-4)
+        base = getattr(rob, d.robust_half)[d.robust_level]
+        for p, runs in d.robust.items():
+            assert [r.success for r in runs.runs] == [r.success for r in base[p].runs]
+    exp = Experiments(0, conditioning=cond, timing=tim, robustness=rob, invariance=inv)
+    res = ci.apply(claims.experiment_claims(exp, "") + claims.scene_claims(_no_scene(), exp), exp)
+    decided = [c for c in res if c.invariance is not None]
+    assert {c.claim_id for c in decided} >= {"C6", "C7", "C8"}
+    for c in decided:
+        assert len(c.invariance.draws) == 3 and 0 <= c.invariance.agree_share <= 1
+        agree = [d.verdict == c.invariance.base_verdict for d in c.invariance.draws]
+        assert c.invariance.agree_share == pytest.approx(np.mean(agree))
+        assert c.verdict == (c.invariance.base_verdict if all(agree) else ci.FRAME_DEPENDENT)
+        assert "Frame invariance: 3 draws" in c.rationale

@@ -24,18 +24,21 @@ Any claim whose experiment could not run is "not tested", with the reason.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from pathlib import Path
 
 import numpy as np
 
 from polarref.compare import claims_experiments as cx
+from polarref.compare import claims_invariance
 from polarref.compare import claims_robustness as cr
 from polarref.compare import single_run
 from polarref.compare.runner import run_isolated
 from polarref.compare.claims_experiments import fig as _fig
 from polarref.compare.claims_experiments import not_tested as _not_tested
 from polarref.compare.experiment_records import DerivationEvidence, Experiments
+from polarref.compare.preregistration import PREREG, file_commit
 from polarref.compare.schema import BATrace, ClaimResult, MetricsFile, TracePoint
 from polarref.compare.thresholds import (EQUIVALENT_PX, EQUIVALENT_REL, EXACT_RAD, ROT_EQUIV_DEG,
                                          ROT_EQUIV_REL, SPEEDUP_CLAIM, TIMING_SLACK)
@@ -47,6 +50,7 @@ DERIVATION_SAMPLES = 100_000
 MIN_EXPERIMENT_BUDGET_S = 5.0
 NO_DEADLINE_TIMEOUT_S = 900.0   # claim experiments without a budget (every seed) are still killed after this
 CANDIDATE = "ours-polar"
+PREREGISTERED = ("C3", "C4", "C5", "C6", "C7", "C8")
 BASELINES = ("ours-euclidean", "pycolmap-incremental-sift")
 
 
@@ -254,5 +258,37 @@ def evaluate_into(metrics: MetricsFile, runs: Path, seed: int, budget_s: float, 
     claims = equation_claims(evidence, d.reason)
     claims += scene_claims(metrics, exp)
     claims += experiment_claims(exp, why)
-    metrics.claims = claims
+    metrics.claims = [with_preregistration(c, metrics.environment.git_commit, exp)
+                      for c in claims_invariance.apply(claims, exp)]
+
+
+def _seed_note(claim_id: str, exp: Experiments | None) -> str:
+    """How the run's seeds compare with the pre-registered test seeds of ``claim_id``."""
+    plan = PREREG.claim(claim_id)
+    if exp is None:
+        return ""
+    ran = {"C3": exp.timing.seeds if exp.timing else [], "C4": exp.timing.seeds if exp.timing else [],
+           "C6": exp.conditioning.seeds if exp.conditioning else [],
+           "C7": exp.conditioning.seeds if exp.conditioning else []}.get(claim_id)
+    if ran is None:   # C5/C8: seeds run from the first
+        n = exp.robustness.seeds_run if exp.robustness else 0
+        ran = [exp.seed + k for k in range(n)]
+    ran = list(ran)
+    if ran == list(plan.test_seeds):
+        return f"test seeds {ran[0]}..{ran[-1]} as pre-registered (pilot seeds {plan.pilot_seeds[0]}..{plan.pilot_seeds[-1]})"
+    return (f"seeds run {ran[0] if ran else '-'}..{ran[-1] if ran else '-'} ({len(ran)}) differ from the pre-registered "
+            f"test seeds {plan.test_seeds[0]}..{plan.test_seeds[-1]} ({len(plan.test_seeds)})")
+
+
+def with_preregistration(c: ClaimResult, run_commit: str, exp: Experiments | None) -> ClaimResult:
+    """Append the pre-registration's commit, the run's commit and the seed check to a controlled claim."""
+    if c.claim_id not in PREREGISTERED or c.verdict == "not tested":
+        return c
+    fc = file_commit()
+    when = (f"last changed at commit {fc.commit[:10]} ({fc.date})" if fc.commit else "not in a git checkout")
+    if fc.modified:
+        when += ", and modified since: this run is not pre-registered"
+    note = (f" Pre-registration: {PREREG.path.name} {when}; this run: commit {run_commit[:10] or 'unknown'}; "
+            + _seed_note(c.claim_id, exp) + ".")
+    return dataclasses.replace(c, rationale=c.rationale + note)
     metrics.ba_traces += traces_from(exp)

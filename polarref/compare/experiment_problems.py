@@ -25,6 +25,8 @@ alignment of nearly coincident centres is ill-posed):
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from polarref.core.geometry import Rigid3, rotation_angle_deg, so3_exp
@@ -138,3 +140,67 @@ def observation_geometry(rec) -> dict:
             u, v = cam.project(Xc[None])[0]
             outside += not (0 <= u <= cam.width and 0 <= v <= cam.height)
     return {"observations": n, "behind_fraction": behind / max(n, 1), "outside_fraction": outside / max(n, 1)}
+
+
+# ---- similarity transforms of the world (issue 30: verdicts must not depend on the frame) ----
+
+UNITS_FACTOR = 1000.0            # the unit-change draw: metres -> millimetres
+
+
+@dataclass(frozen=True)
+class Similarity:
+    """``world' = scale * R @ world + t``; ``R`` (3, 3) a rotation, ``t`` (3,)."""
+
+    scale: float
+    R: np.ndarray
+    t: np.ndarray
+    kind: str = "similarity"     # "similarity" (random draw) or "units" (metres -> millimetres)
+
+    @property
+    def rotation_deg(self) -> float:
+        return float(rotation_angle_deg(self.R, np.eye(3)))
+
+    def apply(self, rec):
+        """Copy of Reconstruction ``rec`` in the new frame (keypoints untouched: images do not change)."""
+        from polarref.ba.synthetic import clone
+
+        out = clone(rec)
+        for im in out.images.values():
+            Rc = im.cam_from_world.R @ self.R.T
+            im.cam_from_world = Rigid3(Rc, -Rc @ (self.scale * self.R @ im.cam_from_world.center + self.t))
+        for pt in out.points3D.values():
+            pt.xyz = self.scale * self.R @ pt.xyz + self.t
+        return out
+
+
+def similarity_draws(seed: int, n: int, translation: float = 100.0,
+                     log10_scale: float = 2.0) -> list[Similarity]:
+    """``n`` seeded random similarities (rotation uniform on SO(3), translation N(0, translation^2)
+    per axis, scale 10^U(-log10_scale, log10_scale)), then the unit change x ``UNITS_FACTOR``."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        q = rng.normal(size=4)           # a normalised Gaussian quaternion is uniform on SO(3)
+        w, x, y, z = q / np.linalg.norm(q)
+        R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                      [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+        out.append(Similarity(float(10 ** rng.uniform(-log10_scale, log10_scale)), R,
+                              rng.normal(0, translation, 3)))
+    return out + [Similarity(UNITS_FACTOR, np.eye(3), np.zeros(3), "units")]
+
+
+def anchored_frames(X: np.ndarray, C_main: np.ndarray, C_assoc: np.ndarray) -> np.ndarray:
+    """Per-point rotations (P, 3, 3) built from the scene alone: first column the ray from the
+    main anchor to the point, second the baseline to the associate anchor made orthogonal to it.
+
+    A similarity of the world rotates these frames with it, so figures measured in them are
+    frame-invariant, unlike ``ba.parallax.direction_frames`` (second axis from the world axis
+    least aligned with the ray). X, C_main, C_assoc: (P, 3).
+    """
+    e1 = X - C_main
+    e1 = e1 / np.linalg.norm(e1, axis=1, keepdims=True)
+    b = C_assoc - C_main
+    e2 = b - np.einsum("pi,pi->p", b, e1)[:, None] * e1
+    e2 = e2 / np.linalg.norm(e2, axis=1, keepdims=True)
+    return np.stack([e1, e2, np.cross(e1, e2)], axis=2)

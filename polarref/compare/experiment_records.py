@@ -66,6 +66,10 @@ class ConditioningRow:
     max_abs_point_corr: float | None
     point_params: int = 3
     error: str = ""
+    # frame-invariant: parameters in the scene-anchored per-point frame, gauge by distance
+    mean_abs_point_corr_ray: float | None = None
+    max_abs_point_corr_ray: float | None = None
+    cond_JtJ_block: float | None = None       # block-Jacobi-scaled, distance gauge: frame-invariant
 
 
 @dataclass
@@ -122,6 +126,43 @@ class Robustness:
     error: str = ""
 
 
+# ---- invariance: the experiments rerun in other frames of the world ---------------------------
+
+
+@dataclass
+class DrawFrame:
+    """One similarity ``world' = scale R world + t`` (:class:`~polarref.compare.experiment_problems.Similarity`)."""
+
+    index: int
+    kind: str                  # "similarity" (seeded random draw) or "units" (metres -> millimetres)
+    scale: float
+    rotation_deg: float        # angle of R
+    translation: float         # |t| in the scene's units
+
+
+@dataclass
+class InvarianceDraw:
+    """What one draw reran in its frame: every conditioning seed (C6/C7), every form on one timing
+    seed (C3/C4) and every form plus the start point on one robustness cell (C5/C8)."""
+
+    frame: DrawFrame
+    conditioning: Conditioning | None = None
+    timing_seed: int | None = None
+    timing: dict[str, TimingSeed] = field(default_factory=dict)       # form -> its run
+    robust_half: str = ""                                             # "outliers" or "low_parallax"
+    robust_level: str = ""
+    robust_seed: int | None = None
+    robust: dict[str, FormRuns] = field(default_factory=dict)        # form (and "start") -> runs
+    error: str = ""
+
+
+@dataclass
+class Invariance:
+    seed: int                  # of the draws
+    draws: list[InvarianceDraw] = field(default_factory=list)
+    error: str = ""
+
+
 @dataclass
 class Experiments:
     """Everything :func:`polarref.compare.experiments.run_all` measured."""
@@ -130,6 +171,7 @@ class Experiments:
     conditioning: Conditioning | None = None
     timing: Timing | None = None
     robustness: Robustness | None = None
+    invariance: Invariance | None = None
     wall_s: dict[str, float] = field(default_factory=dict)   # experiment -> seconds
 
 

@@ -31,23 +31,27 @@ from pathlib import Path
 import numpy as np
 
 from polarref.core import records
-from polarref.compare.experiment_problems import (bearing_errors_deg, low_parallax_problem,
-                                                  relative_rotation_errors_deg)
-from polarref.compare.experiment_records import Conditioning, ConditioningRow, Experiments, Robustness, Timing
+from polarref.compare.experiment_problems import (Similarity, anchored_frames, bearing_errors_deg,
+                                                  low_parallax_problem, relative_rotation_errors_deg,
+                                                  similarity_draws)
+from polarref.compare.experiment_records import (Conditioning, ConditioningRow, DrawFrame, Experiments, FormRuns,
+                                                 Invariance,
+                                                 InvarianceDraw, Robustness, Timing, TimingSeed)
+from polarref.compare.preregistration import PREREG
 from polarref.compare.thresholds import SUCCESS_BEARING_DEG, SUCCESS_RMS_NOISE_FACTOR, SUCCESS_ROT_DEG
 
 log = logging.getLogger(__name__)
 
 TIMING_PROBLEM = (12, 300)       # cameras, points (pycolmap synthetic, every point in every view)
-CONTROLLED_SEEDS = 10           # C3's interval needs them (90 % CI narrower than the margin)
-TIMED_SEEDS = 5                  # of which the first this many are timed TIMING_REPEATS times, the rest once
-TIMING_REPEATS = 3
+CONTROLLED_SEEDS = len(PREREG.claim("C3").test_seeds)   # pre-registered (preregistration.toml)
+TIMED_SEEDS = CONTROLLED_SEEDS   # every seed is timed TIMING_REPEATS times, interleaved (issue 30)
+TIMING_REPEATS = 5
 SMALL_PROBLEM = (8, 100)         # dense J^T J: 8*6 + 100*3 columns
-CONDITIONING_SEEDS = 3
+CONDITIONING_SEEDS = len(PREREG.claim("C6").test_seeds)
 UNIT_RESCALE = 1e-3              # C6: the same scene in kilometres instead of metres
 ROBUST_PROBLEM = (8, 150)
-ROBUST_SEEDS = 5
-OUTLIER_FRACTIONS = (0.3, 0.5)   # of the observations, displaced 30-60 px
+ROBUST_SEEDS = len(PREREG.claim("C8").test_seeds)
+OUTLIER_FRACTIONS = PREREG.claim("C8").outlier_levels   # of the observations, displaced 30-60 px
 # Start points far enough off that they fail the success rule (issue 12: at 0.1 deg the start
 # already "succeeded" on every seed, so the experiment could not come out either way).
 OUTLIER_INIT_ROT_DEG = 1.0
@@ -58,9 +62,11 @@ NOISE_PX = 0.5
 LOW_PARALLAX_PROBLEM = (8, 150)
 # baseline / depth: largest parallax about 17, 1.7, 0.17 and 0.017 deg (the last is a 0.4 px
 # disparity at f = 1280 px, below the noise: points effectively at infinity)
-PARALLAX_RATIOS = (0.3, 0.03, 0.003, 0.0003)
+PARALLAX_RATIOS = PREREG.claim("C8").parallax_levels
 # A run succeeds when it reaches the noise floor with correct geometry:
 SUCCESS_RMS_PX = SUCCESS_RMS_NOISE_FACTOR * NOISE_PX   # final pixel RMS below this (thresholds.py)
+INVARIANCE_DRAWS = 20            # random similarities of the world, plus the unit change (issue 30)
+INVARIANCE_SEED_OFFSET = 1000    # the draws' own seed: seed + this, apart from every problem seed
 
 
 def _params() -> tuple[str, ...]:
@@ -128,8 +134,8 @@ def timing(seed: int, deadline: float, seeds: int = CONTROLLED_SEEDS, repeats: i
 
 # ---- C6/C7: conditioning and correlation at the true solution -------------------------------
 
-def _dense_system(problem, param_obj):
-    """J (rows, free columns) at the current estimate; number of free camera columns, dp, P."""
+def _full_jacobian(problem, param_obj) -> tuple[np.ndarray, int]:
+    """J (rows, 6 N + dp P) at the current estimate, every camera column kept; and dp."""
     pts = param_obj.init_points()
     r, Jp, Jc = param_obj.evaluate(problem.R, problem.C, pts, jac=True)
     M, k = r.shape
@@ -140,11 +146,60 @@ def _dense_system(problem, param_obj):
     for s, Js in enumerate(Jc):
         c0, c1 = param_obj.slot_cols[s]
         cidx = 6 * np.asarray(param_obj.slot_cams[s])[:, None] + np.arange(c0, c1)[None, :]
-        np.add.at(J, (rows, cidx[:, None, :]), Js)
+        J[rows, cidx[:, None, :]] += Js      # one camera per row and slot: no repeated index within a slot
     pidx = 6 * N + dp * np.asarray(problem.obs_pt)[:, None] + np.arange(dp)[None, :]
-    np.add.at(J, (rows, pidx[:, None, :]), Jp)
-    free = np.concatenate([problem.cam_mask.reshape(-1), np.ones(dp * P, bool)])
-    return J[:, free], int(free[:6 * N].sum()), dp, P
+    J[rows, pidx[:, None, :]] += Jp
+    return J, dp
+
+
+def gauge_map(problem, cols: int, gauge: str = "solver") -> tuple[np.ndarray, int]:
+    """(A (cols, free), free camera columns): J @ A is J in the gauge's free coordinates.
+
+    "solver" removes the columns the solver fixes (``cam_mask``: one camera's pose and the centre
+    coordinate of a second camera along which it lies farthest, a choice that follows the world
+    axes); "distance" fixes the same pose and, for the scale, only the distance between the two
+    cameras (the second centre moves in the plane orthogonal to their baseline), which rotates
+    with the world, so figures under it do not depend on the frame.
+    """
+    mask = problem.cam_mask
+    N = len(mask)
+    free = np.concatenate([mask.reshape(-1), np.ones(cols - 6 * N, bool)])
+    if gauge == "solver":
+        return np.eye(cols)[:, free], int(mask.sum())
+    anchor = int(np.flatnonzero(~mask.any(axis=1))[0])
+    second = int(np.flatnonzero(mask.any(axis=1) & ~mask.all(axis=1))[0])
+    b = problem.C[second] - problem.C[anchor]
+    plane = np.linalg.svd((b / np.linalg.norm(b))[None, :])[2][1:].T           # (3, 2), orthogonal to b
+    keep = np.ones(cols, bool)
+    keep[6 * anchor:6 * anchor + 6] = False
+    keep[6 * second + 3:6 * second + 6] = False
+    A = np.eye(cols)[:, keep]
+    nc = int(keep[:6 * N].sum())
+    extra = np.zeros((cols, 2))
+    extra[6 * second + 3:6 * second + 6] = plane
+    return np.hstack([A[:, :nc], extra, A[:, nc:]]), nc + 2
+
+
+def point_covariances(H: np.ndarray, nc: int, P: int, dp: int) -> np.ndarray:
+    """(P, dp, dp) marginal covariance blocks of the points from H (cameras first, points in
+    blocks), through the reduced camera system: V_p^-1 + V_p^-1 W_p^T S^-1 W_p V_p^-1."""
+    W = H[:nc, nc:].reshape(nc, P, dp).transpose(1, 0, 2)                          # (P, nc, dp)
+    V = H[nc:, nc:].reshape(P, dp, P, dp)[np.arange(P), :, np.arange(P), :]        # (P, dp, dp)
+    Vi = np.linalg.inv(V)
+    WVi = W @ Vi                                                                   # (P, nc, dp)
+    S = H[:nc, :nc] - WVi.reshape(P, nc, dp).transpose(1, 0, 2).reshape(nc, -1) @ W.transpose(1, 0, 2).reshape(nc, -1).T
+    Si = np.linalg.inv(S)
+    return Vi + np.swapaxes(WVi, 1, 2) @ Si @ WVi
+
+
+def _abs_corr(blocks: np.ndarray, T: np.ndarray | None = None) -> np.ndarray:
+    """(P, pairs) |correlation| within each point's parameters; with ``T`` (P, dp, dp) the
+    parameters are first mapped to ``T^T x`` (the covariance to ``T^T C T``)."""
+    if T is not None:
+        blocks = np.einsum("pji,pjk,pkl->pil", T, blocks, T)
+    dp = blocks.shape[1]
+    sd = np.sqrt(np.einsum("pii->pi", blocks))
+    return np.abs(blocks / sd[:, :, None] / sd[:, None, :])[:, *np.triu_indices(dp, 1)]
 
 
 def _cond(A: np.ndarray) -> float:
@@ -157,25 +212,98 @@ def _scaled(A: np.ndarray) -> np.ndarray:
     return A / d[:, None] / d[None, :]
 
 
-def conditioning_one(truth, param: str) -> tuple[ConditioningRow, str]:
+def block_scaled(H: np.ndarray, A: np.ndarray, num_cam_cols: int, dp: int) -> np.ndarray:
+    """``H`` (in the gauge coordinates of ``A`` (cols, free), :func:`gauge_map`) scaled by the
+    inverse square roots of its diagonal blocks: each camera's rotation, each camera's centre,
+    each point. A rotation, translation or scaling of the world acts on each block by an
+    orthogonal map times a constant, which this scaling removes, so its condition number is
+    frame- and unit-invariant (the plain Jacobi scaling is only unit-invariant)."""
+    src = np.argmax(A != 0, axis=0)                       # an original column of each free column
+    label = np.where(src < num_cam_cols, src // 3, num_cam_cols // 3 + (src - num_cam_cols) // dp)
+    groups = [np.flatnonzero(label == g) for g in np.unique(label)]
+    D = np.zeros_like(H)
+    for size in {len(i) for i in groups}:                # batched by block size (2 or 3)
+        idx = np.array([i for i in groups if len(i) == size])                     # (B, size)
+        w, Q = np.linalg.eigh(H[idx[:, :, None], idx[:, None, :]])
+        D[idx[:, :, None], idx[:, None, :]] = (Q / np.sqrt(np.clip(w, 1e-300, None))[:, None, :]) @ np.swapaxes(Q, 1, 2)
+    return congruence(H, D)
+
+
+def gram(J: np.ndarray) -> np.ndarray:
+    """``J^T J`` through scipy.sparse (a row of J touches at most 21 of its columns)."""
+    from scipy import sparse
+
+    Js = sparse.csr_matrix(J)
+    return np.asarray((Js.T @ Js).todense())
+
+
+def congruence(H: np.ndarray, A: np.ndarray) -> np.ndarray:
+    """``A^T H A`` for symmetric ``H`` and a sparse ``A`` (a column selection, a block-diagonal
+    scaling): through scipy.sparse, O(nnz(A) n) instead of two dense cubic products."""
+    from scipy import sparse
+
+    As = sparse.csc_matrix(A)
+    return np.asarray(As.T @ np.asarray(As.T @ H).T)
+
+
+def ray_frame_map(problem, param_obj, dp: int) -> np.ndarray | None:
+    """(P, dp, dp) T with ``T^T x`` the point's parameters in the scene-anchored frames
+    (:func:`~polarref.compare.experiment_problems.anchored_frames`); None for other forms.
+
+    XYZ: T = the frame. A parallax-type form measures azimuth and elevation in its own frame
+    ``F`` and starts every point at (0, 0), where they move the direction along ``F``'s second
+    and third columns; measured in the anchored frame ``G`` instead, to first order (exact for a
+    Jacobian at that point) (da', de') = G[:, 1:]^T F[:, 1:] (da, de), the parallax angle unchanged.
+    """
+    from polarref.ba.parallax import choose_anchors
+
+    main, assoc, _ = choose_anchors(problem)
+    G = anchored_frames(problem.X, problem.C[main], problem.C[assoc])
+    if hasattr(param_obj, "frame") and dp == 3:
+        T = np.zeros((len(G), 3, 3))
+        T[:, :2, :2] = np.einsum("pji,pjk->pik", param_obj.frame[:, :, 1:], G[:, :, 1:])
+        T[:, 2, 2] = 1.0              # points are (azimuth, elevation, parallax angle)
+        return T
+    return G if dp == 3 else None
+
+
+def conditioning_one(truth, param: str, lean: bool = False) -> tuple[ConditioningRow, str]:
     """Condition numbers and structure correlations of one form at ``truth`` (noise-free), and
-    the gauge the solver fixed."""
+    the gauge the solver fixed.
+
+    Two correlations: of the form's own parameters under the solver's gauge (what the solver
+    sees), and frame-invariant ("ray"): of the point's parameters in the scene-anchored frames
+    (:func:`ray_frame_map`) under the "distance" gauge (:func:`gauge_map`). ``lean`` (the
+    invariance draws) leaves out every condition number but the frame-invariant one (None).
+    """
     from polarref.ba import BAOptions, problem_from_reconstruction
     from polarref.ba.problem import prepare
     from polarref.ba.solver import make_param
 
     problem = problem_from_reconstruction(truth)
     prepare(problem)
-    J, nc, dp, P = _dense_system(problem, make_param(problem, BAOptions(param=param)))
-    H = J.T @ J
-    U, W, V = H[:nc, :nc], H[:nc, nc:], H[nc:, nc:]
-    S = U - W @ np.linalg.solve(V, W.T)
-    cov = np.linalg.inv(H)[nc:, nc:]
-    blocks = cov.reshape(P, dp, P, dp)[np.arange(P), :, np.arange(P), :]           # (P, dp, dp)
-    sd = np.sqrt(np.einsum("pii->pi", blocks))
-    corr = np.abs(blocks / sd[:, :, None] / sd[:, None, :])[:, *np.triu_indices(dp, 1)]
-    row = ConditioningRow(_cond(H), _cond(_scaled(H)), _cond(S), _cond(_scaled(S)),
-                          float(corr.mean()), float(corr.max()), dp)
+    obj = make_param(problem, BAOptions(param=param))
+    J, dp = _full_jacobian(problem, obj)
+    Hf = gram(J)
+    P = problem.num_points
+    free = np.concatenate([problem.cam_mask.reshape(-1), np.ones(dp * P, bool)])
+    H, nc = Hf[np.ix_(free, free)], int(problem.cam_mask.sum())      # = gauge_map(...) "solver", without the products
+    corr = _abs_corr(point_covariances(H, nc, P, dp))
+    Ad, ncd = gauge_map(problem, Hf.shape[0], "distance")
+    Hd = congruence(Hf, Ad)
+    T = ray_frame_map(problem, obj, dp)
+    ray = None if T is None else _abs_corr(point_covariances(Hd, ncd, P, dp), T)
+    if lean:
+        raw = schur = schur_scaled = None
+    else:
+        U, W, V = H[:nc, :nc], H[:nc, nc:], H[nc:, nc:]
+        S = U - W @ np.linalg.solve(V, W.T)
+        raw, schur, schur_scaled = _cond(H), _cond(S), _cond(_scaled(S))
+    row = ConditioningRow(raw, None if lean else _cond(_scaled(H)), schur, schur_scaled,
+                          float(corr.mean()), float(corr.max()), dp,
+                          cond_JtJ_block=_cond(block_scaled(Hd, Ad, 6 * problem.num_cameras, dp)),
+                          mean_abs_point_corr_ray=None if ray is None else float(ray.mean()),
+                          max_abs_point_corr_ray=None if ray is None else float(ray.max()))
     return row, problem.gauge
 
 
@@ -193,21 +321,25 @@ def rescaled(rec, factor: float):
     return out
 
 
-def conditioning(seed: int, seeds: int = CONDITIONING_SEEDS, size: tuple[int, int] = SMALL_PROBLEM) -> Conditioning:
+def conditioning(seed: int, seeds: int = CONDITIONING_SEEDS, size: tuple[int, int] = SMALL_PROBLEM,
+                 frame: Similarity | None = None, units: bool = True, lean: bool = False) -> Conditioning:
     """:func:`conditioning_one` for every form on ``seeds`` seeded problems (``per_seed`` lists),
-    once in the scene's units and once with every length times ``UNIT_RESCALE`` (``per_seed_rescaled``)."""
+    once in the scene's units and (``units``) once with every length times ``UNIT_RESCALE``
+    (``per_seed_rescaled``); with ``frame``, every problem is first moved into that frame."""
     from polarref.ba.synthetic import synthetic_reconstruction
 
     out: dict = {"problem": f"synthetic {size[0]} cameras x {size[1]} points at the true solution, "
                             f"seeds {seed}..{seed + seeds - 1}", "seeds": [], "gauge": "",
-                 "unit_rescale": UNIT_RESCALE,
+                 "unit_rescale": UNIT_RESCALE if units else None,
                  "params": {p: {"per_seed": [], "per_seed_rescaled": [], "error": ""} for p in _params()}}
     for k in range(seeds):
         _, truth = synthetic_reconstruction(*size, seed=seed + k, noise_px=0.0)
-        for variant, rec in (("per_seed", truth), ("per_seed_rescaled", rescaled(truth, UNIT_RESCALE))):
+        truth = truth if frame is None else frame.apply(truth)
+        variants = [("per_seed", truth)] + ([("per_seed_rescaled", rescaled(truth, UNIT_RESCALE))] if units else [])
+        for variant, rec in variants:
             for p in _params():
                 try:
-                    r, gauge = conditioning_one(rec, p)
+                    r, gauge = conditioning_one(rec, p, lean)
                 except Exception as exc:
                     out["params"][p]["error"] = _err(exc)
                     continue
@@ -276,6 +408,20 @@ def inlier_counts(rec, max_error_px: float = FILTER_MAX_ERROR_PX) -> dict:
     return {"inlier_observations": int(good.sum()), "tie_points": int((per_point >= 2).sum())}
 
 
+def robust_problem(half: str, level: float, seed: int, size: tuple[int, int]):
+    """(initial, truth, BA options, check the RMS) of one robustness cell: ``half`` "outliers"
+    (``level`` = fraction displaced, Huber loss) or "low_parallax" (``level`` = baseline/depth)."""
+    from polarref.ba.synthetic import synthetic_reconstruction
+
+    if half == "outliers":
+        init, truth = synthetic_reconstruction(*size, seed=seed, noise_px=NOISE_PX, outlier_fraction=level,
+                                               rot_deg=OUTLIER_INIT_ROT_DEG, point_sigma=OUTLIER_INIT_SIGMA,
+                                               center_sigma=OUTLIER_INIT_SIGMA)
+        return init, truth, {"loss": "huber", "loss_scale": 1.0}, False
+    init, truth = low_parallax_problem(*size, level, seed=seed, noise_px=NOISE_PX, rot_deg=PARALLAX_INIT_ROT_DEG)
+    return init, truth, {}, True
+
+
 def robustness(seed: int, deadline: float, seeds: int = ROBUST_SEEDS, ratios=PARALLAX_RATIOS,
                fractions=OUTLIER_FRACTIONS, outlier_size: tuple[int, int] = ROBUST_PROBLEM,
                parallax_size: tuple[int, int] = LOW_PARALLAX_PROBLEM) -> Robustness:
@@ -284,8 +430,6 @@ def robustness(seed: int, deadline: float, seeds: int = ROBUST_SEEDS, ratios=PAR
     Every level also scores its start point (``start``: the initial reconstruction, no
     optimisation) with the same success rule, the trivial method every form must beat.
     """
-    from polarref.ba.synthetic import synthetic_reconstruction
-
     empty = lambda: {p: {"runs": [], "errors": []} for p in ("start", *_params())}   # noqa: E731
     out: dict = {
         "outliers": {f"{f:g}": empty() for f in fractions}, "low_parallax": {f"{r:g}": empty() for r in ratios}, "seeds_run": 0,
@@ -304,17 +448,66 @@ def robustness(seed: int, deadline: float, seeds: int = ROBUST_SEEDS, ratios=PAR
         if k > 0 and time.perf_counter() > deadline:
             break
         s = seed + k
-        for f in fractions:
-            init, truth = synthetic_reconstruction(*outlier_size, seed=s, noise_px=NOISE_PX, outlier_fraction=f,
-                                                   rot_deg=OUTLIER_INIT_ROT_DEG, point_sigma=OUTLIER_INIT_SIGMA,
-                                                   center_sigma=OUTLIER_INIT_SIGMA)
-            _run_forms(init, truth, {"loss": "huber", "loss_scale": 1.0}, out["outliers"][f"{f:g}"], s, False)
-        for r in ratios:
-            init, truth = low_parallax_problem(*parallax_size, r, seed=s, noise_px=NOISE_PX,
-                                               rot_deg=PARALLAX_INIT_ROT_DEG)
-            _run_forms(init, truth, {}, out["low_parallax"][f"{r:g}"], s)
+        for half, levels, size in (("outliers", fractions, outlier_size), ("low_parallax", ratios, parallax_size)):
+            for lv in levels:
+                init, truth, opts, check_rms = robust_problem(half, lv, s, size)
+                _run_forms(init, truth, opts, out[half][f"{lv:g}"], s, check_rms)
         out["seeds_run"] = k + 1
     return records.coerce(Robustness, out, label="robustness")
+
+
+# ---- invariance: the experiments in other frames of the world (issue 30) --------------------
+
+def invariance(seed: int, timing_seeds: list[int], robust_seeds: int, draws: int = INVARIANCE_DRAWS,
+               conditioning_seeds: int = CONDITIONING_SEEDS,
+               ratios=PARALLAX_RATIOS, fractions=OUTLIER_FRACTIONS, sizes: dict | None = None) -> Invariance:
+    """``draws`` seeded random similarities of the world and the unit change, each rerunning the
+    whole conditioning experiment (C6/C7), one timing seed (C3/C4, every form once) and one
+    robustness cell (C5/C8, every form and the start point). Timing seeds and robustness cells
+    (levels innermost, then seeds) are taken in turn, so the draws spread over all of them.
+
+    ``sizes``: problem sizes by experiment ("timing", "conditioning", "outliers", "low_parallax"),
+    the defaults of the experiments when None.
+    """
+    from polarref.ba.synthetic import clone, synthetic_reconstruction
+
+    size = {"timing": TIMING_PROBLEM, "conditioning": SMALL_PROBLEM, "outliers": ROBUST_PROBLEM,
+            "low_parallax": LOW_PARALLAX_PROBLEM} | (sizes or {})
+    cells = [(h, lv) for h, lvs in (("outliers", fractions), ("low_parallax", ratios)) for lv in lvs]
+    frames = similarity_draws(seed + INVARIANCE_SEED_OFFSET, draws)
+    out = Invariance(seed + INVARIANCE_SEED_OFFSET)
+    for k, T in enumerate(frames):
+        frame = DrawFrame(k, T.kind, T.scale, T.rotation_deg, float(np.linalg.norm(T.t)))
+        d = InvarianceDraw(frame)
+        try:
+            if conditioning_seeds:
+                d.conditioning = conditioning(seed, conditioning_seeds, size["conditioning"], T, units=False,
+                                              lean=True)
+            if timing_seeds:
+                d.timing_seed = ts = timing_seeds[k % len(timing_seeds)]
+                init, truth = synthetic_reconstruction(*size["timing"], seed=ts, noise_px=NOISE_PX)
+                init, truth = T.apply(init), T.apply(truth)
+                for p in _params():
+                    rec = clone(init)
+                    summ = _adjust(rec, p)
+                    d.timing[p] = _timing_row(rec, truth, summ, ts)
+            if robust_seeds:
+                (half, lv), rs = cells[k % len(cells)], seed + (k // len(cells)) % robust_seeds
+                d.robust_half, d.robust_level, d.robust_seed = half, f"{lv:g}", rs
+                init, truth, opts, check_rms = robust_problem(half, lv, rs, size[half])
+                sink = {p: {"runs": [], "errors": []} for p in ("start", *_params())}
+                _run_forms(T.apply(init), T.apply(truth), opts, sink, rs, check_rms)
+                d.robust = {p: records.coerce(FormRuns, v, label="runs") for p, v in sink.items()}
+        except Exception as exc:        # a draw that raises is listed, never silently dropped
+            d.error = _err(exc)
+        out.draws.append(d)
+    return out
+
+
+def _timing_row(rec, truth, summ, seed: int) -> TimingSeed:
+    return TimingSeed(seed, summ.iterations, summ.final_rms_px,
+                      float(relative_rotation_errors_deg(rec, truth).mean()), summ.final_pixel_cost,
+                      summ.termination_text, summ.wall_s)
 
 
 def run_all(seed: int, budget_s: float, out_json: Path) -> Experiments:
@@ -330,9 +523,15 @@ def run_all(seed: int, budget_s: float, out_json: Path) -> Experiments:
 
 def _run_all(seed: int, budget_s: float, out_json: Path, t0: float) -> Experiments:
     result = Experiments(seed)
+    # The invariance draws rerun what the others ran (their seeds), so they come last; they are
+    # not cut by the deadline: a verdict needs all of them (>= 20 draws, issue 30).
     for name, kind, fn in (("conditioning", Conditioning, lambda: conditioning(seed)),
                            ("timing", Timing, lambda: timing(seed, t0 + 0.4 * budget_s)),
-                           ("robustness", Robustness, lambda: robustness(seed, t0 + budget_s))):
+                           ("robustness", Robustness, lambda: robustness(seed, t0 + budget_s)),
+                           ("invariance", Invariance, lambda: invariance(
+                               seed, list(result.timing.seeds) if result.timing else [],
+                               result.robustness.seeds_run if result.robustness else 0,
+                               conditioning_seeds=len(result.conditioning.seeds) if result.conditioning else 0))):
         tic = time.perf_counter()
         try:
             value = fn()

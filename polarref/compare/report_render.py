@@ -142,7 +142,13 @@ def inline_html(text: str) -> str:
     return re.sub(r"\[([^\]]+)\]\(([^)\s\"]+)\)", r'<a href="\2">\1</a>', t)
 
 
+# issue 30: a verdict that is neither for nor against the claim wears the inconclusive colour (its
+# badge text names it), so the stylesheet, and every committed report's bytes, stay as they were
+_SHARED_STYLE = {"frame-dependent": "inconclusive", "underpowered": "inconclusive"}
+
+
 def verdict_class(verdict: str) -> str:
+    verdict = _SHARED_STYLE.get(verdict, verdict)
     return "v-" + re.sub(r"[^a-z]+", "-", verdict.lower()).strip("-")
 
 

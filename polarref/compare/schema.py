@@ -23,7 +23,9 @@ from polarref.model.run import TracePoint  # noqa: F401 (part of the schema)
 _METRIC_FIELDS = frozenset(f.name for f in fields(ReconstructionMetrics))
 
 
-VERDICTS = ("supported", "not supported", "inconclusive", "not tested")
+VERDICTS = ("supported", "not supported", "inconclusive", "not tested",
+            "frame-dependent",   # issue 30: the verdict changed under a similarity of the world
+            "underpowered")      # issue 30: the experiment could not detect an effect of the paper's size
 
 
 @dataclass
@@ -148,6 +150,30 @@ class Figure:
     unit: str = ""            # "count" = an integer count (formatted without decimals)
 
 
+# ---- issue 30: a verdict under other frames of the world --------------------------------------
+
+
+@dataclass
+class DrawVerdict:
+    """The verdict of one claim with the experiments rerun in one other frame of the world."""
+
+    index: int
+    kind: str                 # "similarity" (seeded random rotation, translation, scale) or "units"
+    scale: float
+    rotation_deg: float
+    translation: float
+    verdict: str              # one of VERDICTS
+
+
+@dataclass
+class ClaimInvariance:
+    """Verdicts of one claim under the invariance draws (:mod:`polarref.compare.claims_invariance`)."""
+
+    base_verdict: str         # in the experiments' own frame
+    agree_share: float        # fraction of draws with the same verdict
+    draws: list[DrawVerdict]
+
+
 @dataclass
 class ClaimResult:
     """One claim of the paper, its test, measurements and verdict."""
@@ -161,6 +187,7 @@ class ClaimResult:
     verdict: str              # one of VERDICTS
     rationale: str            # template: "{key}" placeholders filled from figures at report time
     summary: str = ""         # one-line template for the scorecard; "" = first clause of the rationale
+    invariance: ClaimInvariance | None = None   # issue 30; None: not rerun in other frames
 
 
 @dataclass

@@ -2,27 +2,40 @@
 
 The claim modules (``claims``, ``claims_experiments``, ``claims_robustness``), the controlled
 experiments' success rule and the report's "equivalent" marks all read them from here, so a
-reader checks one page and a change cannot leave two copies disagreeing.
+reader checks one page and a change cannot leave two copies disagreeing. The controlled
+experiments' margins, thresholds, levels and seeds come from the committed pre-registration
+(``preregistration.toml``, :mod:`polarref.compare.preregistration`), whose commit every report shows.
 """
 
 from __future__ import annotations
 
+from polarref.compare.preregistration import PREREG
+
+_C3, _C4, _C5, _C6, _C8 = (PREREG.claim(c) for c in ("C3", "C4", "C5", "C6", "C8"))
+
 # ---- scene claims (claims.py) ------------------------------------------------------------------
 EXACT_RAD = 1e-9                  # a derivation identity holds "exactly" below this
 ROT_EQUIV_DEG, ROT_EQUIV_REL = 0.01, 0.10   # two rotation errors equivalent within max(deg, rel x baseline)
-SPEEDUP_CLAIM = 1.4               # the paper's claimed speed-up, for the scene run and the controlled experiment
-TIMING_SLACK = 0.10
+SPEEDUP_CLAIM = _C4.value("speedup_claim")   # the paper's claimed speed-up (scene run and controlled)
+TIMING_SLACK = _C4.value("timing_slack")
 
 # ---- controlled experiments (claims_experiments.py, claims_robustness.py) ------------------------
 # Equivalence margins (C3) and difference margin (C5):
-RMS_MARGIN_PX, RMS_MARGIN_REL = 0.005, 0.02     # final pixel RMS (noise 0.5 px: 1 % of it / 2 %)
-ROT_MARGIN_DEG, ROT_MARGIN_REL = 0.002, 0.10    # relative-rotation error
-TIE_MARGIN_REL = 0.001                          # 0.1 %: below the paper's own +0.18 % (Table 1)
+RMS_MARGIN_PX, RMS_MARGIN_REL = _C3.value("rms_margin_px"), _C3.value("rms_margin_rel")   # final pixel RMS
+ROT_MARGIN_DEG, ROT_MARGIN_REL = _C3.value("rot_margin_deg"), _C3.value("rot_margin_rel")  # relative rotation
+TIE_MARGIN_REL = _C5.value("tie_margin_rel")    # below the paper's own +0.18 % (Table 1)
 ALPHA = 0.05                                    # each one-sided test: a 90 % interval
-START_MAX_SUCCESS = 0.2
-CONTINUOUS_FACTOR = 1.5
-MARGIN = 0.10                                   # conditioning: "better" is a ratio below 1 - MARGIN
-SUCCESS_MARGIN = 0.2                            # robustness: success rates differ by at least this
+START_MAX_SUCCESS = _C8.value("start_max_success")
+MARGIN = _C6.value("margin")                    # conditioning: "better" is a ratio below 1 - MARGIN
+BOOTSTRAP_REPS = int(_C8.value("bootstrap_reps"))   # C8's continuous measure: bootstrap interval
+BOOTSTRAP_SEED = int(_C8.value("bootstrap_seed"))
+# power (issue 30): minimum detectable effects from the pilot's standard deviations
+MDE_ALPHA, MDE_POWER = PREREG.alpha, PREREG.power
+PILOT_SD_RMS_PX, PILOT_SD_ROT_DEG = _C3.value("pilot_sd_rms_px"), _C3.value("pilot_sd_rot_deg")
+PILOT_SD_LOG_SPEEDUP = _C4.value("pilot_sd_log_speedup")
+PAPER_SPEEDUP = _C4.value("paper_effect")
+PILOT_SD_TIE_REL, PILOT_SD_OBS_REL = _C5.value("pilot_sd_tie_rel"), _C5.value("pilot_sd_obs_rel")
+PAPER_TIE_REL, PAPER_OBS_REL = _C5.value("paper_effect_tie_rel"), _C5.value("paper_effect_obs_rel")
 
 # A controlled BA run succeeds when it reaches the noise floor with correct geometry:
 SUCCESS_RMS_NOISE_FACTOR = 2.0   # final pixel RMS below this many times the added noise
