@@ -42,15 +42,31 @@ class PeerResult:
     trace: list = field(default_factory=list)
 
 
-def ceres_settings(options: BAOptions, which: str, threads: int) -> CeresSettings:
+# Ceres' linear solvers the bench sweeps (issue 35); this pycolmap's Ceres has SuiteSparse only
+# (no Eigen sparse), so SPARSE_SCHUR runs on CHOLMOD
+CERES_LINEAR_SOLVERS = ("DENSE_SCHUR", "SPARSE_SCHUR", "ITERATIVE_SCHUR")
+
+
+def ceres_settings(options: BAOptions, which: str, threads: int, linear_solver: str = "",
+                   max_solver_time_s: float = 0.0) -> CeresSettings:
     """``which`` = "colmap" (COLMAP's tolerances) or "ours" (the tolerances of ``options``);
-    ``threads`` used for every residual count (the multi-threading floor is lifted)."""
+    ``threads`` used for every residual count (the multi-threading floor is lifted);
+    ``linear_solver`` one of CERES_LINEAR_SOLVERS ("" = COLMAP's rule by image count;
+    ITERATIVE_SCHUR runs with SCHUR_JACOBI); ``max_solver_time_s`` > 0 caps Ceres' time."""
+    if linear_solver and linear_solver not in CERES_LINEAR_SOLVERS:
+        raise ValueError(f"unknown Ceres linear solver {linear_solver!r}")
+    pre = "SCHUR_JACOBI" if linear_solver == "ITERATIVE_SCHUR" else ""
+    tag = linear_solver.lower().replace("_", "-")
     if which == "colmap":
-        return CeresSettings(f"ceres-colmap-tol-{threads}t", max_num_iterations=options.max_iterations,
-                             num_threads=threads, min_residuals_for_multithreading=1)
+        return CeresSettings(f"ceres-colmap-tol-{tag + '-' if tag else ''}{threads}t",
+                             max_num_iterations=options.max_iterations, num_threads=threads,
+                             min_residuals_for_multithreading=1, linear_solver=linear_solver,
+                             preconditioner=pre, max_solver_time_s=max_solver_time_s)
     if which == "ours":
-        return CeresSettings(f"ceres-our-tol-{threads}t", options.function_tolerance, options.gradient_tolerance,
-                             options.parameter_tolerance, options.max_iterations, threads, 1)
+        return CeresSettings(f"ceres-{tag + '-' if tag else 'our-tol-'}{threads}t",
+                             options.function_tolerance, options.gradient_tolerance,
+                             options.parameter_tolerance, options.max_iterations, threads, 1,
+                             linear_solver, pre, max_solver_time_s)
     raise ValueError(f"unknown Ceres setting {which!r}")
 
 
