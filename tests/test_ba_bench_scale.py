@@ -119,3 +119,66 @@ def test_gemm_rate_is_measured():
     from polarref.ba.roofline import gemm_gflops
 
     assert 0.05 < gemm_gflops(1, n=300, repeats=2) < 1e4
+
+
+def test_warm_up_covers_every_kernel_signature_a_solve_uses():
+    """After kernels.warm_up() no solve (any form, dense or sparse Schur, kernels or X-space)
+    compiles or loads another kernel: each is loaded once per process, before the timed solves."""
+    from polarref.ba import kernels
+    from polarref.ba.entry import solve
+    from polarref.ba.loaders import load_problem
+    from polarref.ba.parameterization import PARAMS
+    from polarref.ba.problem import prepare
+
+    if not kernels.available():
+        pytest.skip("numba not installed")
+    import numba.core.registry
+
+    from polarref.ba import forms_jit, kernels_jit, xspace_jit
+    kernels.warm_up()
+
+    def overloads():
+        out = {}
+        for mod in (kernels_jit, forms_jit, xspace_jit):
+            for name, f in vars(mod).items():
+                if isinstance(f, numba.core.registry.CPUDispatcher) and not name.startswith("_"):
+                    out[f"{mod.__name__}.{name}"] = len(f.overloads)
+        return out
+
+    before = overloads()
+    # helpers called only from compiled code keep 0 Python-level overloads
+    assert sum(v >= 1 for v in before.values()) >= 20
+    assert before["polarref.ba.kernels_jit.schur_dense"] >= 1 and before["polarref.ba.forms_jit.angular_obs"] >= 1
+    for spec in ("synth-20", "synth-60-sparse"):
+        base, _ = load_problem(spec)
+        prepare(base)
+        for p in PARAMS:
+            for dense_max in (700, 10):       # dense S, and the sparse (slot-kernel) path
+                s = solve(base.copy(), BAOptions(param=p, max_iterations=3, dense_max_cameras=dense_max),
+                          prepared=True)
+                assert s.iterations >= 1
+    assert overloads() == before
+
+
+def test_radius_growth_saves_iterations_at_the_same_minimum():
+    """Ceres' growth rule (3) vs ours (30) on synth-200-sparse: one LM step fewer for the Euclidean
+    and parallax forms, the same final cost to 1e-8 relative; growth < 1 is refused."""
+    from polarref.ba.entry import solve
+    from polarref.ba.loaders import load_problem
+    from polarref.ba.problem import prepare
+
+    base, _ = load_problem("synth-200-sparse")
+    prepare(base)
+    assert BAOptions().max_radius_growth == 30.0
+    for p in ("euclidean", "parallax"):
+        ceres = solve(base.copy(), BAOptions(param=p, max_radius_growth=3.0), prepared=True)
+        ours = solve(base.copy(), BAOptions(param=p), prepared=True)
+        assert ours.iterations == ceres.iterations - 1 == 4
+        assert ours.final_cost == pytest.approx(ceres.final_cost, rel=1e-8)
+        assert ours.rejected_iterations == ceres.rejected_iterations == 0
+        # the radius grew more than 3x only after near-exact model steps
+        r = [x.trust_radius for x in ours.trace]
+        for a, b, rec in zip(r, r[1:], ours.trace):
+            assert b / a <= 3.0 + 1e-9 or rec.gain > 0.93
+    with pytest.raises(ValueError, match="max_radius_growth"):
+        BAOptions(max_radius_growth=0.5)
