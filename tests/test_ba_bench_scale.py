@@ -182,3 +182,21 @@ def test_radius_growth_saves_iterations_at_the_same_minimum():
             assert b / a <= 3.0 + 1e-9 or rec.gain > 0.93
     with pytest.raises(ValueError, match="max_radius_growth"):
         BAOptions(max_radius_growth=0.5)
+
+
+def test_bench_cli_refuses_bad_caps_and_missing_problems_early(tmp_path):
+    """Usage errors exit 2 naming the flag; a missing problem is named before any measurement."""
+    import subprocess
+    import sys
+    import time
+
+    def cli(*a):
+        return subprocess.run([sys.executable, "-m", "polarref", "bench", "ba", *a], capture_output=True,
+                              text=True)
+
+    r = cli("--ceres-max-s", "0", "--out", str(tmp_path / "o"))
+    assert r.returncode == 2 and "--ceres-max-s" in r.stderr and "Traceback" not in r.stderr
+    t = time.perf_counter()
+    r = cli("--problem", str(tmp_path / "missing.txt"), "--out", str(tmp_path / "o"))
+    assert r.returncode == 1 and "missing.txt" in r.stderr and "Traceback" not in r.stderr
+    assert time.perf_counter() - t < 30 and not (tmp_path / "o").exists()

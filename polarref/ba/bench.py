@@ -435,6 +435,8 @@ def run_bench(problems, out_dir: Path, options: BAOptions = BAOptions(),
     from polarref.core.heap import keep_heap
     from polarref.core.provenance import collect
 
+    for spec in problems:   # a missing problem fails before minutes of measurements
+        _resolve(spec)
     # compile (or load) the kernels before any timed solve; the time is recorded, not hidden
     fast = kernels.use_kernels(options.kernels)
     cold_load = kernel_load_s() if fast and cold else None   # a fresh interpreter's load
@@ -443,6 +445,9 @@ def run_bench(problems, out_dir: Path, options: BAOptions = BAOptions(),
     path = out_dir / "bench.json"
     old = json.loads(path.read_text()) if merge and path.exists() else {}
     results = old.get("problems", []) if isinstance(old, dict) else []
+    for r in results:   # merged problems keep the provenance and machine figures of their run
+        r.setdefault("environment", old.get("environment"))
+        r.setdefault("machine", old.get("machine"))
     machine = {"gemm_gflops": {str(t): gemm_gflops(t) for t in (1, 2)},
                "gemm": "numpy float64 1500x1500 @ 1500x1500, best of 3, BLAS threads by threadpoolctl",
                "load_1min_at_gemm": os.getloadavg()[0]}
@@ -462,6 +467,7 @@ def run_bench(problems, out_dir: Path, options: BAOptions = BAOptions(),
         t = time.perf_counter()
         res = run_problem(spec, options, scipy_max_obs, repeat, bisect_max_obs, ceres_max_s, cold)
         res["bench_s"] = time.perf_counter() - t
+        res["environment"], res["machine"] = doc["environment"], machine
         log.info("bench %s done in %.1f s", spec, res["bench_s"])
         doc["problems"] = [r for r in doc["problems"] if r["problem"] != spec] + [res]
         # written after every problem so an interrupted bench keeps what it measured
