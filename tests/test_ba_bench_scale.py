@@ -200,3 +200,33 @@ def test_bench_cli_refuses_bad_caps_and_missing_problems_early(tmp_path):
     r = cli("--problem", str(tmp_path / "missing.txt"), "--out", str(tmp_path / "o"))
     assert r.returncode == 1 and "missing.txt" in r.stderr and "Traceback" not in r.stderr
     assert time.perf_counter() - t < 30 and not (tmp_path / "o").exists()
+
+
+def test_report_sections_from_json_alone():
+    """bench.md's tau, memory, roofline and cold tables are computed from bench.json's fields."""
+    from polarref.ba.bench_report import markdown
+
+    st = lambda v: {"median": v, "min": v, "max": v, "n": 1}   # noqa: E731
+    row = lambda n, kind, t, mem: {                            # noqa: E731
+        "solver": n, "kind": kind, "settings": dict.fromkeys(
+            ("function_tolerance", "gradient_tolerance", "parameter_tolerance"), 1e-6), "final_cost": 1.0, "wall_s": st(2.0), "iterations": 3,
+        "full_runs": [{"termination": "x", "linear_solver": ""}], "peak_rss_mib": mem,
+        "tau": {"1e-03": {"time_s": st(t), "iterations": 2}}}
+    res = {"problem": "p", "num_cameras": 2, "num_points": 3, "num_observations": 4, "target_cost": 1.0,
+           "rows": [row("euclidean", "ours", 0.5, 50.0), row("ceres-a-1t", "ceres", 2.0, 100.0),
+                    row("ceres-b-1t", "ceres", 4.0, 80.0)],
+           "tau_summary": {"1e-02": {"times_s": {}, "ratio_to_fastest_ceres": {}},
+                           "1e-03": {"times_s": {}, "ratio_to_fastest_ceres": {"euclidean": 0.25, "ceres-a-1t": 1.0,
+                                                                                 "ceres-b-1t": 2.0}},
+                           "1e-04": {"times_s": {}, "ratio_to_fastest_ceres": {}}},
+           "roofline": {"linear_solver": "Schur (x) + dense Cholesky; numba", "num_unknowns": 6,
+                        "flops_per_iteration": {"build": 2e9, "schur": 3e9, "factorisation": 1e9},
+                        "gflops": {"build": st(1.0), "schur": st(5.0), "factorisation": st(10.0)}},
+           "cold_process": {"process_wall_s": 1.5, "solve_wall_s": 0.9, "first_iteration_s": 0.6}}
+    res["rows"][0]["warm_first_step_s"] = 0.1
+    doc = {"machine": {"gemm_gflops": {"1": 20.0, "2": 38.0}}, "problems": [res]}
+    md = markdown(doc)
+    assert "| p | euclidean | - | 0.500 (0.25x) | - | -/2/- |" in md
+    assert "| p | 50 | - | - | - | 80-100 | 0.62 |" in md                 # 50 / 80
+    assert "| p | 6 | dense Cholesky | 2.000 | 3.000 | 1.000 | 1.00 | 5.00 (0.25x) | 10.00 (0.50x) |" in md
+    assert "| p | 1.500 | 0.900 | 0.600 | 0.100 | 2.000 |" in md

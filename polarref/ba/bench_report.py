@@ -38,6 +38,8 @@ def _iters(x: dict) -> str:
     it = x.get("iterations_to_target")
     if not it:
         return "-"
+    if it.get("accepted") is None:   # read from a trace: LM steps up to the first one at the target
+        return str(it["total"])
     return f"{it['total']} ({it['accepted']}/{it['rejected']})"
 
 
@@ -56,7 +58,10 @@ def markdown(doc: dict) -> str:
     for res in doc.get("problems", []):
         name = (f"{res['problem']} ({res['num_cameras']} cams, {res['num_points']} pts, "
                 f"{res['num_observations']} obs; target {res['target_cost']:.6g}; {res.get('repeat', 1)} repeats, "
-                f"load {res.get('load_1min', float('nan')):.1f})")
+                f"load {res.get('load_1min', float('nan')):.1f}"
+                + (f"-{res['load_1min_end']:.1f}" if "load_1min_end" in res else "")
+                + ("; t to target from the full runs' iteration traces"
+                   if res.get("time_to_target_method") == "iteration traces" else "") + ")")
         for x in res["rows"]:
             if "error" in x:
                 out.append(f"| {name} | {x['solver']} | {x['error']} ||||||||")
