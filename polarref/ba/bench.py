@@ -44,6 +44,7 @@ from polarref.core.atomic import atomic_write
 from polarref.ba.options import PARAMS, BAOptions
 from polarref.ba.problem import prepare
 from polarref.ba.entry import solve
+from polarref.ba.peers import ceres_settings
 from polarref.core.errors import PolarrefError
 
 log = logging.getLogger(__name__)
@@ -105,7 +106,7 @@ def _ours_solver(base, options: BAOptions, param: str) -> _Solver:
 
 def _ceres_solver(base, options: BAOptions, which: str, linear_solver: str, threads: int,
                   max_s: float) -> _Solver:
-    from polarref.ba.peers import ceres_settings, run_pycolmap
+    from polarref.ba.peers import run_pycolmap
 
     cs = ceres_settings(options, which, threads, linear_solver, max_s)
 
@@ -162,13 +163,24 @@ def _stats(vals: list) -> dict:
     return {"median": float(np.median(v)), "min": float(min(v)), "max": float(max(v)), "n": len(v)}
 
 
-def _solvers(base, options: BAOptions, ceres_max_s: float) -> tuple[list[_Solver], list[dict]]:
-    """Our four forms and the Ceres settings that apply at this size; rows for those skipped."""
-    solvers = [_ours_solver(base, options, p) for p in PARAMS]
-    skipped = []
+def solver_names() -> list[str]:
+    """Every solver the bench runs, by name: our forms, then the Ceres settings."""
+    return [*PARAMS, *(ceres_settings(BAOptions(), w, t, ls).name for w, ls, t in CERES)]
+
+
+def _solvers(base, options: BAOptions, ceres_max_s: float,
+             only: tuple = ()) -> tuple[list[_Solver], list[dict]]:
+    """Our four forms and the Ceres settings that apply at this size (``only``: just these
+    names; the others get a row saying so); rows for those skipped."""
+    solvers = [_ours_solver(base, options, p) for p in PARAMS if not only or p in only]
+    skipped = [{"solver": p, "kind": "ours", "error": "not run (--solvers)"}
+               for p in PARAMS if only and p not in only]
     for which, ls, t in CERES:
         s = _ceres_solver(base, options, which, ls, t, ceres_max_s)
-        if ls == "DENSE_SCHUR" and base.num_cameras > DENSE_SCHUR_MAX_CAMERAS:
+        if only and s.name not in only:
+            skipped.append({"solver": s.name, "kind": "ceres", "settings": s.settings,
+                            "error": "not run (--solvers)"})
+        elif ls == "DENSE_SCHUR" and base.num_cameras > DENSE_SCHUR_MAX_CAMERAS:
             skipped.append({"solver": s.name, "kind": "ceres", "settings": s.settings,
                             "error": f"skipped: DENSE_SCHUR above {DENSE_SCHUR_MAX_CAMERAS} cameras "
                             f"(dense {6 * base.num_cameras}^2 reduced matrix)"})
@@ -208,7 +220,7 @@ def _tau_rows(rows: dict, initial: float, best: float) -> dict:
 
 def run_problem(spec: str, options: BAOptions, scipy_max_obs: int = SCIPY_MAX_OBS, repeat: int = 1,
                 bisect_max_obs: int = BISECT_MAX_OBS, ceres_max_s: float = CERES_MAX_S,
-                cold: bool = True) -> dict:
+                cold: bool = True, only: tuple = ()) -> dict:
     from threadpoolctl import threadpool_limits
 
     from polarref.ba.loaders import load_problem
@@ -217,7 +229,7 @@ def run_problem(spec: str, options: BAOptions, scipy_max_obs: int = SCIPY_MAX_OB
     load = os.getloadavg()[0]  # the machine is shared: say how busy it was
     base, _ = load_problem(_resolve(spec))
     prepare(base)
-    solvers, skipped = _solvers(base, options, ceres_max_s)
+    solvers, skipped = _solvers(base, options, ceres_max_s, only)
     bisect = base.num_observations <= bisect_max_obs
     rows: dict[str, dict] = {}
     for s in solvers:   # full runs first: they fix the common cost
@@ -424,7 +436,7 @@ def _summarize(rows: list[dict], taus: dict | None = None) -> dict:
 def run_bench(problems, out_dir: Path, options: BAOptions = BAOptions(),
               scipy_max_obs: int = SCIPY_MAX_OBS, repeat: int = 1,
               merge: bool = False, bisect_max_obs: int = BISECT_MAX_OBS,
-              ceres_max_s: float = CERES_MAX_S, cold: bool = True) -> list[dict]:
+              ceres_max_s: float = CERES_MAX_S, cold: bool = True, only: tuple = ()) -> list[dict]:
     """Run the problems; with ``merge`` keep the other problems of an existing bench.json
     (a problem run again replaces its old entry). bench.json: {"environment", "settings",
     "machine", "problems"}; bench.md and the performance profiles (profiles.png) beside it."""
@@ -456,7 +468,7 @@ def run_bench(problems, out_dir: Path, options: BAOptions = BAOptions(),
                         "taus": list(TAUS), "bisect_max_obs": bisect_max_obs,
                         "converged_rel": CONVERGED_REL, "ours": dataclasses.asdict(options),
                         "ceres": [f"{w} tolerances, {ls or 'COLMAP rule'}, {t} thread(s)" for w, ls, t in CERES],
-                        "ceres_max_s": ceres_max_s, "dense_schur_max_cameras": DENSE_SCHUR_MAX_CAMERAS,
+                        "ceres_max_s": ceres_max_s, "solvers": list(only) or "all", "dense_schur_max_cameras": DENSE_SCHUR_MAX_CAMERAS,
                         "kernels": {"used": "numba" if fast else "numpy",
                                     "numba": kernels.numba_version(),
                                     "warm_up_s": warm, "cold_process_load_s": cold_load, "threads": 1},
@@ -465,7 +477,7 @@ def run_bench(problems, out_dir: Path, options: BAOptions = BAOptions(),
            "problems": results}
     for spec in problems:
         t = time.perf_counter()
-        res = run_problem(spec, options, scipy_max_obs, repeat, bisect_max_obs, ceres_max_s, cold)
+        res = run_problem(spec, options, scipy_max_obs, repeat, bisect_max_obs, ceres_max_s, cold, only)
         res["bench_s"] = time.perf_counter() - t
         res["environment"], res["machine"] = doc["environment"], machine
         log.info("bench %s done in %.1f s", spec, res["bench_s"])

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from polarref.core.atomic import check_writable_parent
 from polarref.commands._types import int_range, nonneg_int, positive_int
-from polarref.core.errors import PolarrefError
+from polarref.core.errors import PolarrefError, UsageError
 
 NAME = "bench"
 HELP = "benchmarks: ba (bundle adjustment vs pycolmap and scipy), sfm (our SfM vs pycolmap vs views)"
@@ -33,6 +33,9 @@ def add_arguments(parser) -> None:
                         "the iteration traces instead of bisection over iteration limits")
     parser.add_argument("--ceres-max-s", type=positive_int, default=600,
                         help="ba: cap on one Ceres solve's time (max_solver_time_in_seconds), recorded")
+    parser.add_argument("--solvers", nargs="+", default=None, metavar="NAME",
+                        help="ba: run only these solvers (forms and Ceres settings by name, e.g. euclidean "
+                        "ceres-sparse-schur-1t); the others are listed as not run")
     parser.add_argument("--no-cold", action="store_true",
                         help="ba: skip the cold-process timing of `polarref ba` per problem")
     sfm = parser.add_argument_group("sfm (our SfM vs pycolmap incremental, same images and pairs)")
@@ -64,11 +67,17 @@ def run(args) -> int:
         raise PolarrefError(f"{out} is not a folder (choose another output folder)")
     check_writable_parent(out / "bench.json")
     problems = args.problem or (QUICK if args.quick else FULL)
+    if args.solvers:
+        from polarref.ba.bench import solver_names
+        unknown = sorted(set(args.solvers) - set(solver_names()))
+        if unknown or "euclidean" not in args.solvers:
+            raise UsageError(f"--solvers: {'unknown ' + ', '.join(unknown) if unknown else 'euclidean is needed'}"
+                             f" (known: {', '.join(solver_names())})")
     results = run_bench(problems, out, BAOptions(loss=args.loss,
                                                  max_iterations=args.max_iterations),
                         args.scipy_max_obs, repeat=args.repeat, merge=args.merge,
                         bisect_max_obs=args.bisect_max_obs, ceres_max_s=float(args.ceres_max_s),
-                        cold=not args.no_cold)
+                        cold=not args.no_cold, only=tuple(args.solvers or ()))
     print((out / "bench.md").read_text())
     return 0 if results else 1
 
