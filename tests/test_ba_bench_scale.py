@@ -230,3 +230,17 @@ def test_report_sections_from_json_alone():
     assert "| p | 50 | - | - | - | 80-100 | 0.62 |" in md                 # 50 / 80
     assert "| p | 6 | dense Cholesky | 2.000 | 3.000 | 1.000 | 1.00 | 5.00 (0.25x) | 10.00 (0.50x) |" in md
     assert "| p | 1.500 | 0.900 | 0.600 | 0.100 | 2.000 |" in md
+
+
+def test_merge_docs_keeps_each_runs_provenance():
+    from polarref.ba.bench_report import merge_docs
+
+    a = {"environment": {"git_commit": "a"}, "machine": {"m": 1}, "settings": {"s": 1},
+         "problems": [{"problem": "p"}, {"problem": "q"}]}
+    b = {"environment": {"git_commit": "b"}, "machine": {"m": 2}, "settings": {"s": 2},
+         "problems": [{"problem": "q", "environment": {"git_commit": "b0"}}, {"problem": "r"}]}
+    m = merge_docs([a, b])
+    assert [r["problem"] for r in m["problems"]] == ["p", "q", "r"]
+    env = {r["problem"]: r["environment"]["git_commit"] for r in m["problems"]}
+    assert env == {"p": "a", "q": "b0", "r": "b"} and m["environment"]["git_commit"] == "b"
+    assert m["problems"][0]["machine"] == {"m": 1} and m["merged_from"] == 2

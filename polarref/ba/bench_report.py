@@ -326,7 +326,31 @@ def update_readme(readme: Path, doc: dict) -> None:
     readme.write_text(head + BEGIN + "\n" + readme_table(doc) + END + rest.split(END, 1)[1])
 
 
+def merge_docs(docs: list[dict]) -> dict:
+    """One bench document from several runs' bench.json: problems in order (a later run's
+    problem replaces an earlier one of the same name), each keeping its own run's provenance,
+    machine figures and settings; the top level is the last run's."""
+    problems = {}
+    for d in docs:
+        for r in d.get("problems", []):
+            r = dict(r)
+            r.setdefault("environment", d.get("environment"))
+            r.setdefault("machine", d.get("machine"))
+            r.setdefault("settings", d.get("settings"))
+            problems.pop(r["problem"], None)
+            problems[r["problem"]] = r
+    return {**docs[-1], "problems": list(problems.values()), "merged_from": len(docs)}
+
+
 if __name__ == "__main__":
+    if len(sys.argv) >= 4 and sys.argv[1] == "--merge":   # --merge OUT_DIR A/bench.json B/bench.json ...
+        out_dir = Path(sys.argv[2])
+        merged = merge_docs([json.loads(Path(a).read_text()) for a in sys.argv[3:]])
+        out_dir.mkdir(parents=True, exist_ok=True)
+        (out_dir / "bench.json").write_text(json.dumps(merged, indent=1, default=float))
+        profiles_figure(merged, out_dir / "profiles.png")
+        (out_dir / "bench.md").write_text(markdown(merged))
+        sys.exit(0)
     bench = json.loads(Path(sys.argv[1]).read_text())
     if len(sys.argv) == 3 and sys.argv[2] == "--report":   # bench.md and profiles.png again
         folder = Path(sys.argv[1]).parent
