@@ -52,10 +52,10 @@ class BAOptions:
     max_trust_radius: float = 1e16  # cap on the trust radius
     # largest growth of the radius after one step: radius /= max(1 / this, 1 - (2 rho - 1)^3).
     # Ceres' rule is 3; above 3 only steps with gain rho > 0.94 grow faster (the model was
-    # near exact, so the damping, not the model, limited the step). Measured (issue 35, 4 forms
-    # x 8 bench problems, LM iterations to ftol 1e-6): 309 at 3, 296 at 10, 291 at 30; synth-200
-    # 6 -> 4 (Ceres: 3), Ladybug-49 Euclidean 7 -> 6 (Ceres: 6); none more; final objectives
-    # within 3e-8 relative (both signs), below the function tolerance.
+    # near exact, so the damping, not the model, limited the step). Measured
+    # (reports/bench-ba-scale/lm-growth.md, 4 forms x 8 bench problems, LM iterations to the
+    # stopping rule): 336 at 3, 320 at 30; synth-200 6 -> 4 in three forms, Ladybug-49 Euclidean
+    # 7 -> 6; final objectives within +2.6e-8 relative, below the function tolerance.
     max_radius_growth: float = 30.0
     min_trust_radius: float = 1e-32  # stop (failure) below this radius
     staged: bool = False  # angular only: theta-only residuals first, then theta and phi jointly
