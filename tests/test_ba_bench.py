@@ -10,6 +10,7 @@ from polarref.ba import BAOptions
 from polarref.ba.parameterization import PARAMS as FORM_NAMES
 
 
+@pytest.mark.slow   # 12 solvers x bisection x 2 repeats: ~45 s on 2 busy cores
 def test_bench_records_settings_repeats_and_time_to_common_cost(tmp_path):
     from polarref.ba.bench import TARGET_REL, run_bench
     from polarref.ba.bench_report import readme_table
@@ -18,7 +19,7 @@ def test_bench_records_settings_repeats_and_time_to_common_cost(tmp_path):
     from polarref.ba.problem import prepare
 
     opts = BAOptions(max_iterations=30)
-    run_bench(["synth-20"], tmp_path, opts, scipy_max_obs=0, repeat=2)
+    run_bench(["synth-20"], tmp_path, opts, scipy_max_obs=0, repeat=2, cold=False)
     doc = json.loads((tmp_path / "bench.json").read_text())
     env = doc["environment"]
     assert re.fullmatch(r"[0-9a-f]{40}", env["git_commit"]) and isinstance(env["git_dirty"], bool)
@@ -26,13 +27,19 @@ def test_bench_records_settings_repeats_and_time_to_common_cost(tmp_path):
     res = doc["problems"][0]
     rows = {r["solver"]: r for r in res["rows"]}
     ceres = [n for n in rows if n.startswith("ceres-")]
-    assert sorted(ceres) == ["ceres-colmap-tol-1t", "ceres-colmap-tol-2t", "ceres-our-tol-1t", "ceres-our-tol-2t"]
+    assert sorted(ceres) == sorted(["ceres-colmap-tol-1t", "ceres-colmap-tol-2t"] + [
+        f"ceres-{ls}-{t}t" for ls in ("dense-schur", "sparse-schur", "iterative-schur") for t in (1, 2)])
     for n in ceres:
         s = rows[n]["settings"]
         assert s["num_threads_used"] == s["num_threads"] == int(n[-2])       # the thread count asked for was used
         assert s["linear_solver_used"] and s["max_num_iterations"] == 30
+        if "colmap" not in n:            # the linear solver asked for was used
+            assert s["linear_solver_used"] == s["linear_solver"] == n[6:-3].upper().replace("-", "_")
+            assert s["preconditioner_used"] == ("SCHUR_JACOBI" if "iterative" in n else s["preconditioner_used"])
+        assert s["sparse_library"] == "SUITE_SPARSE"
+        assert rows[n]["peak_rss_mib"] > 0
     assert rows["ceres-colmap-tol-1t"]["settings"]["function_tolerance"] == 0.0
-    assert rows["ceres-our-tol-1t"]["settings"]["function_tolerance"] == opts.function_tolerance
+    assert rows["ceres-dense-schur-1t"]["settings"]["function_tolerance"] == opts.function_tolerance
     assert rows["euclidean"]["settings"]["function_tolerance"] == opts.function_tolerance
     target = res["target_cost"]
     assert target == pytest.approx(res["common_final_cost"] * (1 + TARGET_REL))
@@ -45,14 +52,15 @@ def test_bench_records_settings_repeats_and_time_to_common_cost(tmp_path):
     # the limit is the smallest that reaches the target: one iteration fewer misses it (checked directly)
     base, _ = load_problem("synth-20")
     prepare(base)
-    k = rows["ceres-our-tol-1t"]["iterations_limit_to_target"]
-    cs = CeresSettings("c", opts.function_tolerance, opts.gradient_tolerance, opts.parameter_tolerance, k - 1, 1, 1)
+    k = rows["ceres-dense-schur-1t"]["iterations_limit_to_target"]
+    cs = CeresSettings("c", opts.function_tolerance, opts.gradient_tolerance, opts.parameter_tolerance, k - 1, 1, 1,
+                       "DENSE_SCHUR")
     assert run_pycolmap(base.copy(), opts, cs).final_cost > target
     # iteration counts are LM steps, as ours: a limit of 2 gives 2 (Ceres' iteration 0 is not a step)
     two = run_pycolmap(base.copy(), opts, cs.with_iterations(2))
     assert two.iterations == two.accepted_iterations + two.rejected_iterations == 2
     # our Euclidean LM and Ceres end at the same minimum (independent solver)
-    assert rows["euclidean"]["final_cost"] == pytest.approx(rows["ceres-our-tol-1t"]["final_cost"], rel=1e-4)
+    assert rows["euclidean"]["final_cost"] == pytest.approx(rows["ceres-dense-schur-1t"]["final_cost"], rel=1e-4)
     fastest = res["fastest_ceres"]
     assert rows[fastest]["ratio_to_fastest_ceres"] == pytest.approx(1.0)
     assert all(rows[n]["ratio_to_fastest_ceres"] >= 1.0 for n in ceres)
@@ -69,7 +77,23 @@ def test_bench_records_settings_repeats_and_time_to_common_cost(tmp_path):
     assert "ceres_own_cost" not in res      # Euclidean and Ceres reach the common target here
     table = readme_table(doc)            # the README's figures come from bench.json only
     assert f"{ratio:.2f}x" in table and fastest in table
-    assert np.isfinite(res["load_1min"]) and (tmp_path / "bench.md").read_text().count("| ceres-") == 4
+    assert np.isfinite(res["load_1min"]) and (tmp_path / "bench.md").read_text().count("| ceres-") == 8 * 2
+    # tau targets: best + tau (initial - best), each solver's time from its traces, ratios to the fastest Ceres
+    init, best = res["initial_cost"], res["best_final_cost"]
+    for key, tt in res["tau_targets"].items():
+        assert tt["target_cost"] == pytest.approx(best + tt["tau"] * (init - best))
+        summ = res["tau_summary"][key]
+        f = summ["fastest_ceres"]
+        assert f.startswith("ceres-") and summ["ratio_to_fastest_ceres"][f] == pytest.approx(1.0)
+        for n in ["euclidean", *ceres]:
+            ts = rows[n]["tau"][key]["time_s"]
+            assert ts["n"] == 2 and 0 < ts["median"] <= rows[n]["wall_s"]["max"]
+    assert init > res["tau_targets"]["1e-02"]["target_cost"] > res["tau_targets"]["1e-04"]["target_cost"] > best
+    roof = res["roofline"]
+    n = roof["num_unknowns"]
+    assert n == 6 * 19      # the gauge holds the first camera whole (and one centre coordinate of another)
+    assert roof["flops_per_iteration"]["factorisation"] == pytest.approx(n**3 / 3 + 2 * n**2)
+    assert doc["machine"]["gemm_gflops"]["1"] > 0 and (tmp_path / "profiles.png").stat().st_size > 1000
 
 
 def test_readme_bench_table_matches_bench_json():

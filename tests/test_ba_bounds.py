@@ -137,9 +137,12 @@ def test_held_components_kernel_path_equals_numpy(forward, param, anchor_schur, 
     init, _, _ = forward
     chaotic = anchor_schur == "xspace" and request.node.callspec.params["forward"][0] < 1e-3
     got = {}
+    # Ceres' radius growth (3), under which the parting points above were measured: with
+    # ours (30) the less damped steps on these unconverged, ill-conditioned solves let the
+    # paths' trajectories part at rounding level earlier (test_ba_xspace's far points too)
     for k in ("numpy", "numba"):
         got[k] = adjust(clone(init), BAOptions(param=param, max_iterations=40, kernels=k,
-                                               anchor_schur=anchor_schur))
+                                               anchor_schur=anchor_schur, max_radius_growth=3.0))
     a, b = got["numpy"], got["numba"]
     assert b.point_bounds["at_lower"] >= 1 and b.point_bounds["clipped_steps"] >= 1
     assert ("X-space" in b.linear_solver) == (anchor_schur == "xspace")

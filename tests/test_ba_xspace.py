@@ -228,9 +228,12 @@ def test_xspace_far_points_and_points_at_infinity(far_problem, form):
         prm.init_points = lambda: pts.copy()
 
     # condition ~2e10: the paths' rounding (numpy's matmul, the compiled point solves) moves
-    # the end point; polar's cross path stops 9.2e-9 above the other two (measured)
-    a, b = _same(_solves(far_problem, dict(param=form, max_iterations=40), at_infinity),
-                 cost_rtol=3e-8)
+    # the end point; polar's cross path stops 9.2e-9 above the other two (measured). Ceres'
+    # radius growth (3): with ours (30) the larger, less damped steps let the three paths'
+    # trajectories part at rounding level within these 40 unconverged iterations (parallax,
+    # angular: 1e-4 apart), which says nothing about the paths computing the same step
+    a, b = _same(_solves(far_problem, dict(param=form, max_iterations=40, max_radius_growth=3.0),
+                         at_infinity), cost_rtol=3e-8)
     assert "X-space" in b.linear_solver and "cross terms" not in b.linear_solver
     assert b.point_bounds == a.point_bounds
 

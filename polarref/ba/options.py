@@ -50,6 +50,13 @@ class BAOptions:
     parameter_tolerance: float = 1e-8  # stop when |step| < this * (|x| + this)
     initial_trust_radius: float = 1e4  # 1 / initial LM damping mu (Ceres' default)
     max_trust_radius: float = 1e16  # cap on the trust radius
+    # largest growth of the radius after one step: radius /= max(1 / this, 1 - (2 rho - 1)^3).
+    # Ceres' rule is 3; above 3 only steps with gain rho > 0.94 grow faster (the model was
+    # near exact, so the damping, not the model, limited the step). Measured
+    # (reports/bench-ba-scale/lm-growth.md, 4 forms x 8 bench problems, LM iterations to the
+    # stopping rule): 336 at 3, 320 at 30; synth-200 6 -> 4 in three forms, Ladybug-49 Euclidean
+    # 7 -> 6; final objectives within +2.6e-8 relative, below the function tolerance.
+    max_radius_growth: float = 30.0
     min_trust_radius: float = 1e-32  # stop (failure) below this radius
     staged: bool = False  # angular only: theta-only residuals first, then theta and phi jointly
     sigma_px: float = 1.0  # pixel noise used to weight angular residuals into px-equivalent units
@@ -95,6 +102,8 @@ class BAOptions:
             raise ValueError(f"unknown damping {self.damping!r}; choose {', '.join(DAMPINGS)}")
         if self.lm_gauge is not None and self.lm_gauge not in ("free", "fixed"):
             raise ValueError(f"unknown lm_gauge {self.lm_gauge!r}; choose free or fixed")
+        if not self.max_radius_growth >= 1.0:
+            raise ValueError(f"max_radius_growth must be >= 1, got {self.max_radius_growth}")
         if not self.nielsen_tau > 0:
             raise ValueError(f"nielsen_tau must be > 0, got {self.nielsen_tau}")
         if self.kernels not in ("auto", "numba", "numpy"):

@@ -37,17 +37,36 @@ class PeerResult:
     rejected_iterations: int = -1
     # what the solver actually used (CeresSettings fields, threads, linear solver, ...)
     settings: dict[str, str | int | float | bool] = field(default_factory=dict)
+    # per LM step [iteration, accepted, seconds since the adjuster was created, Ceres' own
+    # cost]; iteration 0 is the start (only with ``trace=True``)
+    trace: list = field(default_factory=list)
 
 
-def ceres_settings(options: BAOptions, which: str, threads: int) -> CeresSettings:
+# Ceres' linear solvers the bench sweeps (issue 35); this pycolmap's Ceres has SuiteSparse only
+# (no Eigen sparse), so SPARSE_SCHUR runs on CHOLMOD
+CERES_LINEAR_SOLVERS = ("DENSE_SCHUR", "SPARSE_SCHUR", "ITERATIVE_SCHUR")
+
+
+def ceres_settings(options: BAOptions, which: str, threads: int, linear_solver: str = "",
+                   max_solver_time_s: float = 0.0) -> CeresSettings:
     """``which`` = "colmap" (COLMAP's tolerances) or "ours" (the tolerances of ``options``);
-    ``threads`` used for every residual count (the multi-threading floor is lifted)."""
+    ``threads`` used for every residual count (the multi-threading floor is lifted);
+    ``linear_solver`` one of CERES_LINEAR_SOLVERS ("" = COLMAP's rule by image count;
+    ITERATIVE_SCHUR runs with SCHUR_JACOBI); ``max_solver_time_s`` > 0 caps Ceres' time."""
+    if linear_solver and linear_solver not in CERES_LINEAR_SOLVERS:
+        raise ValueError(f"unknown Ceres linear solver {linear_solver!r}")
+    pre = "SCHUR_JACOBI" if linear_solver == "ITERATIVE_SCHUR" else ""
+    tag = linear_solver.lower().replace("_", "-")
     if which == "colmap":
-        return CeresSettings(f"ceres-colmap-tol-{threads}t", max_num_iterations=options.max_iterations,
-                             num_threads=threads, min_residuals_for_multithreading=1)
+        return CeresSettings(f"ceres-colmap-tol-{tag + '-' if tag else ''}{threads}t",
+                             max_num_iterations=options.max_iterations, num_threads=threads,
+                             min_residuals_for_multithreading=1, linear_solver=linear_solver,
+                             preconditioner=pre, max_solver_time_s=max_solver_time_s)
     if which == "ours":
-        return CeresSettings(f"ceres-our-tol-{threads}t", options.function_tolerance, options.gradient_tolerance,
-                             options.parameter_tolerance, options.max_iterations, threads, 1)
+        return CeresSettings(f"ceres-{tag + '-' if tag else 'our-tol-'}{threads}t",
+                             options.function_tolerance, options.gradient_tolerance,
+                             options.parameter_tolerance, options.max_iterations, threads, 1,
+                             linear_solver, pre, max_solver_time_s)
     raise ValueError(f"unknown Ceres setting {which!r}")
 
 
@@ -59,10 +78,51 @@ def _behind(problem: BAProblem, R, C, X) -> int:
     return behind_camera_xyz(R, C, X, problem.obs_cam, problem.obs_pt)
 
 
-def run_pycolmap(problem: BAProblem, options: BAOptions, ceres: CeresSettings = CeresSettings()) -> PeerResult:
+def _parse_ceres_progress(text: str, offset_s: float) -> list:
+    """Ceres' per-iteration progress lines -> [[iteration, accepted, s, cost], ...].
+
+    Columns: iter cost cost_change |gradient| |step| tr_ratio tr_radius ls_iter iter_time
+    total_time; total_time counts from Solve(), so ``offset_s`` (pycolmap's set-up before it)
+    is added. A step counts as accepted when its relative decrease passes Ceres' own
+    min_relative_decrease (1e-3) with a positive cost change (monotone LM, COLMAP's setting)."""
+    out = []
+    for line in text.splitlines():
+        f = line.split()
+        if len(f) != 10 or not f[0].isdigit():
+            continue
+        it, cost, change, ratio, total = int(f[0]), float(f[1]), float(f[2]), float(f[5]), float(f[9])
+        out.append([it, it == 0 or (change > 0 and ratio > 1e-3), offset_s + total, cost])
+    return out
+
+
+def _captured_stdout(fn):
+    """(fn(), text fn wrote to file descriptor 1): Ceres prints its progress with C++ streams."""
+    import ctypes
+    import os
+    import sys
+    import tempfile
+
+    sys.stdout.flush()
+    libc = ctypes.CDLL(None)
+    with tempfile.TemporaryFile() as f:
+        saved = os.dup(1)
+        os.dup2(f.fileno(), 1)
+        try:
+            value = fn()
+        finally:
+            libc.fflush(None)
+            os.dup2(saved, 1)
+            os.close(saved)
+        f.seek(0)
+        return value, f.read().decode(errors="replace")
+
+
+def run_pycolmap(problem: BAProblem, options: BAOptions, ceres: CeresSettings = CeresSettings(),
+                 trace: bool = False) -> PeerResult:
     """Ceres via pycolmap: intrinsics fixed (or refined as ``options.refine``, one camera per
     group), gauge TWO_CAMS_FROM_WORLD, same robust loss, stopping rules and threads from
-    ``ceres`` (default: COLMAP's defaults)."""
+    ``ceres`` (default: COLMAP's defaults). ``trace``: Ceres' per-iteration progress (its own
+    cost and time since the adjuster was created) in ``PeerResult.trace``."""
     import pycolmap
 
     from polarref.ba.adapter import problem_to_reconstruction
@@ -77,9 +137,16 @@ def run_pycolmap(problem: BAProblem, options: BAOptions, ceres: CeresSettings = 
     config = bundle_adjustment_config(rec, list(rec.images))
     e = Euclidean(problem)
     c0, _ = _cost_of(e, problem.R, problem.C, problem.X, options)
+    if trace:
+        so.minimizer_progress_to_stdout = True
+        so.logging_type = type(so.logging_type).PER_MINIMIZER_ITERATION
     t = time.perf_counter()
     adjuster = pycolmap.create_default_bundle_adjuster(opts, config, rec)
-    summary = adjuster.solve()
+    t_created = time.perf_counter() - t
+    if trace:
+        summary, progress = _captured_stdout(adjuster.solve)
+    else:
+        summary = adjuster.solve()
     wall = time.perf_counter() - t
     cs = summary.ceres_summary
     N = problem.num_cameras
@@ -99,11 +166,16 @@ def run_pycolmap(problem: BAProblem, options: BAOptions, ceres: CeresSettings = 
     used = {**dataclasses.asdict(ceres), "linear_solver_used": str(cs.linear_solver_type_used).split(".")[-1],
             "preconditioner_used": str(cs.preconditioner_type_used).split(".")[-1],
             "num_threads_used": int(cs.num_threads_used), "jacobi_scaling": bool(so.jacobi_scaling),
-            "trust_region_strategy": str(so.trust_region_strategy_type).split(".")[-1]}
+            "trust_region_strategy": str(so.trust_region_strategy_type).split(".")[-1],
+            "sparse_library": str(so.sparse_linear_algebra_library_type).split(".")[-1],
+            "dense_library": str(so.dense_linear_algebra_library_type).split(".")[-1],
+            "initial_trust_region_radius": float(so.initial_trust_region_radius),
+            "use_nonmonotonic_steps": bool(so.use_nonmonotonic_steps), "eta": float(so.eta)}
     # Ceres counts its iteration 0 (the initial evaluation) as a successful step: not an LM step.
     acc, rej = max(int(cs.num_successful_steps) - 1, 0), int(cs.num_unsuccessful_steps)
     return PeerResult(ceres.name, c0, c1, rms, acc + rej, wall, str(cs.termination_type).split(".")[-1],
-                      float(cs.final_cost), _behind(problem, R, C, X), acc, rej, used)
+                      float(cs.final_cost), _behind(problem, R, C, X), acc, rej, used,
+                      _parse_ceres_progress(progress, t_created) if trace else [])
 
 
 def _left_jacobian(w: np.ndarray) -> np.ndarray:

@@ -5,8 +5,11 @@ Robust losses use IRLS-style reweighting: each residual block and its Jacobian r
 scaled by ``sqrt(rho'(s))`` (no Triggs second-order correction), which gives the exact
 gradient of ``1/2 sum rho(s)`` and a Gauss-Newton Hessian that is positive semi-definite.
 Damping follows Ceres' LM: ``(J^T J + mu D) dx = -g`` with ``D = diag(J^T J)`` clipped to
-[1e-6, 1e32] and ``mu = 1 / radius``; the radius grows by ``1 / max(1/3, 1 - (2 rho - 1)^3)``
-after a step with gain ratio ``rho > 1e-3`` and shrinks by a doubling factor otherwise.
+[1e-6, 1e32] and ``mu = 1 / radius``; the radius grows by ``1 / max(1/G, 1 - (2 rho - 1)^3)``
+after a step with gain ratio ``rho > 1e-3`` and shrinks by a doubling factor otherwise. Ceres
+has G = 3; ours ``options.max_radius_growth`` (30): only a step whose model was near exact
+(rho > 0.94) grows the radius more than 3x, which saves the iterations a well-modelled problem
+spends shrinking the damping (options.py has the measurement).
 With ``D = diag(J^T J)`` the damping is Jacobi-scaled (Ceres' ``jacobi_scaling``), so the
 mixed units of angles, parallax angles and centres do not bias the step.
 
@@ -458,7 +461,8 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             r_new = Jp_new = Jc_new = None
             V = Vd = W = U = None  # the rebuild allocates its own
             radius = min(options.max_trust_radius,
-                         radius / max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3))
+                         radius / max(1.0 / options.max_radius_growth,
+                                      1.0 - (2.0 * gain - 1.0) ** 3))
             decrease_factor = 2.0
             if damping == "nielsen" and not gn:
                 mu_n *= max(1.0 / 3.0, 1.0 - (2.0 * gain - 1.0) ** 3)

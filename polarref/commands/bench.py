@@ -6,7 +6,7 @@ from pathlib import Path
 
 from polarref.core.atomic import check_writable_parent, refuse_inside_inputs
 from polarref.commands._types import int_range, nonneg_int, positive_int
-from polarref.core.errors import PolarrefError
+from polarref.core.errors import PolarrefError, UsageError
 
 NAME = "bench"
 HELP = "benchmarks: ba (bundle adjustment vs pycolmap and scipy), sfm (our SfM vs pycolmap vs views)"
@@ -17,8 +17,8 @@ def add_arguments(parser) -> None:
 
     parser.add_argument("what", choices=("ba", "sfm"), help="which benchmark")
     parser.add_argument("--problem", action="append", default=None,
-                        help="problem path or synth-20/60/200, synth-60-sparse/synth-200-sparse (repeatable; "
-                        "default: the full set)")
+                        help="problem path or synth-20/60/200, synth-60-sparse/synth-200-sparse, "
+                        "scale-1e5/1e6/1e7[:SEED] (repeatable; default: the full set)")
     parser.add_argument("--quick", action="store_true", help="only the small problems")
     parser.add_argument("--loss", choices=LOSSES, default="trivial")
     parser.add_argument("--max-iterations", type=positive_int, default=100)
@@ -28,6 +28,16 @@ def add_arguments(parser) -> None:
                         help="timed runs per solver (interleaved); every run is stored, medians and ranges shown")
     parser.add_argument("--merge", action="store_true",
                         help="add/replace these problems in an existing OUT/bench.json")
+    parser.add_argument("--bisect-max-obs", type=nonneg_int, default=400_000,
+                        help="ba: above this many observations the time to the common target is read from "
+                        "the iteration traces instead of bisection over iteration limits")
+    parser.add_argument("--ceres-max-s", type=positive_int, default=600,
+                        help="ba: cap on one Ceres solve's time (max_solver_time_in_seconds), recorded")
+    parser.add_argument("--solvers", nargs="+", default=None, metavar="NAME",
+                        help="ba: run only these solvers (forms and Ceres settings by name, e.g. euclidean "
+                        "ceres-sparse-schur-1t); the others are listed as not run")
+    parser.add_argument("--no-cold", action="store_true",
+                        help="ba: skip the cold-process timing of `polarref ba` per problem")
     sfm = parser.add_argument_group("sfm (our SfM vs pycolmap incremental, same images and pairs)")
     sfm.add_argument("--scene", choices=("comet", "uav"), default="comet")
     sfm.add_argument("--views", type=int_range(4, 5000), nargs="+", default=[28, 84, 168, 336],
@@ -58,9 +68,17 @@ def run(args) -> int:
     check_writable_parent(out / "bench.json")
     problems = args.problem or (QUICK if args.quick else FULL)
     refuse_inside_inputs(out, [p for p in problems if Path(p).exists()])
+    if args.solvers:
+        from polarref.ba.bench import solver_names
+        unknown = sorted(set(args.solvers) - set(solver_names()))
+        if unknown or "euclidean" not in args.solvers:
+            raise UsageError(f"--solvers: {'unknown ' + ', '.join(unknown) if unknown else 'euclidean is needed'}"
+                             f" (known: {', '.join(solver_names())})")
     results = run_bench(problems, out, BAOptions(loss=args.loss,
                                                  max_iterations=args.max_iterations),
-                        args.scipy_max_obs, repeat=args.repeat, merge=args.merge)
+                        args.scipy_max_obs, repeat=args.repeat, merge=args.merge,
+                        bisect_max_obs=args.bisect_max_obs, ceres_max_s=float(args.ceres_max_s),
+                        cold=not args.no_cold, only=tuple(args.solvers or ()))
     print((out / "bench.md").read_text())
     return 0 if results else 1
 

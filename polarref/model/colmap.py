@@ -131,6 +131,7 @@ class CeresSettings:
     # "" keeps COLMAP's own choice by problem size (auto_select_solver_type)
     linear_solver: str = ""
     preconditioner: str = ""
+    max_solver_time_s: float = 0.0       # > 0: Ceres' max_solver_time_in_seconds (a cap, recorded)
 
     def with_iterations(self, n: int) -> "CeresSettings":
         return dataclasses.replace(self, max_num_iterations=int(n))
@@ -172,6 +173,8 @@ def bundle_adjustment_options(ceres: CeresSettings, loss: str = "trivial", loss_
         so.linear_solver_type = getattr(type(so.linear_solver_type), ceres.linear_solver)
     if ceres.preconditioner:
         so.preconditioner_type = getattr(type(so.preconditioner_type), ceres.preconditioner)
+    if ceres.max_solver_time_s > 0:
+        so.max_solver_time_in_seconds = float(ceres.max_solver_time_s)
     return opts
 
 
