@@ -126,3 +126,90 @@ def test_check_point_accuracy_by_variant(form):
     predicted = float(np.sqrt(((sim.apply(b.G) - b.G) ** 2).sum(1).mean()))
     rmse_3d = float(np.sqrt(r.check.rmse_x**2 + r.check.rmse_y**2 + r.check.rmse_z**2))
     assert predicted / 1.5 - 3 * 0.056 < rmse_3d < 1.5 * predicted + 3 * 0.056
+
+
+# ---- priors from scene.json (`sfm --priors scene`) -----------------------------------------------
+def _scene_json(tmp_path, names, rotation_sigma_deg=1.0):
+    import json
+
+    from polarref.core.geometry import Rigid3
+    from synth.config import PriorParams, preset
+    from synth.priors import draw_priors
+
+    b = block(0)
+    cfg = preset("uav", "small", priors=PriorParams(position_sigma_m=2.0, vertical_sigma_m=4.0,
+                                                    rotation_sigma_deg=rotation_sigma_deg, correlation=0.9))
+    poses = [Rigid3(R, -R @ c) for R, c in zip(b.R, b.C)]
+    pri = draw_priors(cfg, poses, np.zeros(3))
+    views = [{"name": n} for n in names]
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps({"views": views, "priors": pri}))
+    return b, pri, path
+
+
+def test_scene_priors_read_back(tmp_path):
+    from polarref.core.geometry import Rigid3
+    from polarref.georef.scene_priors import read_scene_priors, scene_prior_params
+
+    names = [f"{i:04d}.png" for i in range(8)]
+    b, pri, path = _scene_json(tmp_path, names)
+    got = read_scene_priors(path, names)
+    assert [p.name for p in got] == names
+    for p, v, R in zip(got, pri["views"], b.R):
+        assert np.array_equal(p.centre, v["center"]) and np.array_equal(p.sigma, [2.0, 2.0, 4.0])
+        assert np.allclose(p.R, Rigid3.from_quat(np.array(v["qvec"]), np.zeros(3)).R, atol=1e-12)
+        # the drawn attitude error is ~1 deg: the prior is near, not at, the truth
+        ang = np.degrees(np.arccos(np.clip((np.trace(p.R @ R.T) - 1) / 2, -1, 1)))
+        assert 0.0 < ang < 6.0 and p.sigma_angle_deg == 1.0
+    prm = scene_prior_params(path)
+    assert (prm.position_sigma_m, prm.vertical_sigma_m, prm.correlation) == (2.0, 4.0, 0.9)
+    # no attitude noise drawn: centre priors only
+    _, _, path0 = _scene_json(tmp_path, names, rotation_sigma_deg=0.0)
+    assert all(p.R is None for p in read_scene_priors(path0, names))
+
+
+def test_scene_priors_bad_input(tmp_path):
+    import json
+
+    from polarref.georef.scene_priors import read_scene_priors
+
+    names = [f"{i:04d}.png" for i in range(8)]
+    _, _, path = _scene_json(tmp_path, names)
+    with pytest.raises(PolarrefError, match="not in the image folder"):
+        read_scene_priors(path, names[:-1])
+    (tmp_path / "none.json").write_text(json.dumps({"views": [], "priors": None}))
+    with pytest.raises(PolarrefError, match="no pose priors in this scene"):
+        read_scene_priors(tmp_path / "none.json", names)
+    with pytest.raises(PolarrefError, match="cannot read"):
+        read_scene_priors(tmp_path / "missing.json", names)
+
+
+# ---- the priors-only prediction (georef/predict.py) ----------------------------------------------
+@pytest.mark.parametrize("rho", [0.0, 0.9])
+def test_priors_only_prediction_matches_umeyama_monte_carlo(rho):
+    """Equal isotropic sigmas: the weighted datum fit is Umeyama's similarity, solved here in
+    closed form (nonlinear, independent of the linearised propagation) for 2000 seeded draws."""
+    from polarref.core.geometry import umeyama
+    from polarref.georef.predict import predict_priors_only
+
+    b = block(0, rows=3, cols=5)
+    sig = 2.0
+    pred = predict_priors_only(b.C, np.full(b.C.shape, sig), b.G, correlation=rho)
+    rng = np.random.default_rng(7)
+    n = len(b.C)
+    err = []
+    for _ in range(2000):
+        e = np.empty((n, 3))
+        e[0] = rng.normal(0, 1, 3)
+        for k in range(1, n):
+            e[k] = rho * e[k - 1] + np.sqrt(1 - rho**2) * rng.normal(0, 1, 3)
+        sim = umeyama(b.C, b.C + sig * e)
+        err.append(sim.apply(b.G) - b.G)
+    rm = np.sqrt((np.concatenate(err) ** 2).mean(0))
+    # 2000 draws: the sample RMSE is within ~3 % of its expectation; 8 % leaves room for linearisation
+    assert abs(rm[0] / pred.rmse_x - 1) < 0.08 and abs(rm[1] / pred.rmse_y - 1) < 0.08
+    assert abs(rm[2] / pred.rmse_z - 1) < 0.08
+    # the correlation matters: with rho = 0.9 the prediction is far above the independent one
+    if rho:
+        ind = predict_priors_only(b.C, np.full(b.C.shape, sig), b.G)
+        assert pred.rmse_horizontal > 1.3 * ind.rmse_horizontal
