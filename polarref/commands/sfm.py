@@ -115,7 +115,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = _config(args)
     georef = _read_georef(args, root, image_dir)
     res = run_sfm(image_dir, args.out, cfg, camera=camera, gt=gt, mesh=mesh, overwrite=args.overwrite,
-                  model_format=args.model_format)
+                  model_format=args.model_format, priors=georef.priors if georef is not None else (),
+                  image_sigma_px=args.image_sigma)
     r = res.report
     m = r.metrics
     if r.gt_skipped:
@@ -153,6 +154,9 @@ def _read_georef(args: argparse.Namespace, root: Path, image_dir: Path):
         raise PolarrefError("--image-sigma and --mark-sigma must be > 0")
     if args.ba == "colmap":
         raise PolarrefError("georeferencing needs one of our BA forms (--ba euclidean|parallax|polar|angular)")
+    if args.refine:
+        raise PolarrefError("georeferencing needs fixed intrinsics: --refine none (or leave it out for "
+                            "given / GT cameras)")
     from polarref.georef.formats import load_georef
     from polarref.georef.scene_priors import SCENE_KEYWORD, read_scene_priors
     from polarref.sfm import features as F
