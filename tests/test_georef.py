@@ -213,3 +213,39 @@ def test_priors_only_prediction_matches_umeyama_monte_carlo(rho):
     if rho:
         ind = predict_priors_only(b.C, np.full(b.C.shape, sig), b.G)
         assert pred.rmse_horizontal > 1.3 * ind.rmse_horizontal
+
+
+# ---- the aerotriangulation table: markdown generated from the committed JSON ---------------------
+def test_committed_aerotriangulation_markdown_is_generated_from_its_json():
+    import json
+    from pathlib import Path
+
+    from polarref.georef.table import AerotriTable
+
+    found = sorted(Path(__file__).resolve().parents[1].glob("reports/aerotriangulation-*/aerotriangulation.json"))
+    assert found
+    for path in found:
+        table = AerotriTable.from_json(json.loads(path.read_text()))
+        assert table.markdown() == path.with_suffix(".md").read_text(), path
+        assert table.provenance["git_dirty"] is False, f"{path}: generated from a dirty tree"
+
+
+def test_table_round_trip_and_verdicts():
+    from polarref.georef.adjust import AerotriangulationRecord, CheckPointStats
+    from polarref.georef.predict import PredictedRMSE
+    from polarref.georef.table import AerotriRow, AerotriTable, MonteCarlo, Variant
+
+    def rec(h, z, n_ctl):
+        return AerotriangulationRecord("polar", n_ctl, 10, 12, 0.2, 100, CheckPointStats(
+            10, h / np.sqrt(2), h / np.sqrt(2), z, h, 1.0, 2.0), "g", 3)
+
+    pred = PredictedRMSE(1.0, 1.0, 1.0, np.sqrt(2))
+    t = AerotriTable("s", 12, (("polarref polar", 12),), 0.25, "layout", (2.0, 2.0, 4.0), 0.0, None, 0.5, 0.5, 0,
+                     pred, MonteCarlo(5, 1, "polar", pred, pred),
+                     (AerotriRow("polarref", Variant.PRIORS_ON, rec(1.4 * np.sqrt(2), 1.6, 0)),
+                      AerotriRow("polarref", Variant.PRIORS_GCPS, rec(0.49, 0.76, 10))), ("n",), {"x": 1})
+    assert AerotriTable.from_json(t.to_json()) == t
+    md = t.markdown()
+    # 1.4x horizontal is within 1.5x, 1.6x in Z is not; 0.49 m = 1.96 GSD <= 2, 0.76 m = 3.04 GSD > 3
+    assert "horizontal 1.40x, Z 1.60x the prediction (<= 1.5x): NOT met" in md
+    assert "horizontal 1.96 GSD (<= 2), Z 3.04 GSD (<= 3): NOT met" in md

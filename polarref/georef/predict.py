@@ -57,24 +57,42 @@ def predict_priors_only(centres: np.ndarray, centre_sigma: np.ndarray, check: np
         rotation_sigma_rad: their 1-sigma per axis.
     """
     n = len(centres)
-    origin = centres.mean(0)
-    A = _datum_rows(centres, origin).reshape(3 * n, 7)   # row 3i+k: axis k of camera i
-    w = 1.0 / centre_sigma.reshape(-1) ** 2
-    corr = _ar1(n, correlation)
-    # Sigma of the centre errors: axis k of cameras i and j correlate by rho^|i-j|
-    S = np.kron(corr, np.eye(3)) * np.outer(centre_sigma.reshape(-1), centre_sigma.reshape(-1))
-    blocks = [(A, w, S)]
-    if rotations is not None and rotation_sigma_rad:
-        Aa = np.zeros((n, 3, 7))
-        Aa[:, :, 3:6] = rotations                            # camera-frame image of the datum rotation
-        Sa = np.kron(corr, np.eye(3)) * rotation_sigma_rad**2
-        blocks.append((Aa.reshape(3 * n, 7), np.full(3 * n, rotation_sigma_rad**-2.0), Sa))
-    H = sum(Ab.T @ (wb[:, None] * Ab) for Ab, wb, _ in blocks)
+    blocks = _blocks(centres, centre_sigma, rotations, rotation_sigma_rad)
+    corr = np.kron(_ar1(n, correlation), np.eye(3))
+    sd = [centre_sigma.reshape(-1), np.full(3 * n, rotation_sigma_rad or 0.0)]
+    H = sum(Ab.T @ (wb[:, None] * Ab) for Ab, wb in blocks)
     Hi = np.linalg.inv(H)
-    # cov(theta) = H^-1 (sum_b A_b' W_b S_b W_b A_b) H^-1: the errors are uncorrelated across blocks
-    M = sum((Ab.T * wb) @ Sb @ (wb[:, None] * Ab) for Ab, wb, Sb in blocks)
+    # cov(theta) = H^-1 (sum_b A_b' W_b S_b W_b A_b) H^-1: the errors are uncorrelated across blocks;
+    # S_b: component k of views i and j correlate by rho^|i-j|
+    M = sum((Ab.T * wb) @ (corr * np.outer(s, s)) @ (wb[:, None] * Ab) for (Ab, wb), s in zip(blocks, sd))
     cov = Hi @ M @ Hi
-    J = _datum_rows(np.asarray(check, float), origin)
+    J = _datum_rows(np.asarray(check, float), centres.mean(0))
     var = np.einsum("gij,jk,gik->gi", J, cov, J).mean(0)
     rx, ry, rz = np.sqrt(var)
     return PredictedRMSE(float(rx), float(ry), float(rz), float(np.hypot(rx, ry)))
+
+
+def datum_error(centres: np.ndarray, centre_sigma: np.ndarray, check: np.ndarray, centre_error: np.ndarray,
+                rotations: np.ndarray | None = None, rotation_sigma_rad: float | None = None,
+                rotation_error: np.ndarray | None = None) -> np.ndarray:
+    """(G, 3) check-point error the linear model gives for one draw of prior errors:
+    ``centre_error`` (N, 3) prior - true centre; ``rotation_error`` (N, 3) the camera-frame
+    rotation vector d of ``R_prior = exp(d) R_true``."""
+    blocks = _blocks(centres, centre_sigma, rotations, rotation_sigma_rad)
+    # a datum rotation omega turns camera i by -R_i omega in its own frame: the attitude rows
+    # (+R_i) observe -d
+    errs = [centre_error.reshape(-1)] + ([] if len(blocks) == 1 else [-rotation_error.reshape(-1)])
+    H = sum(Ab.T @ (wb[:, None] * Ab) for Ab, wb in blocks)
+    theta = np.linalg.solve(H, sum(Ab.T @ (wb * e) for (Ab, wb), e in zip(blocks, errs)))
+    return np.einsum("gij,j->gi", _datum_rows(np.asarray(check, float), centres.mean(0)), theta)
+
+
+def _blocks(centres, centre_sigma, rotations, rotation_sigma_rad):
+    """[(A (3N, 7), weights (3N,))] of the centre priors and, if any, the attitude priors."""
+    n = len(centres)
+    blocks = [(_datum_rows(centres, centres.mean(0)).reshape(3 * n, 7), 1.0 / centre_sigma.reshape(-1) ** 2)]
+    if rotations is not None and rotation_sigma_rad:
+        Aa = np.zeros((n, 3, 7))
+        Aa[:, :, 3:6] = rotations  # camera-frame image of the datum rotation
+        blocks.append((Aa.reshape(3 * n, 7), np.full(3 * n, rotation_sigma_rad**-2.0)))
+    return blocks

@@ -61,12 +61,17 @@ def read_scene_priors(path: Path, image_names) -> tuple[PosePrior, ...]:
     not in ``image_names`` is an error, as for ``--priors FILE``.
     """
     data = _load(path)
-    views, pri = data.get("views") or [], data["priors"]["views"]
-    if len(views) != len(pri):
-        raise PolarrefError(f"{path}: {len(pri)} priors for {len(views)} views")
+    views = [v["name"] for v in data.get("views") or []]
+    return priors_of_section(data["priors"]["views"], views, image_names, str(path))
+
+
+def priors_of_section(pri: list, view_names: list[str], image_names, where: str) -> tuple[PosePrior, ...]:
+    """PosePriors of a ``priors.views`` list (synth.priors.draw_priors) for views ``view_names``."""
+    path = where
+    if len(view_names) != len(pri):
+        raise PolarrefError(f"{path}: {len(pri)} priors for {len(view_names)} views")
     names, out = set(image_names), []
-    for view, p in zip(views, pri):
-        name = view["name"]
+    for name, p in zip(view_names, pri):
         if name not in names:
             raise PolarrefError(f"{path}: prior for image {name!r}, which is not in the image folder")
         sigma = np.asarray(p["center_sigma_m"], float)
