@@ -249,3 +249,37 @@ def test_table_round_trip_and_verdicts():
     # 1.4x horizontal is within 1.5x, 1.6x in Z is not; 0.49 m = 1.96 GSD <= 2, 0.76 m = 3.04 GSD > 3
     assert "horizontal 1.40x, Z 1.60x the prediction (<= 1.5x): NOT met" in md
     assert "horizontal 1.96 GSD (<= 2), Z 3.04 GSD (<= 3): NOT met" in md
+
+
+# ---- seeded layouts on rendered scenes: UAV ground points, comet landmarks ------------------------
+@pytest.mark.slow
+def test_comet_landmarks_are_seen_where_marked(comet_small_scene, tmp_path):
+    """Every landmark: on the mesh, seen in >= 3 views, its marks within 5 sigma of the exact
+    projection; the same seed gives the same files."""
+    import os
+
+    from polarref.georef.formats import read_gcps, read_marks
+    from polarref.model.colmap import read_model
+    from synth.comet_landmarks import landmark_layout
+    from synth.scene import load_scene
+
+    for name in ("images", "gt", "depth", "mesh.ply", "scene.json"):
+        os.symlink(os.path.realpath(comet_small_scene / name), tmp_path / name)
+    lm, obs = landmark_layout(tmp_path, 4, 4, 0.5, 0)
+    first = (lm.read_text(), obs.read_text())
+    gt = read_model(tmp_path / "gt")
+    by = {im.name: im for im in gt.images.values()}
+    pts = read_gcps(lm)
+    marks = read_marks(obs, pts, list(by))
+    V, _ = load_scene(tmp_path).mesh()
+    cam = load_scene(tmp_path).polarref_camera()
+    assert len(pts) == 8 and sum(p.role == Role.CONTROL for p in pts) == 4
+    for p in pts:
+        assert np.min(np.linalg.norm(V - p.xyz, axis=1)) < 1e-3  # a mesh vertex (CSV: 0.1 mm)
+        mine = [m for m in marks if m.id == p.id]
+        assert len(mine) >= 3
+        for m in mine:
+            uv = np.asarray(cam.project(by[m.image].cam_from_world.apply(p.xyz[None])))[0]
+            assert np.abs(m.uv - uv).max() < 5 * 0.5 + 1e-3
+    landmark_layout(tmp_path, 4, 4, 0.5, 0)
+    assert (lm.read_text(), obs.read_text()) == first
