@@ -283,3 +283,21 @@ def test_comet_landmarks_are_seen_where_marked(comet_small_scene, tmp_path):
             assert np.abs(m.uv - uv).max() < 5 * 0.5 + 1e-3
     landmark_layout(tmp_path, 4, 4, 0.5, 0)
     assert (lm.read_text(), obs.read_text()) == first
+
+
+def test_sfm_priors_scene_without_priors_is_one_line(uav_small_scene, tmp_path):
+    """`sfm --priors scene` on a scene whose scene.json holds no priors: exit 1, one line, nothing
+    written (refused before any work)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    out = tmp_path / "out"
+    p = subprocess.run([sys.executable, "-m", "polarref", "--no-progress", "sfm", str(uav_small_scene),
+                        "--priors", "scene", "--out", str(out)], cwd=root, capture_output=True, text=True,
+                       env={**__import__("os").environ, "PYTHONPATH": str(root)}, timeout=300)
+    assert p.returncode == 1, p.stderr
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "no pose priors in this scene" in lines[0], p.stderr
+    assert not out.exists()
