@@ -75,12 +75,12 @@ def _image_tracks(state: MapState, image: int) -> np.ndarray:
 
 def _global_ba(state: MapState, cfg: MapperConfig, log_: MapperLog, gauge: list[int],
                hook: PriorHook | None = None) -> None:
+    if hook is not None:
+        hook.realign(state)
     reg = [int(i) for i in np.flatnonzero(state.registered)]
     var = [i for i in reg if i not in gauge]
     # early intrinsics are poorly constrained (COLMAP also treats its first ~10 images apart)
     enough = len(reg) >= cfg.refine_min_images
-    if hook is not None:
-        hook.realign(state)
     refine = tuple(cfg.refine or ()) if enough else ()
     info = bundle.adjust(state, var, list(gauge), cfg.ba, cfg.global_ba_iterations, cfg.global_ba_loss,
                          refine=refine, priors=hook)
