@@ -171,6 +171,10 @@ def main() -> int:
         if (a.out / name).exists() and not a.overwrite:
             print(f"aerotri_table: {a.out / name} exists (pass --overwrite)", file=sys.stderr)
             return 1
+    # the environment of the code that runs: collected before any work (a commit made while
+    # this runs must not be recorded as its source)
+    prov = collect(seeds={"gcp_layout": a.seed, "monte_carlo": 1000 + a.seed, "pycolmap": 0},
+                   threads={"pycolmap": 1})
     work = a.work or a.out / "work"
     _link_scene(a.scene, work)
     gcps, marks, layout_priors = gcp_layout(work, a.control, a.check, a.mark_sigma, a.seed)
@@ -202,8 +206,7 @@ def main() -> int:
         str(a.scene.resolve().name), len(names), tuple(registered), alt / float(cam.params[0]), a.priors,
         (pp.position_sigma_m, pp.position_sigma_m, pp.vertical_sigma_m), pp.correlation,
         pp.rotation_sigma_deg or None, a.mark_sigma, IMAGE_SIGMA_PX, a.seed, _predicted(gt_imgs, georef, pp),
-        mc, tuple(rows), tuple(notes),
-        collect(seeds={"gcp_layout": a.seed, "monte_carlo": 1000 + a.seed, "pycolmap": 0}, threads={"pycolmap": 1}))
+        mc, tuple(rows), tuple(notes), prov)
     a.out.mkdir(parents=True, exist_ok=True)
     atomic_write(a.out / "aerotriangulation.json", json.dumps(table.to_json(), indent=2) + "\n")
     atomic_write(a.out / "aerotriangulation.md", table.markdown())
