@@ -14,9 +14,8 @@ import math
 import numpy as np
 
 from polarref.core.geometry import Rigid3, so3_exp
+from polarref.georef.scene_priors import PRIORS_FORMAT  # one name for the writer and the reader
 from synth.config import SceneConfig
-
-PRIORS_FORMAT = "polarref-pose-priors/1"
 
 
 def _ar1(rng: np.random.Generator, n: int, dim: int, rho: float) -> np.ndarray:

@@ -221,55 +221,22 @@ def build(cfg: SceneConfig) -> Geometry:
 
 
 # --- ground control (issue 33) -------------------------------------------------------------
-GCP_MIN_VIEWS = 3  # a ground point is laid out only where >= 3 GT views see it
-
-
 def gcp_layout(root, n_control: int, n_check: int, mark_sigma_px: float, seed: int,
                prior_sigma_m: float = 2.0, prior_vertical_m: float = 4.0,
                target_sigma_m: float = 0.01):
-    """Seeded ground points on the rendered surface of a UAV scene folder ``root``, each seen
-    in >= 3 GT views (in the image and not occluded: its GT depth matches the depth map within
-    1%), with exact 3D and marks = GT projection + N(0, mark_sigma_px^2) per coordinate; plus
-    pose priors (GT centre + N(0, prior sigma^2), independent per view). Writes
-    ``gcps.csv``, ``gcp_observations.csv`` and ``priors.csv`` beside ``images/``; returns
-    their paths. The first ``n_control`` points (in draw order) are control, the rest check."""
+    """Seeded ground points on the rendered surface of a UAV scene folder ``root``
+    (synth/ground_points.py: seen in >= 3 GT views, exact 3D, marks = GT projection +
+    N(0, mark_sigma_px^2)), plus pose priors (GT centre + N(0, prior sigma^2), independent per
+    view). Writes ``gcps.csv``, ``gcp_observations.csv`` and ``priors.csv`` beside ``images/``;
+    returns their paths. The first ``n_control`` points (in draw order) are control, the rest check."""
     from pathlib import Path
 
-    from polarref.georef.formats import GroundPoint, Mark, PosePrior, Role, write_gcps, write_marks, write_priors
-    from polarref.model.colmap import read_model
-    from synth.scene import load_scene
+    from polarref.georef.formats import PosePrior, write_gcps, write_marks, write_priors
+    from synth.ground_points import lay_out
 
     root = Path(root)
-    scene = load_scene(root)
-    gt = read_model(root / "gt")
-    cam = scene.polarref_camera()
-    imgs = [gt.images[i] for i in sorted(gt.images)]
-    depths = [scene.depth(k) for k in range(len(imgs))]
-    V, _ = scene.mesh()
     rng = np.random.default_rng([seed, 33])
-    points, marks = [], []
-    for v in rng.permutation(len(V)):
-        X = V[v]
-        seen = []
-        for k, im in enumerate(imgs):
-            Xc = im.cam_from_world.apply(X[None])[0]
-            if Xc[2] <= 0:
-                continue
-            uv = np.asarray(cam.project(Xc[None]))[0]
-            col, row = int(uv[0]), int(uv[1])
-            if not (8 <= uv[0] < cam.width - 8 and 8 <= uv[1] < cam.height - 8):
-                continue
-            d = float(depths[k][row, col])
-            if d > 0 and abs(d - Xc[2]) < 0.01 * Xc[2]:
-                seen.append((im.name, uv))
-        if len(seen) < GCP_MIN_VIEWS:
-            continue
-        gid = f"GCP{len(points) + 1:02d}"
-        role = Role.CONTROL if len(points) < n_control else Role.CHECK
-        points.append(GroundPoint(gid, X.copy(), np.full(3, target_sigma_m), role))
-        marks += [Mark(gid, name, uv + rng.normal(0, mark_sigma_px, 2)) for name, uv in seen]
-        if len(points) == n_control + n_check:
-            break
+    points, marks, imgs = lay_out(root, n_control, n_check, mark_sigma_px, target_sigma_m, rng)
     sig = np.array([prior_sigma_m, prior_sigma_m, prior_vertical_m])
     priors = [PosePrior(im.name, im.cam_from_world.center + rng.normal(0, 1, 3) * sig, sig)
               for im in imgs]

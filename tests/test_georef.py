@@ -126,3 +126,178 @@ def test_check_point_accuracy_by_variant(form):
     predicted = float(np.sqrt(((sim.apply(b.G) - b.G) ** 2).sum(1).mean()))
     rmse_3d = float(np.sqrt(r.check.rmse_x**2 + r.check.rmse_y**2 + r.check.rmse_z**2))
     assert predicted / 1.5 - 3 * 0.056 < rmse_3d < 1.5 * predicted + 3 * 0.056
+
+
+# ---- priors from scene.json (`sfm --priors scene`) -----------------------------------------------
+def _scene_json(tmp_path, names, rotation_sigma_deg=1.0):
+    import json
+
+    from polarref.core.geometry import Rigid3
+    from synth.config import PriorParams, preset
+    from synth.priors import draw_priors
+
+    b = block(0)
+    cfg = preset("uav", "small", priors=PriorParams(position_sigma_m=2.0, vertical_sigma_m=4.0,
+                                                    rotation_sigma_deg=rotation_sigma_deg, correlation=0.9))
+    poses = [Rigid3(R, -R @ c) for R, c in zip(b.R, b.C)]
+    pri = draw_priors(cfg, poses, np.zeros(3))
+    views = [{"name": n} for n in names]
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps({"views": views, "priors": pri}))
+    return b, pri, path
+
+
+def test_scene_priors_read_back(tmp_path):
+    from polarref.core.geometry import Rigid3
+    from polarref.georef.scene_priors import read_scene_priors, scene_prior_params
+
+    names = [f"{i:04d}.png" for i in range(8)]
+    b, pri, path = _scene_json(tmp_path, names)
+    got = read_scene_priors(path, names)
+    assert [p.name for p in got] == names
+    for p, v, R in zip(got, pri["views"], b.R):
+        assert np.array_equal(p.centre, v["center"]) and np.array_equal(p.sigma, [2.0, 2.0, 4.0])
+        assert np.allclose(p.R, Rigid3.from_quat(np.array(v["qvec"]), np.zeros(3)).R, atol=1e-12)
+        # the drawn attitude error is ~1 deg: the prior is near, not at, the truth
+        ang = np.degrees(np.arccos(np.clip((np.trace(p.R @ R.T) - 1) / 2, -1, 1)))
+        assert 0.0 < ang < 6.0 and p.sigma_angle_deg == 1.0
+    prm = scene_prior_params(path)
+    assert (prm.position_sigma_m, prm.vertical_sigma_m, prm.correlation) == (2.0, 4.0, 0.9)
+    # no attitude noise drawn: centre priors only
+    _, _, path0 = _scene_json(tmp_path, names, rotation_sigma_deg=0.0)
+    assert all(p.R is None for p in read_scene_priors(path0, names))
+
+
+def test_scene_priors_bad_input(tmp_path):
+    import json
+
+    from polarref.georef.scene_priors import read_scene_priors
+
+    names = [f"{i:04d}.png" for i in range(8)]
+    _, _, path = _scene_json(tmp_path, names)
+    with pytest.raises(PolarrefError, match="not in the image folder"):
+        read_scene_priors(path, names[:-1])
+    (tmp_path / "none.json").write_text(json.dumps({"views": [], "priors": None}))
+    with pytest.raises(PolarrefError, match="no pose priors in this scene"):
+        read_scene_priors(tmp_path / "none.json", names)
+    with pytest.raises(PolarrefError, match="cannot read"):
+        read_scene_priors(tmp_path / "missing.json", names)
+
+
+# ---- the priors-only prediction (georef/predict.py) ----------------------------------------------
+@pytest.mark.parametrize("rho", [0.0, 0.9])
+def test_priors_only_prediction_matches_umeyama_monte_carlo(rho):
+    """Equal isotropic sigmas: the weighted datum fit is Umeyama's similarity, solved here in
+    closed form (nonlinear, independent of the linearised propagation) for 2000 seeded draws."""
+    from polarref.core.geometry import umeyama
+    from polarref.georef.predict import predict_priors_only
+
+    b = block(0, rows=3, cols=5)
+    sig = 2.0
+    pred = predict_priors_only(b.C, np.full(b.C.shape, sig), b.G, correlation=rho)
+    rng = np.random.default_rng(7)
+    n = len(b.C)
+    err = []
+    for _ in range(2000):
+        e = np.empty((n, 3))
+        e[0] = rng.normal(0, 1, 3)
+        for k in range(1, n):
+            e[k] = rho * e[k - 1] + np.sqrt(1 - rho**2) * rng.normal(0, 1, 3)
+        sim = umeyama(b.C, b.C + sig * e)
+        err.append(sim.apply(b.G) - b.G)
+    rm = np.sqrt((np.concatenate(err) ** 2).mean(0))
+    # 2000 draws: the sample RMSE is within ~3 % of its expectation; 8 % leaves room for linearisation
+    assert abs(rm[0] / pred.rmse_x - 1) < 0.08 and abs(rm[1] / pred.rmse_y - 1) < 0.08
+    assert abs(rm[2] / pred.rmse_z - 1) < 0.08
+    # the correlation matters: with rho = 0.9 the prediction is far above the independent one
+    if rho:
+        ind = predict_priors_only(b.C, np.full(b.C.shape, sig), b.G)
+        assert pred.rmse_horizontal > 1.3 * ind.rmse_horizontal
+
+
+# ---- the aerotriangulation table: markdown generated from the committed JSON ---------------------
+def test_committed_aerotriangulation_markdown_is_generated_from_its_json():
+    import json
+    from pathlib import Path
+
+    from polarref.georef.table import AerotriTable
+
+    found = sorted(Path(__file__).resolve().parents[1].glob("reports/aerotriangulation-*/aerotriangulation.json"))
+    assert found
+    for path in found:
+        table = AerotriTable.from_json(json.loads(path.read_text()))
+        assert table.markdown() == path.with_suffix(".md").read_text(), path
+        assert table.provenance["git_dirty"] is False, f"{path}: generated from a dirty tree"
+
+
+def test_table_round_trip_and_verdicts():
+    from polarref.georef.adjust import AerotriangulationRecord, CheckPointStats
+    from polarref.georef.predict import PredictedRMSE
+    from polarref.georef.table import AerotriRow, AerotriTable, MonteCarlo, Variant
+
+    def rec(h, z, n_ctl):
+        return AerotriangulationRecord("polar", n_ctl, 10, 12, 0.2, 100, CheckPointStats(
+            10, h / np.sqrt(2), h / np.sqrt(2), z, h, 1.0, 2.0), "g", 3)
+
+    pred = PredictedRMSE(1.0, 1.0, 1.0, np.sqrt(2))
+    t = AerotriTable("s", 12, (("polarref polar", 12),), 0.25, "layout", (2.0, 2.0, 4.0), 0.0, None, 0.5, 0.5, 0,
+                     pred, MonteCarlo(5, 1, "polar", pred, pred),
+                     (AerotriRow("polarref", Variant.PRIORS_ON, rec(1.4 * np.sqrt(2), 1.6, 0)),
+                      AerotriRow("polarref", Variant.PRIORS_GCPS, rec(0.49, 0.76, 10))), ("n",), {"x": 1})
+    assert AerotriTable.from_json(t.to_json()) == t
+    md = t.markdown()
+    # 1.4x horizontal is within 1.5x, 1.6x in Z is not; 0.49 m = 1.96 GSD <= 2, 0.76 m = 3.04 GSD > 3
+    assert "horizontal 1.40x, Z 1.60x the prediction (<= 1.5x): NOT met" in md
+    assert "horizontal 1.96 GSD (<= 2), Z 3.04 GSD (<= 3): NOT met" in md
+
+
+# ---- seeded layouts on rendered scenes: UAV ground points, comet landmarks ------------------------
+@pytest.mark.slow
+def test_comet_landmarks_are_seen_where_marked(comet_small_scene, tmp_path):
+    """Every landmark: on the mesh, seen in >= 3 views, its marks within 5 sigma of the exact
+    projection; the same seed gives the same files."""
+    import os
+
+    from polarref.georef.formats import read_gcps, read_marks
+    from polarref.model.colmap import read_model
+    from synth.comet_landmarks import landmark_layout
+    from synth.scene import load_scene
+
+    for name in ("images", "gt", "depth", "mesh.ply", "scene.json"):
+        os.symlink(os.path.realpath(comet_small_scene / name), tmp_path / name)
+    lm, obs = landmark_layout(tmp_path, 4, 4, 0.5, 0)
+    first = (lm.read_text(), obs.read_text())
+    gt = read_model(tmp_path / "gt")
+    by = {im.name: im for im in gt.images.values()}
+    pts = read_gcps(lm)
+    marks = read_marks(obs, pts, list(by))
+    V, _ = load_scene(tmp_path).mesh()
+    cam = load_scene(tmp_path).polarref_camera()
+    assert len(pts) == 8 and sum(p.role == Role.CONTROL for p in pts) == 4
+    for p in pts:
+        assert np.min(np.linalg.norm(V - p.xyz, axis=1)) < 1e-3  # a mesh vertex (CSV: 0.1 mm)
+        mine = [m for m in marks if m.id == p.id]
+        assert len(mine) >= 3
+        for m in mine:
+            uv = np.asarray(cam.project(by[m.image].cam_from_world.apply(p.xyz[None])))[0]
+            assert np.abs(m.uv - uv).max() < 5 * 0.5 + 1e-3
+    landmark_layout(tmp_path, 4, 4, 0.5, 0)
+    assert (lm.read_text(), obs.read_text()) == first
+
+
+def test_sfm_priors_scene_without_priors_is_one_line(uav_small_scene, tmp_path):
+    """`sfm --priors scene` on a scene whose scene.json holds no priors: exit 1, one line, nothing
+    written (refused before any work)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    out = tmp_path / "out"
+    p = subprocess.run([sys.executable, "-m", "polarref", "--no-progress", "sfm", str(uav_small_scene),
+                        "--priors", "scene", "--out", str(out)], cwd=root, capture_output=True, text=True,
+                       env={**__import__("os").environ, "PYTHONPATH": str(root)}, timeout=300)
+    assert p.returncode == 1, p.stderr
+    lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "no pose priors in this scene" in lines[0], p.stderr
+    assert not out.exists()

@@ -48,8 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "a space, which COLMAP text cannot hold); points3D.ply is always written")
     parser.add_argument("--overwrite", action="store_true", help="write into a non-empty --out")
     geo = parser.add_argument_group("georeferencing (README: Ground control and pose priors)")
-    geo.add_argument("--priors", type=Path, metavar="CSV",
-                     help="pose priors name,x,y,z,sigma_x,sigma_y,sigma_z[,omega,phi,kappa,sigma_angle_deg]")
+    geo.add_argument("--priors", type=Path, metavar="CSV|scene",
+                     help="pose priors name,x,y,z,sigma_x,sigma_y,sigma_z[,omega,phi,kappa,sigma_angle_deg]; "
+                          "'scene': the priors in DIR/scene.json (a file named scene: ./scene)")
     geo.add_argument("--gcps", type=Path, metavar="CSV", help="ground points id,x,y,z,sigma_x,sigma_y,sigma_z,role")
     geo.add_argument("--gcp-observations", type=Path, metavar="CSV", help="marks id,image,u,v (COLMAP pixels)")
     geo.add_argument("--image-sigma", type=float, default=0.5, metavar="PX",
@@ -116,10 +117,11 @@ def run(args: argparse.Namespace) -> int:
         if first is not None:
             camera = parse_camera(args.camera, first.shape[1], first.shape[0])
     cfg = _bound_detection(_config(args), args.max_image_size, F.list_images(image_dir))
-    georef = _read_georef(args, image_dir)
+    georef = _read_georef(args, root, image_dir)
     model_format = _model_format(args, [p.name for p in F.list_images(image_dir)])
     res = run_sfm(image_dir, args.out, cfg, camera=camera, gt=gt, mesh=mesh, overwrite=args.overwrite,
-                  model_format=model_format)
+                  model_format=model_format, priors=georef.priors if georef is not None else (),
+                  image_sigma_px=args.image_sigma)
     r = res.report
     m = r.metrics
     if r.gt_skipped:
@@ -225,18 +227,28 @@ def _model_format(args: argparse.Namespace, names: list[str]) -> str:
     return "binary"
 
 
-def _read_georef(args: argparse.Namespace, image_dir: Path):
-    """The priors / GCP files, checked against the folder's images before any work."""
+def _read_georef(args: argparse.Namespace, root: Path, image_dir: Path):
+    """The priors / GCP files, checked against the folder's images before any work.
+
+    ``--priors scene`` is explicit rather than automatic for scenes with priors: an SfM of a twin
+    without the flag keeps its output and timings, and the priors used are named on the command line."""
     if args.priors is None and args.gcps is None and args.gcp_observations is None:
         return None
     if not (args.image_sigma > 0 and args.mark_sigma > 0):
         raise PolarrefError("--image-sigma and --mark-sigma must be > 0")
     if args.ba == "colmap":
         raise PolarrefError("georeferencing needs one of our BA forms (--ba euclidean|parallax|polar|angular)")
+    if args.refine:
+        raise PolarrefError("georeferencing needs fixed intrinsics: --refine none (or leave it out for "
+                            "given / GT cameras)")
     from polarref.georef.formats import load_georef
+    from polarref.georef.scene_priors import SCENE_KEYWORD, read_scene_priors
     from polarref.sfm import features as F
 
     names = [p.name for p in F.list_images(image_dir)]
+    if args.priors is not None and str(args.priors) == SCENE_KEYWORD:
+        return load_georef(names, None, args.gcps, args.gcp_observations,
+                           extra_priors=read_scene_priors(root / "scene.json", names))
     return load_georef(names, args.priors, args.gcps, args.gcp_observations)
 
 

@@ -168,6 +168,25 @@ def georeference(rec, georef: Georef, form: str, *, use_priors: bool = True,
         int(dof), check_stats(est, checks), summary.gauge, summary.iterations)
 
 
+def evaluate(rec, georef: Georef, label: str, *, use_priors: bool, image_sigma_px: float = 0.5,
+             mark_sigma_px: float = 0.5, gauge: str = "") -> AerotriangulationRecord:
+    """The record of a model adjusted elsewhere (a peer's), nothing moved: its sigma0 counts the
+    pixel residuals and, with ``use_priors``, the centre/attitude priors it was adjusted with."""
+    problem = problem_from_reconstruction(rec)
+    names = [rec.images[int(i)].name for i in problem.image_ids]
+    have_p = use_priors and any(p.name in names for p in georef.priors)
+    if have_p:
+        problem.priors = ba_priors(georef, names, image_sigma_px, mark_sigma_px, True, False)
+    prepare(problem)
+    dof, cost = _redundancy(problem, None)
+    checks = georef.of_role(Role.CHECK)
+    est = triangulate_marks(rec, georef.marks, [p.id for p in checks])
+    return AerotriangulationRecord(
+        label, 0, len(checks), len(georef.priors) if have_p else 0,
+        float(np.sqrt(2.0 * cost / image_sigma_px**2 / dof)) if dof > 0 else float("nan"),
+        int(dof), check_stats(est, checks), gauge, 0)
+
+
 def _redundancy(problem, summary) -> tuple[int, float]:
     """(observations - unknowns, final Euclidean-pixel + prior cost): form-independent."""
 

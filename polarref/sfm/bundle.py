@@ -161,13 +161,15 @@ def _write_back_state(state, problem) -> None:
 
 def adjust(state, variable: list[int], fixed: list[int], ba: str, max_iterations: int,
            loss: str = "trivial", track_ids=None, refine: tuple = (),
-           function_tolerance: float = 1e-6) -> BARun:
+           function_tolerance: float = 1e-6, priors=None) -> BARun:
     """Adjust poses of ``variable`` images and the points (``track_ids`` or all) in place, and
     the intrinsics groups ``refine`` of the cameras involved.
 
     polarref's adjusters get their problem straight from the map arrays (only the window's
     observations are gathered); pycolmap's goes through a Reconstruction.
-    Returns the typed record of the run (the adjuster's summary with its iteration trace).
+    ``priors`` (a :class:`polarref.sfm.priors_hook.PriorHook`) adds the pose priors of the
+    variable cameras (our adjusters only). Returns the typed record of the run (the adjuster's
+    summary with its iteration trace).
     """
     if ba not in BA_NAMES:
         raise PolarrefError(f"unknown bundle adjuster {ba!r}; choose one of {', '.join(BA_NAMES)}")
@@ -184,6 +186,8 @@ def adjust(state, variable: list[int], fixed: list[int], ba: str, max_iterations
     problem = problem_from_state(state, variable, fixed, track_ids)
     if problem is None:
         return BARun(ba, skipped="no points")
+    if priors is not None:
+        problem.priors = priors.for_problem(problem)
     opts = BAOptions(param=ba, loss=loss, max_iterations=max_iterations, refine=tuple(refine),
                      function_tolerance=function_tolerance)
     prepare(problem)

@@ -14,6 +14,7 @@ from polarref.sfm import bundle
 from polarref.sfm import rays as R_
 from polarref.sfm.guided import GuidedConfig, guided_extend
 from polarref.sfm.initial_pair import InitConfig, choose_initial_pair
+from polarref.sfm.priors_hook import PriorHook
 from polarref.sfm.registration import RegisterConfig, estimate_pose
 from polarref.sfm.ba_runs import BARun
 from polarref.sfm.state import MapState
@@ -72,19 +73,23 @@ def _image_tracks(state: MapState, image: int) -> np.ndarray:
     return state.tracks.track[o[o >= 0]]
 
 
-def _global_ba(state: MapState, cfg: MapperConfig, log_: MapperLog, gauge: list[int]) -> None:
+def _global_ba(state: MapState, cfg: MapperConfig, log_: MapperLog, gauge: list[int],
+               hook: PriorHook | None = None) -> None:
+    if hook is not None:
+        hook.realign(state)
     reg = [int(i) for i in np.flatnonzero(state.registered)]
     var = [i for i in reg if i not in gauge]
     # early intrinsics are poorly constrained (COLMAP also treats its first ~10 images apart)
     enough = len(reg) >= cfg.refine_min_images
     refine = tuple(cfg.refine or ()) if enough else ()
     info = bundle.adjust(state, var, list(gauge), cfg.ba, cfg.global_ba_iterations, cfg.global_ba_loss,
-                         refine=refine)
+                         refine=refine, priors=hook)
     info.kind, info.num_registered = "global", len(reg)
     log_.ba.append(info)
 
 
-def _local_ba(state: MapState, image: int, cfg: MapperConfig, log_: MapperLog, gauge: list[int]) -> None:
+def _local_ba(state: MapState, image: int, cfg: MapperConfig, log_: MapperLog, gauge: list[int],
+              hook: PriorHook | None = None) -> None:
     cov = state.covisibility(image)
     cov[image] = 0
     cov[~state.registered] = 0
@@ -101,7 +106,7 @@ def _local_ba(state: MapState, image: int, cfg: MapperConfig, log_: MapperLog, g
     obs_imgs = np.unique(tr.image[o[state.active[o]]])
     fixed = [int(i) for i in obs_imgs if not var_mask[i]]
     info = bundle.adjust(state, variable, fixed, cfg.ba, cfg.local_ba_iterations, cfg.local_ba_loss,
-                         track_ids=pts, function_tolerance=cfg.local_ba_function_tolerance)
+                         track_ids=pts, function_tolerance=cfg.local_ba_function_tolerance, priors=hook)
     info.kind, info.image, info.num_variable, info.num_fixed = "local", image, len(variable), len(fixed)
     log_.ba.append(info)
     state.filter(pts)
@@ -120,11 +125,14 @@ def _guided(state: MapState, images, descriptors, cfg: MapperConfig, out: Mapper
 
 
 def run_mapper(state: MapState, geoms: dict[tuple[int, int], TwoViewGeometry],
-               cfg: MapperConfig, descriptors: list[np.ndarray] | None = None) -> MapperLog:
+               cfg: MapperConfig, descriptors: list[np.ndarray] | None = None,
+               hook: PriorHook | None = None) -> MapperLog:
     """Incremental reconstruction into ``state``; returns what happened.
 
     Args:
         descriptors: (K_i, 128) unit descriptors per image; enables guided matching (guided.py).
+        hook: pose priors (priors_hook.py): the map is moved into their frame once they fix it,
+            and every later BA carries them.
 
     Raises:
         PolarrefError: no initial pair, or fewer than two images registered.
@@ -152,6 +160,8 @@ def run_mapper(state: MapState, geoms: dict[tuple[int, int], TwoViewGeometry],
         raise PolarrefError(f"initial pair {init.pair} produced only {int(state.has_point.sum())} points")
     out.registration_order += [i0, i1]
     gauge = [i0]
+    if hook is not None and hook.place(state):
+        gauge = hook.gauge(gauge)
     n_at_global, pts_at_global = 2, int(state.has_point.sum())
     fails: dict[int, int] = {}
     for _ in track(range(n - 2), desc="registration", total=n - 2):
@@ -173,7 +183,9 @@ def run_mapper(state: MapState, geoms: dict[tuple[int, int], TwoViewGeometry],
             state.triangulate(_image_tracks(state, c))
             state.extend(_image_tracks(state, c))
             _guided(state, [c], descriptors, cfg, out)
-            _local_ba(state, c, cfg, out, gauge)
+            if hook is not None and hook.place(state):
+                gauge = hook.gauge(gauge)
+            _local_ba(state, c, cfg, out, gauge, hook)
             state.triangulate(_image_tracks(state, c))
             done = True
             break
@@ -181,7 +193,7 @@ def run_mapper(state: MapState, geoms: dict[tuple[int, int], TwoViewGeometry],
             break
         if (state.registered.sum() >= cfg.global_ba_growth * n_at_global
                 or state.has_point.sum() >= cfg.global_ba_points_growth * pts_at_global):
-            _global_ba(state, cfg, out, gauge)
+            _global_ba(state, cfg, out, gauge, hook)
             state.filter()
             _retriangulate(state)
             _guided(state, np.flatnonzero(state.registered), descriptors, cfg, out)
@@ -190,7 +202,7 @@ def run_mapper(state: MapState, geoms: dict[tuple[int, int], TwoViewGeometry],
     for _ in range(cfg.final_ba_rounds + (cfg.refine_extra_rounds if cfg.refine else 0)):
         _retriangulate(state)
         _guided(state, np.flatnonzero(state.registered), descriptors, cfg, out)
-        _global_ba(state, cfg, out, gauge)
+        _global_ba(state, cfg, out, gauge, hook)
         state.filter()
     if state.registered.sum() < 2:
         raise PolarrefError("fewer than two images could be registered")

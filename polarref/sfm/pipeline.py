@@ -31,6 +31,7 @@ from polarref.sfm import feature_cache as FC
 from polarref.sfm import rays as R_
 from polarref.sfm.bundle import to_reconstruction
 from polarref.sfm.mapper import run_mapper
+from polarref.sfm.priors_hook import prior_hook
 from polarref.sfm.report import SfMReport
 from polarref.sfm.matching import match_pairs, select_pairs
 from polarref.sfm.state import MapState
@@ -265,7 +266,7 @@ SFM_OUTPUTS = ("model", "metrics.json")  # what a run writes into its folder (th
 def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig = SfMConfig(),
             camera=None, gt: Reconstruction | None = None,
             mesh: tuple[np.ndarray, np.ndarray] | None = None, overwrite: bool = False,
-            model_format: str = "text") -> SfMResult:
+            model_format: str = "text", priors: tuple = (), image_sigma_px: float = 0.5) -> SfMResult:
     """Run the whole pipeline on ``image_dir`` and write ``out_dir/model`` and ``out_dir/metrics.json``.
 
     Args:
@@ -278,6 +279,9 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
             sibling and swapped in whole when complete, so ``out_dir`` always holds one run's
             outputs: the old ones until the new ones are written, never a mix.
         model_format: COLMAP ``text``, ``binary`` or ``both``; ``model/points3D.ply`` is always written.
+        priors: pose priors (:class:`polarref.georef.formats.PosePrior`) used inside the mapper
+            (sfm/priors_hook.py), weighted against tie points of ``image_sigma_px``: the model
+            comes out in the priors' frame. Not with intrinsics refinement or ``--ba colmap``.
     Raises:
         PolarrefError: no images, unknown intrinsics, no initial pair, < 2 registered images.
             metrics.json is still written with what was done, unless ``out_dir`` holds a
@@ -356,7 +360,8 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
             # peak (168 comet views: ~180 of 850 MiB peak; issue 14's 2 GB target at 631 views)
             for f in feats:
                 f.descriptors = None
-        mlog = run_mapper(state, matches.geometries, config.mapper, descriptors)
+        hook = prior_hook(priors, state.names, image_sigma_px, config.mapper)
+        mlog = run_mapper(state, matches.geometries, config.mapper, descriptors, hook)
         timings["mapping"] = time.perf_counter() - t0
         timings["ba"] = float(sum(b.wall_s for b in mlog.ba))
         report.initial_pair = [feats[i].name for i in mlog.initial_pair]

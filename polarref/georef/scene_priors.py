@@ -1,0 +1,85 @@
+"""Pose priors from a rendered scene's ``scene.json`` (section ``priors``, written by synth/priors.py).
+
+The twins draw their priors as AR(1) drift along the image order (``params.correlation``); the
+adjustment weights them as independent with their stated sigmas, as a user with GPS/INS logs
+would. The correlation is kept in :class:`ScenePriorParams` so that predictions can use it.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from polarref.core.errors import PolarrefError
+from polarref.core.geometry import Rigid3
+from polarref.georef.formats import PosePrior
+
+PRIORS_FORMAT = "polarref-pose-priors/1"
+SCENE_KEYWORD = "scene"  # `--priors scene`: the priors of DIR/scene.json
+
+
+@dataclass(frozen=True)
+class ScenePriorParams:
+    """How the scene's priors were drawn (1-sigma, metres / degrees; lag-one correlation)."""
+
+    position_sigma_m: float
+    vertical_sigma_m: float
+    rotation_sigma_deg: float
+    correlation: float
+
+
+def _load(path: Path) -> dict:
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise PolarrefError(f"{path}: cannot read ({exc.strerror or exc})") from exc
+    except json.JSONDecodeError as exc:
+        raise PolarrefError(f"{path}: not JSON ({exc.msg}, line {exc.lineno})") from exc
+    pri = data.get("priors") if isinstance(data, dict) else None
+    if not pri:
+        raise PolarrefError(f"{path}: no pose priors in this scene (its 'priors' section is empty; "
+                            "render a twin, or pass --priors FILE)")
+    if pri.get("format") != PRIORS_FORMAT:
+        raise PolarrefError(f"{path}: priors format {pri.get('format')!r}, expected {PRIORS_FORMAT!r}")
+    return data
+
+
+def scene_prior_params(path: Path) -> ScenePriorParams:
+    p = _load(path)["priors"]["params"]
+    vert = p.get("vertical_sigma_m") or p["position_sigma_m"]
+    return ScenePriorParams(float(p["position_sigma_m"]), float(vert), float(p["rotation_sigma_deg"]),
+                            float(p["correlation"]))
+
+
+def read_scene_priors(path: Path, image_names) -> tuple[PosePrior, ...]:
+    """Centre and attitude priors of ``scene.json`` at ``path`` for the views named in it.
+
+    Views are matched to images by the ``views[k].name`` of the same index; a prior of an image
+    not in ``image_names`` is an error, as for ``--priors FILE``.
+    """
+    data = _load(path)
+    views = [v["name"] for v in data.get("views") or []]
+    return priors_of_section(data["priors"]["views"], views, image_names, str(path))
+
+
+def priors_of_section(pri: list, view_names: list[str], image_names, where: str) -> tuple[PosePrior, ...]:
+    """PosePriors of a ``priors.views`` list (synth.priors.draw_priors) for views ``view_names``."""
+    path = where
+    if len(view_names) != len(pri):
+        raise PolarrefError(f"{path}: {len(pri)} priors for {len(view_names)} views")
+    names, out = set(image_names), []
+    for name, p in zip(view_names, pri):
+        if name not in names:
+            raise PolarrefError(f"{path}: prior for image {name!r}, which is not in the image folder")
+        sigma = np.asarray(p["center_sigma_m"], float)
+        if not np.all(sigma > 0):
+            raise PolarrefError(f"{path}: centre prior of {name!r} has a sigma <= 0")
+        sig_deg = float(p["rotation_sigma_deg"])
+        R = None
+        if sig_deg > 0:  # a twin drawn without attitude noise states no attitude prior
+            R = Rigid3.from_quat(np.asarray(p["qvec"], float), np.asarray(p["tvec"], float)).R
+        out.append(PosePrior(name, np.asarray(p["center"], float), sigma, R, sig_deg if R is not None else None))
+    return tuple(out)

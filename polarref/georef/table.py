@@ -1,0 +1,161 @@
+"""The aerotriangulation table (issue 33): records per method, form and variant, read from and
+written to JSON; the markdown is generated from the JSON alone, so the two cannot disagree."""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import math
+from dataclasses import dataclass
+
+from polarref.georef.adjust import AerotriangulationRecord, CheckPointStats
+from polarref.georef.predict import PredictedRMSE
+
+TABLE_FORMAT = "polarref-aerotriangulation/2"
+PRIORS_ONLY_FACTOR = 1.5   # done-when: priors-only check RMSE within 1.5x of the prediction
+GCP_HORIZONTAL_GSD = 2.0   # done-when with 10 control points: horizontal <= 2 GSD
+GCP_VERTICAL_GSD = 3.0     # ... and vertical <= 3 GSD
+
+
+class Variant(enum.StrEnum):
+    PRIORS_OFF = "priors off"              # free adjustment, then a similarity onto the prior centres
+    PRIORS_ON = "priors on"                # priors inside the mapping and its BAs
+    PRIORS_GCPS = "priors + GCPs"          # plus control points in the final adjustment
+    GCP_SIMILARITY = "priors + GCP similarity"  # peer: its model moved onto the control points
+
+
+@dataclass(frozen=True)
+class AerotriRow:
+    method: str                 # "polarref" or the peer's name
+    variant: Variant
+    record: AerotriangulationRecord
+
+
+@dataclass(frozen=True)
+class MonteCarlo:
+    """Priors-only check-point RMSE pooled over ``draws`` redraws of the prior noise (same
+    model, same distribution as the scene's priors), metres."""
+
+    draws: int
+    seed: int
+    form: str
+    rmse: PredictedRMSE     # the adjustment's check points
+    linear: PredictedRMSE   # the linear datum model (georef/predict.datum_error) on the same draws
+
+
+@dataclass(frozen=True)
+class AerotriTable:
+    scene: str
+    views: int
+    registered: tuple[tuple[str, int], ...]  # (method/form label, images registered)
+    gsd_m: float
+    priors_source: str           # "layout" (independent, synth.uav.gcp_layout) or "scene" (scene.json)
+    prior_sigma_m: tuple[float, float, float]
+    prior_correlation: float
+    attitude_sigma_deg: float | None
+    mark_sigma_px: float
+    image_sigma_px: float
+    seed: int
+    predicted: PredictedRMSE
+    monte_carlo: MonteCarlo | None
+    rows: tuple[AerotriRow, ...]
+    notes: tuple[str, ...]
+    provenance: dict
+
+    def to_json(self) -> dict:
+        out = dataclasses.asdict(self)
+        out["format"] = TABLE_FORMAT
+        return out
+
+    @classmethod
+    def from_json(cls, d: dict) -> AerotriTable:
+        if d.get("format") != TABLE_FORMAT:
+            raise ValueError(f"aerotriangulation table format {d.get('format')!r}, expected {TABLE_FORMAT!r}")
+        mc = d["monte_carlo"]
+        rows = tuple(AerotriRow(r["method"], Variant(r["variant"]), _record(r["record"])) for r in d["rows"])
+        kw = {f.name: d[f.name] for f in dataclasses.fields(cls)}
+        kw.update(prior_sigma_m=tuple(d["prior_sigma_m"]), predicted=PredictedRMSE(**d["predicted"]),
+                  monte_carlo=None if mc is None else MonteCarlo(mc["draws"], mc["seed"], mc["form"],
+                                                                  PredictedRMSE(**mc["rmse"]),
+                                                                  PredictedRMSE(**mc["linear"])),
+                  rows=rows, notes=tuple(d["notes"]), registered=tuple((k, int(v)) for k, v in d["registered"]))
+        return cls(**kw)
+
+    def markdown(self) -> str:
+        return "\n".join(_header(self) + _rows(self) + _verdicts(self)) + "\n"
+
+
+def _record(r: dict) -> AerotriangulationRecord:
+    c = r["check"]
+    return AerotriangulationRecord(**{**r, "check": None if c is None else CheckPointStats(**c)})
+
+
+def _f(x: float, d: int = 3) -> str:
+    return "n/a" if x is None or not math.isfinite(x) else f"{x:.{d}f}"
+
+
+def _header(t: AerotriTable) -> list[str]:
+    s = t.prior_sigma_m
+    att = "none" if t.attitude_sigma_deg is None else f"{t.attitude_sigma_deg:g} deg"
+    p = t.predicted
+    lines = [f"# Aerotriangulation: {t.scene}", "",
+             f"{t.views} views; GSD {t.gsd_m:.3f} m; pose priors from {t.priors_source}: sigma "
+             f"{s[0]:g} / {s[1]:g} / {s[2]:g} m (x / y / z), lag-one correlation {t.prior_correlation:g} "
+             f"along the image order, attitude {att}; marks {t.mark_sigma_px:g} px; tie points "
+             f"{t.image_sigma_px:g} px; GCP layout seed {t.seed}. Registered: "
+             + ", ".join(f"{k} {v}" for k, v in t.registered) + ".", "",
+             f"Priors-only prediction (covariance propagation of the prior noise onto the check "
+             f"points, georef/predict.py): RMSE X {_f(p.rmse_x)}, Y {_f(p.rmse_y)}, Z {_f(p.rmse_z)}, "
+             f"horizontal {_f(p.rmse_horizontal)} m."]
+    if t.monte_carlo is not None:
+        m = t.monte_carlo
+        lines.append(f"Monte Carlo ({m.draws} redraws of the prior noise, seed {m.seed}, {m.form}, priors "
+                     f"only, pooled): RMSE X {_f(m.rmse.rmse_x)}, Y {_f(m.rmse.rmse_y)}, Z {_f(m.rmse.rmse_z)}, "
+                     f"horizontal {_f(m.rmse.rmse_horizontal)} m; the linear datum model on the same draws: "
+                     f"X {_f(m.linear.rmse_x)}, Y {_f(m.linear.rmse_y)}, Z {_f(m.linear.rmse_z)}, horizontal "
+                     f"{_f(m.linear.rmse_horizontal)} m.")
+    return lines + [""] + [f"* {n}" for n in t.notes] + [""]
+
+
+def _rows(t: AerotriTable) -> list[str]:
+    out = ["| method | form | variant | control | check | priors | RMSE X | RMSE Y | RMSE Z | RMSE horiz. "
+           "| mean 3D | max 3D | sigma0 | horiz. / GSD | Z / GSD |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for row in t.rows:
+        r, c = row.record, row.record.check
+        cells = ["n/a"] * 6 if c is None else [_f(c.rmse_x), _f(c.rmse_y), _f(c.rmse_z), _f(c.rmse_horizontal),
+                                              _f(c.mean_3d), _f(c.max_3d)]
+        gsd = ["n/a"] * 2 if c is None else [_f(c.rmse_horizontal / t.gsd_m, 2), _f(c.rmse_z / t.gsd_m, 2)]
+        out.append(f"| {row.method} | {r.form} | {row.variant} | {r.num_control} | "
+                   f"{r.num_check if c is None else c.count} | {r.num_priors} | " + " | ".join(cells)
+                   + f" | {_f(r.sigma0)} | " + " | ".join(gsd) + " |")
+    return out + [""]
+
+
+def _verdicts(t: AerotriTable) -> list[str]:
+    """The issue's done-when, evaluated on the rows of our method."""
+    p = t.predicted
+    out = ["## Done-when (issue 33), our rows", ""]
+    for row in t.rows:
+        c = row.record.check
+        if row.method != "polarref" or c is None:
+            continue
+        if row.variant == Variant.PRIORS_ON:
+            rh, rz = c.rmse_horizontal / p.rmse_horizontal, c.rmse_z / p.rmse_z
+            ok = rh <= PRIORS_ONLY_FACTOR and rz <= PRIORS_ONLY_FACTOR
+            out.append(f"* {row.record.form}, priors only: horizontal {rh:.2f}x, Z {rz:.2f}x the prediction "
+                       f"(<= {PRIORS_ONLY_FACTOR}x): {'met' if ok else 'NOT met'}")
+        if row.variant == Variant.PRIORS_GCPS:
+            h, z = c.rmse_horizontal / t.gsd_m, c.rmse_z / t.gsd_m
+            ok = (h <= GCP_HORIZONTAL_GSD and z <= GCP_VERTICAL_GSD and row.record.num_control >= 10
+                  and c.count >= 10)
+            out.append(f"* {row.record.form}, {row.record.num_control} control / {c.count} check: horizontal "
+                       f"{h:.2f} GSD (<= {GCP_HORIZONTAL_GSD:g}), Z {z:.2f} GSD (<= {GCP_VERTICAL_GSD:g}): "
+                       f"{'met' if ok else 'NOT met'}")
+    if t.monte_carlo is not None:
+        m = t.monte_carlo.rmse
+        out.append(f"* Monte Carlo vs prediction: horizontal {m.rmse_horizontal / p.rmse_horizontal:.2f}x, "
+                   f"Z {m.rmse_z / p.rmse_z:.2f}x; vs the linear model on the same draws: horizontal "
+                   f"{m.rmse_horizontal / t.monte_carlo.linear.rmse_horizontal:.3f}x, "
+                   f"Z {m.rmse_z / t.monte_carlo.linear.rmse_z:.3f}x")
+    return out
