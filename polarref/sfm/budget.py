@@ -1,0 +1,57 @@
+"""Image size and feature budget of a run, as pycolmap users expect them.
+
+pycolmap's SIFT extraction detects on images downscaled to ``max_image_size`` = 3200 px (longer
+side) and keeps at most ``max_num_features`` = 8192 keypoints. Photo folders (cameras from
+EXIF, no ``gt/``) get exactly these unless the run's feature settings were changed. A smaller
+``--max-image-size`` given alone scales the budget with the side length (the number of
+keypoints SIFT finds grows about with the side, not the area, on our sets: image borders and
+texture edges hold them), never below :data:`MIN_FEATURES`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from polarref.sfm.features import FeatureConfig
+
+COLMAP_MAX_IMAGE_SIZE = 3200   # px, pycolmap SiftExtractionOptions.max_image_size
+COLMAP_MAX_FEATURES = 8192     # pycolmap SiftExtractionOptions.max_num_features
+MIN_FEATURES = 1024
+
+
+@dataclass(frozen=True)
+class FeatureBudget:
+    """What metrics.json states about image size and keypoints."""
+
+    max_image_size: int        # px, longer side detection runs at (0 = full resolution)
+    max_num_features: int      # keypoints kept per image
+    rule: str                  # how they were chosen (see the module docstring)
+    mean_detection_side: float = 0.0   # px, mean longer side SIFT actually ran on
+    mean_keypoints: float = 0.0        # per image, after the budget
+
+
+def scaled_features(max_image_size: int) -> int:
+    """The budget for a given maximum image size: pycolmap's 8192 at 3200 px, linear in the side."""
+    if max_image_size <= 0:
+        return COLMAP_MAX_FEATURES
+    return max(MIN_FEATURES, round(COLMAP_MAX_FEATURES * max_image_size / COLMAP_MAX_IMAGE_SIZE))
+
+
+def for_photos(features: FeatureConfig, default: FeatureConfig) -> tuple[FeatureConfig, str]:
+    """(settings, rule) for a folder of photos: pycolmap's size and budget when untouched."""
+    import dataclasses
+
+    if features == default:
+        return (dataclasses.replace(features, max_image_size=COLMAP_MAX_IMAGE_SIZE,
+                                    max_num_features=COLMAP_MAX_FEATURES),
+                "photos: pycolmap's max_image_size 3200, max_num_features 8192")
+    return features, "as configured"
+
+
+def describe(features: FeatureConfig, rule: str, sizes: list[tuple[int, int]],
+             keypoints: list[int]) -> FeatureBudget:
+    """The record of what ran: ``sizes`` (width, height) of the originals, keypoints per image."""
+    cap = features.max_image_size
+    sides = [min(max(w, h), cap) if cap else max(w, h) for w, h in sizes]
+    return FeatureBudget(cap, features.max_num_features, rule,
+                         float(sum(sides) / max(len(sides), 1)), float(sum(keypoints) / max(len(keypoints), 1)))
