@@ -54,7 +54,9 @@ def test_feature_budget_scales_with_the_image_size():
     assert B.scaled_features(1600) == 4096 and B.scaled_features(100) == B.MIN_FEATURES
     cfg, rule = B.for_photos(FeatureConfig(), FeatureConfig())
     assert (cfg.max_image_size, cfg.max_num_features) == (3200, 8192) and "pycolmap" in rule
-    mine = FeatureConfig(max_num_features=100)
+    cfg, rule = B.for_photos(FeatureConfig(max_image_size=1600), FeatureConfig())
+    assert (cfg.max_image_size, cfg.max_num_features) == (1600, 4096) and "scaled" in rule
+    mine = FeatureConfig(max_num_features=100, max_image_size=1600)
     assert B.for_photos(mine, FeatureConfig()) == (mine, "as configured")
     rec = B.describe(FeatureConfig(max_image_size=1000), "x", [(2000, 1000), (800, 600)], [10, 30])
     assert (rec.mean_detection_side, rec.mean_keypoints) == (900.0, 20.0)

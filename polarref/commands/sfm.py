@@ -69,11 +69,8 @@ def _config(args: argparse.Namespace):
     if args.max_features is not None:
         cfg = rep(cfg, features=rep(cfg.features, max_num_features=args.max_features))
     if args.max_image_size is not None:
-        from polarref.sfm.budget import scaled_features
-
-        # pycolmap's budget scaled with the size (sfm/budget.py), unless --max-features says otherwise
-        n = args.max_features if args.max_features is not None else scaled_features(args.max_image_size)
-        cfg = rep(cfg, features=rep(cfg.features, max_image_size=args.max_image_size, max_num_features=n))
+        # a photo folder's feature budget then scales with it (sfm/budget.py)
+        cfg = rep(cfg, features=rep(cfg.features, max_image_size=args.max_image_size))
     if args.pairing:
         cfg = rep(cfg, matching=rep(cfg.matching, pairing=args.pairing))
     if args.triangulation:

@@ -10,6 +10,7 @@ texture edges hold them), never below :data:`MIN_FEATURES`.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 from polarref.sfm.features import FeatureConfig
@@ -38,13 +39,20 @@ def scaled_features(max_image_size: int) -> int:
 
 
 def for_photos(features: FeatureConfig, default: FeatureConfig) -> tuple[FeatureConfig, str]:
-    """(settings, rule) for a folder of photos: pycolmap's size and budget when untouched."""
-    import dataclasses
+    """(settings, rule) for a folder of photos.
 
+    Untouched settings: pycolmap's size and budget. Only the image size changed (``--max-image-size``
+    alone): the budget scales with it. Anything else: as configured.
+    """
     if features == default:
         return (dataclasses.replace(features, max_image_size=COLMAP_MAX_IMAGE_SIZE,
                                     max_num_features=COLMAP_MAX_FEATURES),
-                "photos: pycolmap's max_image_size 3200, max_num_features 8192")
+                f"photos: pycolmap's max_image_size {COLMAP_MAX_IMAGE_SIZE}, max_num_features {COLMAP_MAX_FEATURES}")
+    if dataclasses.replace(features, max_image_size=default.max_image_size) == default:
+        n = scaled_features(features.max_image_size)
+        return (dataclasses.replace(features, max_num_features=n),
+                f"photos: max_image_size {features.max_image_size} given, max_num_features scaled to {n} "
+                f"({COLMAP_MAX_FEATURES} at {COLMAP_MAX_IMAGE_SIZE} px, linear in the side)")
     return features, "as configured"
 
 

@@ -396,8 +396,7 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         from polarref.sfm.calibration import camera_reports
 
         report.refine = list(config.mapper.refine)
-        if report.refine and not any(b.kind == "global" and b.num_registered >= config.mapper.refine_min_images
-                                     for b in mlog.ba):
+        if report.refine and not any(b.kind == "global" and b.refined_intrinsics for b in mlog.ba):
             log.warning("intrinsics not refined (%s requested): %d registered images, refinement starts at %d",
                         ",".join(report.refine), int(state.registered.sum()), config.mapper.refine_min_images)
             report.refine = []
