@@ -51,11 +51,13 @@ def test_p4pf_refuses_too_few_or_random_correspondences():
 
 def test_feature_budget_scales_with_the_image_size():
     assert B.scaled_features(3200) == 8192 and B.scaled_features(0) == 8192
-    assert B.scaled_features(1600) == 4096 and B.scaled_features(100) == B.MIN_FEATURES
+    assert B.scaled_features(1600) == 8192 and B.scaled_features(6400) == 16384
     cfg, rule = B.for_photos(FeatureConfig(), FeatureConfig())
     assert (cfg.max_image_size, cfg.max_num_features) == (3200, 8192) and "pycolmap" in rule
     cfg, rule = B.for_photos(FeatureConfig(max_image_size=1600), FeatureConfig())
-    assert (cfg.max_image_size, cfg.max_num_features) == (1600, 4096) and "scaled" in rule
+    assert (cfg.max_image_size, cfg.max_num_features) == (1600, 8192) and "1600 given" in rule
+    cfg, rule = B.for_photos(FeatureConfig(max_image_size=4800), FeatureConfig())
+    assert cfg.max_num_features == 12288 and "linear in the side above" in rule
     mine = FeatureConfig(max_num_features=100, max_image_size=1600)
     assert B.for_photos(mine, FeatureConfig()) == (mine, "as configured")
     rec = B.describe(FeatureConfig(max_image_size=1000), "x", [(2000, 1000), (800, 600)], [10, 30])

@@ -34,7 +34,7 @@ def test_berlin_street_photos_register_with_exif_focal(tmp_path):
     assert r.metrics.registered_images == 3 and r.unregistered == []
     assert 0 < r.metrics.mean_reprojection_error_px < 1.0 and r.metrics.tie_points > 200
     (cam,) = r.cameras
-    assert cam.source == "exif" and "scaled" in r.feature_budget.rule
+    assert cam.source == "exif" and "800 given" in r.feature_budget.rule
 
 
 @pytest.mark.slow  # 10 photos at ~1000 px: about a minute on 2 loaded cores
