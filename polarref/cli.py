@@ -73,8 +73,10 @@ def _setup_logging(verbose: int, quiet: bool) -> None:
 
 
 def _log_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    logging.getLogger("py.warnings").warning("%s: %s (%s:%s)", category.__name__,
-                                             _one_line(message), filename, lineno)
+    # a library's warning (numpy's "invalid value encountered", ...) names no problem of the
+    # user's: shown with -v only; what the user must know, our own log.warning says in words
+    logging.getLogger("py.warnings").debug("%s: %s (%s:%s)", category.__name__,
+                                           _one_line(message), filename, lineno)
 
 
 class _Interrupts:

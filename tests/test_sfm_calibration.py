@@ -41,7 +41,7 @@ def test_camera_grouping_modes_and_default_focal(tmp_path, caplog):
          _jpeg(tmp_path / "2.jpg", make="Other", model="Two", f35=50),
          _jpeg(tmp_path / "3.jpg")]
     sizes = [(64, 48)] * 4
-    with caplog.at_level(logging.WARNING):
+    with caplog.at_level(logging.INFO):
         cams, idx, src = cameras_from_exif(p, sizes)
     assert idx.tolist() == [0, 0, 1, 2] and src == ["exif", "exif", "default"]
     assert cams[1].fx == pytest.approx(50 / DIAG_35MM * 80.0)
@@ -87,7 +87,7 @@ def test_sfm_on_exif_jpegs_registers_all_and_refines_camera(jpeg_scene, tmp_path
     folder, gt_cam = jpeg_scene
     monkeypatch.setenv("POLARREF_CACHE", str(tmp_path / "cache"))
     out = tmp_path / "out"
-    with caplog.at_level(logging.WARNING):
+    with caplog.at_level(logging.INFO):
         assert main(["sfm", str(folder), "--out", str(out), "--preset", "small"]) == 0
     assert sum("no EXIF focal length" in r.getMessage() for r in caplog.records) == 1
     m = json.loads((out / "metrics.json").read_text())

@@ -148,3 +148,15 @@ def test_triangulation_angles_against_brute_force():
         r /= np.linalg.norm(r, axis=1, keepdims=True)
         ref = np.degrees(np.arccos(np.clip(r @ r.T, -1, 1))).max()
         assert abs(got[g] - ref) < 1e-6
+
+
+def test_triangulation_angle_of_a_point_at_a_camera_centre_is_zero_without_warning():
+    # the mapper's old placeholder (0, 0, 0) for unsolved points sat at the gauge camera's
+    # centre: 0/0 in the ray normalization, numpy's "invalid value" on the user's terminal
+    X = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 10.0], [np.nan, 0.0, 1.0]])
+    C = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0, 0, 0], [1.0, 0, 0]])
+    group = np.array([0, 0, 1, 1, 2, 2])
+    with np.errstate(all="raise"):
+        got = triangulation_angles_deg(X, C, group, 3)
+    assert got[0] == 0.0 and got[2] == 0.0
+    assert got[1] == pytest.approx(np.degrees(np.arctan2(1.0, 10.0)), abs=1e-9)

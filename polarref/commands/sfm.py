@@ -74,6 +74,7 @@ def _config(args: argparse.Namespace):
     if args.max_features is not None:
         cfg = rep(cfg, features=rep(cfg.features, max_num_features=args.max_features))
     if args.max_image_size is not None:
+        # a photo folder's feature budget then scales with it (sfm/budget.py)
         cfg = rep(cfg, features=rep(cfg.features, max_image_size=args.max_image_size))
     if args.pairing:
         cfg = rep(cfg, matching=rep(cfg.matching, pairing=args.pairing))

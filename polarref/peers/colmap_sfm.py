@@ -299,3 +299,43 @@ def run_sift_sfm(image_dir: Path, camera, work_dir: Path, opts: ColmapSfMOptions
     run = run_mapper(db, image_dir, work_dir / "sparse", mapper, opts)
     run.stage_runtime_s = {**stages, **run.stage_runtime_s}
     return run
+
+
+# ---- pycolmap as a user runs it on photos -------------------------------------------------------
+@dataclass
+class DefaultSfMRun:
+    """Every model of one pycolmap run with its defaults, largest first."""
+
+    models: list = field(default_factory=list)    # pycolmap.Reconstruction, most registered first
+    stage_runtime_s: dict[str, float] = field(default_factory=dict)
+    verified_pairs: int = 0
+
+
+def run_default_sfm(image_dir: Path, work_dir: Path, max_image_size: int = 3200, seed: int = 0,
+                    num_threads: int = 1, overwrite: bool = False) -> DefaultSfMRun:
+    """pycolmap on a folder of photos with its defaults: cameras from EXIF (``CameraMode.AUTO``,
+    focal guessed where EXIF lacks it, refined), SIFT (8192 features), exhaustive matching,
+    incremental mapping with several models. Only the image size, the seed and the thread
+    count are set. Database ``work_dir/database.db``, models ``work_dir/sparse/<k>``."""
+    pycolmap = _pycolmap()
+    work_dir = Path(work_dir)
+    db = _fresh_database(work_dir / "database.db", overwrite)
+    extraction, matching = sift_options(ColmapSfMOptions(num_threads=num_threads, max_image_size=max_image_size))
+    t0 = time.perf_counter()
+    pycolmap.extract_features(str(db), str(image_dir), camera_mode=pycolmap.CameraMode.AUTO,
+                              extraction_options=extraction, device=pycolmap.Device.cpu)
+    t1 = time.perf_counter()
+    pycolmap.match_exhaustive(str(db), matching_options=matching, device=pycolmap.Device.cpu)
+    t2 = time.perf_counter()
+    opts = pycolmap.IncrementalPipelineOptions()
+    opts.num_threads = num_threads
+    opts.random_seed = seed
+    opts.mapper.random_seed = seed
+    out = work_dir / "sparse"
+    out.mkdir(parents=True, exist_ok=True)
+    recs = pycolmap.incremental_mapping(str(db), str(image_dir), str(out), options=opts) or {}
+    models = sorted(recs.values(), key=lambda r: -r.num_reg_images())
+    for r in models:
+        r.update_point_3d_errors()
+    return DefaultSfMRun(models, {"features": t1 - t0, "matching": t2 - t1, "mapping": time.perf_counter() - t2},
+                         count_verified_pairs(db))

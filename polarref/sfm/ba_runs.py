@@ -50,6 +50,13 @@ class BARun:
         return None if run is None else run.initial_cost
 
     @property
+    def refined_intrinsics(self) -> bool:
+        """Whether this run refined any intrinsics group."""
+        if self.colmap is not None:
+            return bool(self.colmap.refine)
+        return self.summary is not None and bool(self.summary.intrinsics)
+
+    @property
     def trace(self) -> list[IterationRecord]:
         return list(self.summary.trace) if self.summary is not None else []
 

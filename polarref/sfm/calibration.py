@@ -97,9 +97,10 @@ def cameras_from_exif(paths: list[Path], sizes: list[tuple[int, int]], mode: str
     idx = np.array([order.setdefault(k, len(order)) for k in keys], np.int64)
     missing = [p.name for p, i in zip(paths, infos) if i.focal_px is None]
     if missing:
-        log.warning("%d of %d images have no EXIF focal length (%s%s): using f = %.1f x max(width, "
-                    "height)", len(missing), len(paths), ", ".join(missing[:3]),
-                    ", ..." if len(missing) > 3 else "", DEFAULT_FOCAL_FACTOR)
+        # not a warning: the guess only starts P4Pf / BA, which estimate the focal length
+        log.info("%d of %d images have no EXIF focal length (%s%s): starting from f = %.1f x max(width, "
+                 "height), estimated during registration", len(missing), len(paths), ", ".join(missing[:3]),
+                 ", ..." if len(missing) > 3 else "", DEFAULT_FOCAL_FACTOR)
     cameras, sources = [], []
     for g in range(len(order)):
         members = np.flatnonzero(idx == g)

@@ -26,6 +26,9 @@ class SfMConfig:
     use_cache: bool = True          # reuse features/matches from cache_dir
     camera_mode: str = "per-model"  # EXIF cameras (no camera given): per-model | single | per-image
     cache_dir: str = ""             # "" = polarref.core.data.cache_root() / "sfm"
+    # images left out of a model that still share verified pairs start another model, up to
+    # this many models in all (COLMAP's incremental mapper does the same; 1 = one model only)
+    max_models: int = 10
 
 
 PRESETS: dict[str, SfMConfig] = {

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass, field
 
@@ -15,7 +16,7 @@ from polarref.sfm import rays as R_
 from polarref.sfm.guided import GuidedConfig, guided_extend
 from polarref.sfm.initial_pair import InitConfig, choose_initial_pair
 from polarref.sfm.priors_hook import PriorHook
-from polarref.sfm.registration import RegisterConfig, estimate_pose
+from polarref.sfm.registration import RegisterConfig, estimate_pose, estimate_pose_and_focal
 from polarref.sfm.ba_runs import BARun
 from polarref.sfm.state import MapState
 from polarref.sfm.verification import TwoViewGeometry
@@ -54,6 +55,14 @@ class MapperConfig:
     # 0.33 % focal and 0.056 deg rotation error, 4 rounds 0.13 % and 0.026 deg
     refine_extra_rounds: int = 2
     max_registration_attempts: int = 3  # failed PnP attempts per image before giving up on it
+    # when no image registers any more: global BA, track completion and re-triangulation, then
+    # every unregistered image gets max_registration_attempts more tries (at the register
+    # config's retry threshold), as long as the previous round registered something
+    retry_rounds: int = 5
+    # a camera still at its guessed focal length (no EXIF) with registered images is refined in
+    # every global BA from this many registered images on (EXIF / given focal lengths wait for
+    # refine_min_images)
+    refine_guessed_min_images: int = 3
     guided: GuidedConfig = field(default_factory=GuidedConfig)  # track continuation (needs descriptors)
     init: InitConfig = field(default_factory=InitConfig)
     register: RegisterConfig = field(default_factory=RegisterConfig)
@@ -66,6 +75,8 @@ class MapperLog:
     failed_registrations: dict[int, int] = field(default_factory=dict)
     ba: list[BARun] = field(default_factory=list)  # every BA run, in order (kind: local|global)
     guided_observations: int = 0  # observations added by guided matching (before filtering)
+    retry_rounds: int = 0         # rounds of retries after no image registered (see MapperConfig)
+    focal_estimates: dict[int, float] = field(default_factory=dict)  # camera -> focal (px) from P4Pf
 
 
 def _image_tracks(state: MapState, image: int) -> np.ndarray:
@@ -79,8 +90,12 @@ def _global_ba(state: MapState, cfg: MapperConfig, log_: MapperLog, gauge: list[
         hook.realign(state)
     reg = [int(i) for i in np.flatnonzero(state.registered)]
     var = [i for i in reg if i not in gauge]
-    # early intrinsics are poorly constrained (COLMAP also treats its first ~10 images apart)
-    enough = len(reg) >= cfg.refine_min_images
+    # early intrinsics are poorly constrained (COLMAP also treats its first ~10 images apart),
+    # except a camera still at its guessed focal length with images in the map (the initial
+    # pair's: the others get theirs from P4Pf at their first registration): PnP of its next
+    # images under a guess tens of % off fails, so it is refined from refine_guessed_min_images on
+    guess_in_map = bool(state.focal_guessed[state.camera_of_image[reg]].any())
+    enough = len(reg) >= cfg.refine_min_images or (guess_in_map and len(reg) >= cfg.refine_guessed_min_images)
     refine = tuple(cfg.refine or ()) if enough else ()
     info = bundle.adjust(state, var, list(gauge), cfg.ba, cfg.global_ba_iterations, cfg.global_ba_loss,
                          refine=refine, priors=hook)
@@ -124,21 +139,74 @@ def _guided(state: MapState, images, descriptors, cfg: MapperConfig, out: Mapper
         out.guided_observations += guided_extend(state, images, descriptors, cfg.guided)
 
 
+def _register_next(state: MapState, cfg: MapperConfig, out: MapperLog, gauge: list[int], descriptors,
+                   fails: dict[int, int], tried: set[int], allowed: np.ndarray,
+                   hook: PriorHook | None = None) -> bool:
+    """Register the best candidate that succeeds (next-best-view order); False when none does.
+
+    ``gauge`` is updated in place: once the priors place the map, no camera is held."""
+    vis = state.num_visible()
+    score = state.visibility_scores()
+    ok = allowed & ~state.registered & (vis >= cfg.register.min_inliers)
+    cands = [int(i) for i in np.argsort(-score, kind="stable")
+             if ok[i] and fails.get(int(i), 0) < cfg.max_registration_attempts]
+    for c in cands:
+        rc = cfg.register
+        if c in tried:
+            rc = dataclasses.replace(rc, max_error_px=max(rc.max_error_px, rc.retry_max_error_px))
+        obs, X = state.correspondences_2d3d(c)
+        k = int(state.camera_of_image[c])
+        seed = rc.seed + c + 100003 * out.retry_rounds
+        if state.focal_guessed[k] and not state.registered[state.camera_of_image == k].any():
+            # first image of a camera without a known focal length: P4Pf estimates it with the pose
+            est = estimate_pose_and_focal(state.uv[obs], X, state.cameras[k], rc, seed)
+            if est is not None:
+                log.info("image %s: focal length %.1f px estimated with its pose (guess %.1f px)",
+                         state.names[c], est.camera.fx, state.cameras[k].fx)
+                state.set_camera(k, est.camera)
+                state.focal_guessed[k] = False
+                out.focal_estimates[k] = float(est.camera.fx)
+        else:
+            f = R_.mean_focal(state.cameras[k])
+            est = estimate_pose(R_.normalized(state.ray[obs]), X, f, rc, seed)
+        if est is None:
+            fails[c] = fails.get(c, 0) + 1
+            out.failed_registrations[c] = out.failed_registrations.get(c, 0) + 1
+            tried.add(c)
+            continue
+        state.set_pose(c, est.cam_from_world)
+        state.active[obs[est.inliers]] = True
+        out.registration_order.append(c)
+        state.triangulate(_image_tracks(state, c))
+        state.extend(_image_tracks(state, c))
+        _guided(state, [c], descriptors, cfg, out)
+        if hook is not None and hook.place(state):
+            gauge[:] = hook.gauge(gauge)
+        _local_ba(state, c, cfg, out, gauge, hook)
+        state.triangulate(_image_tracks(state, c))
+        return True
+    return False
+
+
 def run_mapper(state: MapState, geoms: dict[tuple[int, int], TwoViewGeometry],
                cfg: MapperConfig, descriptors: list[np.ndarray] | None = None,
-               hook: PriorHook | None = None) -> MapperLog:
+               hook: PriorHook | None = None, allowed: np.ndarray | None = None) -> MapperLog:
     """Incremental reconstruction into ``state``; returns what happened.
 
     Args:
         descriptors: (K_i, 128) unit descriptors per image; enables guided matching (guided.py).
         hook: pose priors (priors_hook.py): the map is moved into their frame once they fix it,
             and every later BA carries them.
+        allowed: (N,) bool, images this model may hold (default all): a second model is built
+            from the images the first left out.
 
     Raises:
         PolarrefError: no initial pair, or fewer than two images registered.
     """
     out = MapperLog()
     n = len(state.keypoints)
+    allowed = np.ones(n, bool) if allowed is None else np.asarray(allowed, bool)
+    geoms = {p: g for p, g in geoms.items() if allowed[p[0]] and allowed[p[1]]}
     rays = [np.zeros((len(k), 3)) for k in state.keypoints]
     for i in range(n):
         o = state.obs_of_kp[i]
@@ -164,31 +232,20 @@ def run_mapper(state: MapState, geoms: dict[tuple[int, int], TwoViewGeometry],
         gauge = hook.gauge(gauge)
     n_at_global, pts_at_global = 2, int(state.has_point.sum())
     fails: dict[int, int] = {}
-    for _ in track(range(n - 2), desc="registration", total=n - 2):
-        vis = state.num_visible()
-        vis[state.registered] = -1
-        cands = [int(i) for i in np.argsort(-vis, kind="stable")
-                 if vis[i] > 0 and fails.get(int(i), 0) < cfg.max_registration_attempts]
-        done = False
-        for c in cands:
-            obs, X = state.correspondences_2d3d(c)
-            f = R_.mean_focal(state.cameras[state.camera_of_image[c]])
-            est = estimate_pose(R_.normalized(state.ray[obs]), X, f, cfg.register, cfg.register.seed + c)
-            if est is None:
-                fails[c] = fails.get(c, 0) + 1
-                continue
-            state.set_pose(c, est.cam_from_world)
-            state.active[obs[est.inliers]] = True
-            out.registration_order.append(c)
-            state.triangulate(_image_tracks(state, c))
-            state.extend(_image_tracks(state, c))
-            _guided(state, [c], descriptors, cfg, out)
-            if hook is not None and hook.place(state):
-                gauge = hook.gauge(gauge)
-            _local_ba(state, c, cfg, out, gauge, hook)
-            state.triangulate(_image_tracks(state, c))
-            done = True
-            break
+    tried: set[int] = set()  # images with a failed attempt: later attempts use the retry threshold
+    rescued_at = -1
+    for _ in track(range(int(allowed.sum()) - 2), desc="registration", total=int(allowed.sum()) - 2):
+        done = _register_next(state, cfg, out, gauge, descriptors, fails, tried, allowed, hook)
+        if not done and cfg.retry_rounds > out.retry_rounds and int(state.registered.sum()) != rescued_at:
+            # the map grew since the images failed: complete it, then give them new tries
+            rescued_at = int(state.registered.sum())
+            out.retry_rounds += 1
+            _global_ba(state, cfg, out, gauge, hook)
+            state.filter()
+            _retriangulate(state)
+            _guided(state, np.flatnonzero(state.registered), descriptors, cfg, out)
+            fails.clear()
+            done = _register_next(state, cfg, out, gauge, descriptors, fails, tried, allowed, hook)
         if not done:
             break
         if (state.registered.sum() >= cfg.global_ba_growth * n_at_global
@@ -198,7 +255,7 @@ def run_mapper(state: MapState, geoms: dict[tuple[int, int], TwoViewGeometry],
             _retriangulate(state)
             _guided(state, np.flatnonzero(state.registered), descriptors, cfg, out)
             n_at_global, pts_at_global = int(state.registered.sum()), int(state.has_point.sum())
-    out.failed_registrations = {k: v for k, v in fails.items() if not state.registered[k]}
+    out.failed_registrations = {k: v for k, v in out.failed_registrations.items() if not state.registered[k]}
     for _ in range(cfg.final_ba_rounds + (cfg.refine_extra_rounds if cfg.refine else 0)):
         _retriangulate(state)
         _guided(state, np.flatnonzero(state.registered), descriptors, cfg, out)

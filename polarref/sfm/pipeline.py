@@ -32,7 +32,7 @@ from polarref.sfm import rays as R_
 from polarref.sfm.bundle import to_reconstruction
 from polarref.sfm.mapper import run_mapper
 from polarref.sfm.priors_hook import prior_hook
-from polarref.sfm.report import SfMReport
+from polarref.sfm.report import ModelSummary, SfMReport, UnregisteredImage
 from polarref.sfm.matching import match_pairs, select_pairs
 from polarref.sfm.state import MapState
 from polarref.sfm.tracks import build_tracks
@@ -301,6 +301,7 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
     from polarref.core.provenance import collect_record
     from polarref.io.scene_folder import SkippedImage
 
+    extra: list[Reconstruction] = []
     report = SfMReport(str(image_dir), config, collect_record(seeds={
         "verification": config.verification.seed, "registration": config.mapper.register.seed}))
 
@@ -314,13 +315,23 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
                 from polarref.sfm.model_files import write_model
 
                 write_model(rec, out / "model", model_format)
+                for k, r in enumerate(extra):
+                    write_model(r, out / f"model-{k + 2}", model_format)
                 timings["export"] = time.perf_counter() - t0
             timings["total"] = time.perf_counter() - t_start
             report.runtime_s = timings
             M.write_json(out / "metrics.json", report.to_json())
 
+    from polarref.sfm import budget as B
+
+    rule = "as configured"
+    if camera is None and gt is None:
+        config_features, rule = B.for_photos(config.features, SfMConfig().features)
+        config = dataclasses.replace(config, features=config_features)
     try:
         feats, skipped, fkey = load_images_and_features(Path(image_dir), config, timings)
+        report.feature_budget = B.describe(config.features, rule, [(f.width, f.height) for f in feats],
+                                           [len(f.keypoints) for f in feats])
         report.skipped_images = [SkippedImage(str(s["name"]), str(s["reason"])) for s in skipped]
         report.num_images = len(feats) + len(skipped)
         if len(feats) < 2:
@@ -333,9 +344,14 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
             cameras, cam_idx, sources = cameras_from_exif(
                 [Path(image_dir) / f.name for f in feats], sizes, config.camera_mode)
             auto_refine = EXIF_REFINE
+            guessed = np.array([k for k, src in enumerate(sources) if src == "default"], np.int64)
+            config = dataclasses.replace(config, verification=dataclasses.replace(
+                config.verification, uncalibrated_images=tuple(
+                    int(i) for i in np.flatnonzero(np.isin(cam_idx, guessed)))))
         else:
             cameras, cam_idx = cameras_for_images([f.name for f in feats], sizes, camera, gt)
             sources, auto_refine = ["given" if camera is not None else "gt"] * len(cameras), ()
+            guessed = np.zeros(0, np.int64)
         if config.mapper.refine is None:
             config = dataclasses.replace(config, mapper=dataclasses.replace(
                 config.mapper, refine=auto_refine))
@@ -350,8 +366,6 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         report.num_tracks = int(tracks.num_tracks)
         report.num_conflicting_tracks_dropped = int(tracks.num_conflicting)
         t0 = time.perf_counter()
-        state = MapState([f.name for f in feats], list(cameras), cam_idx, [f.keypoints for f in feats],
-                         tracks, config.triangulation)
         if config.mapper.guided.enabled:
             ensure_descriptors(feats, config, fkey)
         descriptors = [f.descriptors for f in feats] if config.mapper.guided.enabled else None
@@ -360,26 +374,41 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
             # peak (168 comet views: ~180 of 850 MiB peak; issue 14's 2 GB target at 631 views)
             for f in feats:
                 f.descriptors = None
-        hook = prior_hook(priors, state.names, image_sigma_px, config.mapper)
-        mlog = run_mapper(state, matches.geometries, config.mapper, descriptors, hook)
+        models = _map_all(feats, list(cameras), cam_idx, guessed, tracks, matches.geometries, config,
+                          descriptors, priors, image_sigma_px)
+        state, mlog = models[0]
         timings["mapping"] = time.perf_counter() - t0
-        timings["ba"] = float(sum(b.wall_s for b in mlog.ba))
+        timings["ba"] = float(sum(b.wall_s for _, ml in models for b in ml.ba))
         report.initial_pair = [feats[i].name for i in mlog.initial_pair]
         report.registration_order = [feats[i].name for i in mlog.registration_order]
-        report.unregistered_images = [f.name for i, f in enumerate(feats) if not state.registered[i]]
-        report.guided_observations = int(mlog.guided_observations)
+        report.models = [ModelSummary("model" if k == 0 else f"model-{k + 1}", int(st.registered.sum()),
+                                      int(st.has_point.sum()), [feats[i].name for i in ml.registration_order],
+                                      [feats[i].name for i in ml.initial_pair])
+                         for k, (st, ml) in enumerate(models)]
+        report.unregistered = _unregistered(models, matches.geometries, [f.name for f in feats])
+        report.unregistered_images = [u.name for u in report.unregistered]
+        if report.unregistered:
+            log.warning("%d of %d images are in no model (%s): %s", len(report.unregistered), len(feats),
+                        "listed under 'unregistered' in metrics.json",
+                        "; ".join(f"{u.name}: {u.reason}" for u in report.unregistered[:5])
+                        + ("; ..." if len(report.unregistered) > 5 else ""))
+        if len(models) > 1:
+            log.warning("the images form %d separate models (they share no registrable view); the "
+                        "largest (%d images) is model/, the others model-2/ ...", len(models),
+                        report.models[0].num_registered)
+        report.guided_observations = int(sum(ml.guided_observations for _, ml in models))
         report.ba = mlog.ba
         from polarref.sfm.calibration import camera_reports
 
         report.refine = list(config.mapper.refine)
-        if report.refine and not any(b.kind == "global" and b.num_registered >= config.mapper.refine_min_images
-                                     for b in mlog.ba):
+        if report.refine and not any(b.kind == "global" and b.refined_intrinsics for b in mlog.ba):
             log.warning("intrinsics not refined (%s requested): %d registered images, refinement starts at %d",
                         ",".join(report.refine), int(state.registered.sum()), config.mapper.refine_min_images)
             report.refine = []
         report.cameras = camera_reports(initial_cameras, state.cameras, sources, cam_idx,
                                         [f.name for f in feats], gt)
         rec = to_reconstruction(state, colors=[f.colors for f in feats])
+        extra = [to_reconstruction(st, colors=[f.colors for f in feats]) for st, _ in models[1:]]
     except PolarrefError as exc:
         report.status = RunStatus.FAILED
         report.error = str(exc)
@@ -398,6 +427,60 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
     report.runtime_s = timings
     _publish(rec)
     return SfMResult(rec, report, target)
+
+
+def _map_all(feats, cameras: list, cam_idx: np.ndarray, guessed: np.ndarray, tracks,
+             geoms: dict[tuple[int, int], TwoViewGeometry], config: SfMConfig, descriptors,
+             priors=(), image_sigma_px: float = 0.5):
+    """[(state, log)] of every model, largest first: each next one from the images left out.
+
+    Every model gets its own prior hook (pose priors place each model in the priors' frame)."""
+    names = [f.name for f in feats]
+    def new_state(cams, guess):
+        st = MapState([f.name for f in feats], list(cams), cam_idx, [f.keypoints for f in feats], tracks,
+                      config.triangulation)
+        st.guess_focal(guess)
+        return st
+
+    state = new_state(cameras, guessed)
+    models = [(state, run_mapper(state, geoms, config.mapper, descriptors,
+                                 prior_hook(priors, names, image_sigma_px, config.mapper)))]
+    left = ~state.registered
+    while len(models) < config.max_models and left.sum() >= 2 and any(left[i] and left[j] for i, j in geoms):
+        prev = models[-1][0]
+        # a camera refined in one model starts the next from there; guesses stay guesses
+        st = new_state(prev.cameras, np.flatnonzero(prev.focal_guessed))
+        try:
+            ml = run_mapper(st, geoms, config.mapper, descriptors,
+                            prior_hook(priors, names, image_sigma_px, config.mapper), allowed=left)
+        except PolarrefError as exc:  # what is left does not make a model
+            log.info("no further model from %d images: %s", int(left.sum()), exc)
+            break
+        models.append((st, ml))
+        left &= ~st.registered
+    models.sort(key=lambda m: -int(m[0].registered.sum()))
+    return models
+
+
+def _unregistered(models, geoms: dict[tuple[int, int], TwoViewGeometry], names: list[str]) -> list[UnregisteredImage]:
+    """Every image in no model, with the reason."""
+    in_model = np.zeros(len(names), bool)
+    for st, _ in models:
+        in_model |= st.registered
+    paired = np.zeros(len(names), bool)
+    for i, j in geoms:
+        paired[[i, j]] = True
+    failed = {k: v for _, ml in models for k, v in ml.failed_registrations.items()}
+    out = []
+    for i in np.flatnonzero(~in_model):
+        if not paired[i]:
+            why = "no verified image pair: it overlaps no other image (or too little to match)"
+        elif i in failed:
+            why = f"its pose could not be estimated ({failed[int(i)]} failed attempts; too few 2D-3D inliers)"
+        else:
+            why = "too few of its matches reached 3D points of any model"
+        out.append(UnregisteredImage(names[int(i)], why))
+    return out
 
 
 def _score(rec: Reconstruction, gt: Reconstruction | None, mesh, num_images: int):

@@ -24,6 +24,25 @@ from polarref.core.status import RunStatus
 
 
 
+@dataclass(frozen=True)
+class ModelSummary:
+    """One model of a run (photos that do not connect give several; the largest is ``model/``)."""
+
+    folder: str                      # relative to the output folder: model, model-2, ...
+    num_registered: int
+    tie_points: int
+    images: list[str]                # registered image names, in registration order
+    initial_pair: list[str]
+
+
+@dataclass(frozen=True)
+class UnregisteredImage:
+    """An image in no model, and why."""
+
+    name: str
+    reason: str
+
+
 @dataclass
 class SfMReport:
     """What one SfM run did and how good its model is."""
@@ -41,6 +60,9 @@ class SfMReport:
     initial_pair: list[str] | None = None
     registration_order: list[str] | None = None
     unregistered_images: list[str] | None = None
+    unregistered: list[UnregisteredImage] | None = None  # the same images with the reason
+    models: list[ModelSummary] | None = None   # every model, largest first (metrics: the first)
+    feature_budget: Any = None           # polarref.sfm.budget.FeatureBudget: image size and keypoints used
     guided_observations: int | None = None
     ba: list[BARun] | None = None        # every bundle adjustment of the mapper, in order
     refine: list[str] | None = None          # intrinsics groups refined

@@ -61,6 +61,19 @@ class MapState:
             self.ray[sel] = R_.bearings(cameras[self.camera_of_image[i]], self.uv[sel])
             self.obs_of_kp[i][tracks.keypoint[sel]] = sel
         self._by_track: tuple[np.ndarray, np.ndarray] | None = None  # see obs_of_tracks
+        # (C,) True while a camera's focal length is only the default guess (no EXIF, not given);
+        # the first registration of one of its images then estimates it (mapper, registration.py)
+        self.focal_guessed = np.zeros(len(cameras), bool)
+
+    def guess_focal(self, cameras: np.ndarray) -> None:
+        """Mark cameras (indices) whose focal length is only a guess."""
+        self.focal_guessed[cameras] = True
+
+    def set_camera(self, c: int, camera) -> None:
+        """Replace camera ``c`` and recompute the bearings of its observations."""
+        self.cameras[c] = camera
+        obs = np.flatnonzero(self.camera_of_image[self.tracks.image] == c)
+        self.ray[obs] = R_.bearings(camera, self.uv[obs])
 
     # ---- poses --------------------------------------------------------------------------
     def set_pose(self, image: int, cam_from_world: Rigid3) -> None:
@@ -188,7 +201,14 @@ class MapState:
         ok &= np.bincount(g, minlength=n) >= 2
         ang = np.zeros(n)
         if ok.any():
-            ang = triangulation_angles_deg(np.where(ok[:, None], X, 0.0), self.centers()[tr.image[o]], g, n)
+            # angles of the solved points only: a placeholder for the others would sit at the
+            # gauge camera's centre (the origin) and have no ray direction
+            sub = ok[g]
+            keep = np.flatnonzero(ok)
+            remap_ok = np.full(n, -1, np.int64)
+            remap_ok[keep] = np.arange(len(keep))
+            ang[keep] = triangulation_angles_deg(X[keep], self.centers()[tr.image[o[sub]]], remap_ok[g[sub]],
+                                                 len(keep))
         ok &= ang >= self.tri.min_angle_deg
         new_t = good_t[ok]
         self.X[new_t] = X[ok]
@@ -284,6 +304,27 @@ class MapState:
         """(N,) per image: keypoints whose track already has a point."""
         tr = self.tracks
         return np.bincount(tr.image[self.has_point[tr.track]], minlength=len(self.keypoints))
+
+    def visibility_scores(self, levels: int = 4) -> np.ndarray:
+        """(N,) next-best-view score per image (COLMAP's visibility pyramid, Schoenberger & Frahm 2016).
+
+        Keypoints whose track has a point are binned in 2^l x 2^l grids, l = 1..levels; each
+        occupied cell scores 2^l. Many points spread over the image beat as many points in one
+        corner, which PnP conditions poorly.
+        """
+        tr = self.tracks
+        n = len(self.keypoints)
+        o = np.flatnonzero(self.has_point[tr.track] & ~self.registered[tr.image])
+        img = tr.image[o]
+        wh = np.array([[c.width, c.height] for c in self.cameras], float)[self.camera_of_image[img]]
+        uv = self.uv[o] / wh
+        score = np.zeros(n)
+        for lv in range(1, levels + 1):
+            k = 2 ** lv
+            cell = np.clip((uv * k).astype(np.int64), 0, k - 1)
+            key = np.unique((img * k + cell[:, 0]) * k + cell[:, 1])
+            score += k * np.bincount(key // (k * k), minlength=n)
+        return score
 
     def covisibility(self, image: int) -> np.ndarray:
         """(N,) number of points image ``image`` shares (actively) with each image."""

@@ -147,7 +147,11 @@ def triangulation_angles_deg(X: np.ndarray, C: np.ndarray, group: np.ndarray, nu
     """
     group = np.asarray(group, dtype=np.int64)
     r = X[group] - C
-    r = r / np.linalg.norm(r, axis=1, keepdims=True)
+    length = np.linalg.norm(r, axis=1)
+    # a point at a camera centre (or not finite) has no ray direction: its angle is 0, so every
+    # min-angle test drops it (dividing by the 0 length gave NaN and numpy's warning)
+    degenerate = ~(length > 0) | ~np.isfinite(length)
+    r = np.where(degenerate[:, None], 0.0, r) / np.where(degenerate, 1.0, length)[:, None]
     count = np.bincount(group, minlength=num_groups)
     # rays ordered by (track length, group): the groups of one length form an (n, L, 3) block,
     # so a few long tracks do not pad every short one to their length (cost sum n_L L^2)
@@ -160,4 +164,6 @@ def triangulation_angles_deg(X: np.ndarray, C: np.ndarray, group: np.ndarray, nu
         blk = r[pos:pos + n * L].reshape(n, L, 3)
         cosmin[g[pos:pos + n * L:L]] = np.einsum("gik,gjk->gij", blk, blk).reshape(n, -1).min(axis=1)
         pos += n * L
-    return np.degrees(np.arccos(np.clip(cosmin, -1.0, 1.0)))
+    ang = np.degrees(np.arccos(np.clip(cosmin, -1.0, 1.0)))
+    ang[np.bincount(group, weights=degenerate, minlength=num_groups) > 0] = 0.0
+    return ang

@@ -27,6 +27,11 @@ class VerifyConfig:
     min_inliers: int = 15         # fewer verified matches: the pair is dropped (COLMAP's default)
     min_inlier_ratio: float = 0.25  # fewer inliers / matches: dropped (COLMAP's default)
     seed: int = 0                 # RANSAC seed; pair (i, j) uses seed + 7919 i + j
+    # images whose focal length is only a guess (no EXIF): a pair with one of them is verified by
+    # a fundamental matrix (7 DoF, valid whatever the focal length; COLMAP's UNCALIBRATED case)
+    # instead of an essential matrix built on the guess, which rejects true matches once the
+    # guess is tens of percent off. Set by the pipeline from the cameras' sources.
+    uncalibrated_images: tuple[int, ...] = ()
 
 
 @dataclass
@@ -40,13 +45,15 @@ class TwoViewGeometry:
 
 
 def verify_pair(xy1: np.ndarray, xy2: np.ndarray, matches: np.ndarray, focal: float,
-                config: VerifyConfig, seed: int) -> TwoViewGeometry | None:
+                config: VerifyConfig, seed: int, calibrated: bool = True) -> TwoViewGeometry | None:
     """Verify one pair.
 
     Args:
         xy1, xy2: (K1, 2), (K2, 2) normalized coordinates (x/z, y/z) of all keypoints.
         matches: (M, 2) putative matches.
         focal: mean focal length in px (converts the pixel threshold).
+        calibrated: False: inliers from a fundamental matrix; the pose is then that of the
+            nearest essential matrix under the guessed intrinsics (a start for the mapper).
     Returns:
         The geometry, or None when the pair fails the inlier thresholds.
     """
@@ -57,8 +64,22 @@ def verify_pair(xy1: np.ndarray, xy2: np.ndarray, matches: np.ndarray, focal: fl
     p1 = np.ascontiguousarray(xy1[matches[:, 0]], dtype=np.float64)
     p2 = np.ascontiguousarray(xy2[matches[:, 1]], dtype=np.float64)
     cv2.setRNGSeed(int(seed))
-    E, mask = cv2.findEssentialMat(p1, p2, np.eye(3), cv2.USAC_ACCURATE, config.confidence,
-                                   config.max_error_px / focal, config.max_iterations)
+    thr = config.max_error_px / focal
+    if calibrated:
+        E, mask = cv2.findEssentialMat(p1, p2, np.eye(3), cv2.USAC_ACCURATE, config.confidence, thr,
+                                       config.max_iterations)
+    else:
+        # in normalized coordinates (an isotropic affine map of the pixels) F is the same
+        # epipolar geometry, and the same threshold in px / f
+        # OpenCV 5's USAC_ACCURATE asserts on some 7-point samples: its plain RANSAC does not
+        F, mask = cv2.findFundamentalMat(p1, p2, cv2.FM_RANSAC, thr, config.confidence, config.max_iterations)
+        if F is None or mask is None or mask.sum() < config.min_inliers:
+            return None
+        # the pose: an essential matrix on F's inliers under the guess, at a threshold wide
+        # enough for the guess's error (the inliers stay F's)
+        s_ = mask.ravel().astype(bool)
+        E, _ = cv2.findEssentialMat(p1[s_], p2[s_], np.eye(3), cv2.USAC_ACCURATE, config.confidence, 10 * thr,
+                                    config.max_iterations)
     if E is None or mask is None:
         return None
     E = E[:3]  # several solutions come stacked (3k, 3): take the first
@@ -77,8 +98,10 @@ def verify_pairs(xy: list[np.ndarray], matches: dict[tuple[int, int], np.ndarray
                  config: VerifyConfig) -> dict[tuple[int, int], TwoViewGeometry]:
     """Verify every matched pair; {(i, j): TwoViewGeometry} for the ones that pass."""
     out: dict[tuple[int, int], TwoViewGeometry] = {}
+    guessed = set(config.uncalibrated_images)
     for (i, j), m in track(list(matches.items()), desc="verification"):
-        g = verify_pair(xy[i], xy[j], m, focal, config, config.seed + 7919 * i + j)
+        g = verify_pair(xy[i], xy[j], m, focal, config, config.seed + 7919 * i + j,
+                        calibrated=i not in guessed and j not in guessed)
         if g is not None:
             g.pair = (i, j)
             out[(i, j)] = g

@@ -1,0 +1,49 @@
+"""``polarref sfm`` on real public photo sets (docs/photo-sets.md); skipped when a set is not
+laid out under $POLARREF_PHOTO_SETS. The full comparison with pycolmap is
+scripts/eval_photo_sets.py (reports/collections/)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from polarref.io import photo_sets as PS
+from polarref.sfm.config import SfMConfig
+from polarref.sfm.features import FeatureConfig
+from polarref.sfm.pipeline import run_sfm
+
+
+def _images(name: str):
+    d = PS.image_dir(name)
+    if d is None:
+        pytest.skip(f"photo set {name!r} not laid out under {PS.photo_sets_root()} "
+                    f"(python -m polarref.io.photo_sets get {name}; see docs/photo-sets.md)")
+    return d
+
+
+def _run(name: str, tmp_path, max_image_size: int):
+    cfg = dataclasses.replace(SfMConfig(), cache_dir=str(tmp_path / "cache"),
+                              features=FeatureConfig(max_image_size=max_image_size))
+    return run_sfm(_images(name), tmp_path / "out", cfg)
+
+
+def test_berlin_street_photos_register_with_exif_focal(tmp_path):
+    res = _run("berlin", tmp_path, 800)
+    r = res.report
+    assert r.metrics.registered_images == 3 and r.unregistered == []
+    assert 0 < r.metrics.mean_reprojection_error_px < 1.0 and r.metrics.tie_points > 200
+    (cam,) = r.cameras
+    assert cam.source == "exif" and "800 given" in r.feature_budget.rule
+
+
+@pytest.mark.slow  # 10 photos at ~1000 px: about a minute on 2 loaded cores
+def test_sacre_coeur_ten_cameras_without_exif_all_register(tmp_path):
+    """The issue's internet collection (baseline 7/10): every camera's focal length is a guess."""
+    res = _run("sacre_coeur", tmp_path, 1024)
+    r = res.report
+    assert r.metrics.registered_images == 10, r.unregistered
+    assert r.metrics.mean_reprojection_error_px < 1.0
+    assert {c.source for c in r.cameras} == {"default"} and len(r.cameras) == 10
+    # the estimated focal lengths moved off the 1.2 x max(w, h) guess
+    assert sum(abs(c.refined[0] / c.initial[0] - 1) > 0.05 for c in r.cameras) >= 5
