@@ -147,7 +147,8 @@ class IntrinsicsBlocks:
         for g in single:
             self.free[g] = free_indices(self.cams0[g].model, held)
         log.warning("principal point held on %d of %d intrinsics groups that hold one image each "
-                    "(it is not constrained there; force it with refine_pp_single)", len(single), len(self.cams0))
+                    "(it is not constrained there; force it with polarref ba --refine-pp-single)",
+                    len(single), len(self.cams0))
 
     @property
     def num_pseudo(self) -> int:
