@@ -53,3 +53,20 @@ def test_random_mesh_against_brute_force():
     F = np.tile(f, (len(p), 1))
     ref = np.linalg.norm(closest_points_on_triangles(P, v[F[:, 0]], v[F[:, 1]], v[F[:, 2]]) - P, axis=1)
     np.testing.assert_allclose(got, ref.reshape(len(p), -1).min(1), atol=1e-12)
+
+
+def test_bounded_pair_batches_give_the_brute_force_distance():
+    """One huge triangle makes every query ball hold the whole mesh (the 493-view UAV ground mesh
+    needed 51.7 million pairs at once); batches of at most max_pairs must give the exact result."""
+    rng = np.random.default_rng(5)
+    v = np.vstack([rng.uniform(-1, 1, (300, 3)), [[-50, -50, -3], [50, -50, -3], [0, 60, -3]]])
+    f = rng.integers(0, 300, (500, 3))
+    f = np.vstack([f[(f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])], [[300, 301, 302]]])
+    p = rng.uniform(-1.5, 1.5, (150, 3))
+    P = np.repeat(p, len(f), 0)
+    F = np.tile(f, (len(p), 1))
+    ref = np.linalg.norm(closest_points_on_triangles(P, v[F[:, 0]], v[F[:, 1]], v[F[:, 2]]) - P, axis=1)
+    ref = ref.reshape(len(p), -1).min(1)
+    for max_pairs in (1, 37, 10_000, 1_000_000):
+        got = point_to_mesh_distance(p, v, f, k=3, chunk=64, max_pairs=max_pairs)
+        np.testing.assert_allclose(got, ref, atol=1e-12)

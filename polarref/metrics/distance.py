@@ -41,12 +41,13 @@ def closest_points_on_triangles(P: np.ndarray, A: np.ndarray, B: np.ndarray, C: 
 
 
 def point_to_mesh_distance(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
-                           k: int = 8, chunk: int = 20000) -> np.ndarray:
+                           k: int = 8, chunk: int = 20000, max_pairs: int = 1_000_000) -> np.ndarray:
     """Exact distance (N,) from points (N, 3) to a triangle mesh (vertices (V, 3), faces (F, 3)).
 
     A KD-tree over triangle centroids gives an upper bound d_k from the k nearest triangles;
     every triangle whose centroid lies within d_k + r_max (r_max = largest centroid-to-vertex
-    distance) is then tested exactly, so the result is the true minimum.
+    distance) is then tested exactly, so the result is the true minimum. At most ``max_pairs``
+    point-triangle pairs are held at once (about 0.4 GB).
     """
     P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     V = np.asarray(vertices, dtype=np.float64)
@@ -65,14 +66,31 @@ def point_to_mesh_distance(points: np.ndarray, vertices: np.ndarray, faces: np.n
         fi = idx.ravel()
         d = np.linalg.norm(closest_points_on_triangles(pp, A[fi], B[fi], C[fi]) - pp, axis=1)
         best = d.reshape(len(p), -1).min(1)
-        cand = tree.query_ball_point(p, best + r_max)
-        lens = np.array([len(c) for c in cand])
-        pi = np.repeat(np.arange(len(p)), lens)
-        fi = np.concatenate([np.asarray(c, dtype=np.int64) for c in cand]) if lens.sum() else np.zeros(0, np.int64)
-        d = np.linalg.norm(closest_points_on_triangles(p[pi], A[fi], B[fi], C[fi]) - p[pi], axis=1)
         full = np.full(len(p), np.inf)
-        np.minimum.at(full, pi, d)
+        # One large triangle makes r_max, and so every ball, large (a 493-view UAV ground mesh:
+        # 51.7 million pairs, 22 GB in one go): pairs are counted first and tested in bounded batches.
+        radius = best + r_max
+        counts = tree.query_ball_point(p, radius, return_length=True)
+        for lo, hi in _batches(counts, max_pairs):
+            cand = tree.query_ball_point(p[lo:hi], radius[lo:hi])
+            lens = counts[lo:hi]
+            if not lens.sum():
+                continue
+            pi = np.repeat(np.arange(lo, hi), lens)
+            fi = np.concatenate([np.asarray(c, dtype=np.int64) for c in cand])
+            d = np.linalg.norm(closest_points_on_triangles(p[pi], A[fi], B[fi], C[fi]) - p[pi], axis=1)
+            np.minimum.at(full, pi, d)
         out[s: s + chunk] = np.minimum(best, full)
     return out
 
 
+def _batches(counts: np.ndarray, max_pairs: int):
+    """(lo, hi) ranges of consecutive points whose pair counts sum to <= max_pairs (a single point
+    with more pairs gets a range of its own)."""
+    ends = np.cumsum(counts)
+    lo = 0
+    while lo < len(counts):
+        base = ends[lo - 1] if lo else 0
+        hi = max(lo + 1, int(np.searchsorted(ends, base + max_pairs, side="right")))
+        yield lo, hi
+        lo = hi
