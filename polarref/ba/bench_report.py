@@ -11,6 +11,7 @@ import json
 import sys
 from pathlib import Path
 from polarref.ba.parameterization import PARAMS
+from polarref.core.markers import read_block, replace_block
 
 
 def _rng(st: dict | None, digits: int = 3) -> str:
@@ -313,17 +314,15 @@ END = "<!-- /bench-table -->"
 
 def readme_block(text: str) -> str | None:
     """The generated table between the README's markers (None without markers)."""
-    if BEGIN not in text or END not in text:
-        return None
-    return text.split(BEGIN, 1)[1].split(END, 1)[0].strip("\n")
+    block = read_block(text, BEGIN, END)
+    return None if block is None else block.strip("\n")
 
 
 def update_readme(readme: Path, doc: dict) -> None:
-    text = readme.read_text()
-    if readme_block(text) is None:
-        raise SystemExit(f"{readme}: no {BEGIN!r} ... {END!r} block")
-    head, rest = text.split(BEGIN, 1)
-    readme.write_text(head + BEGIN + "\n" + readme_table(doc) + END + rest.split(END, 1)[1])
+    try:
+        readme.write_text(replace_block(readme.read_text(), BEGIN, END, readme_table(doc)))
+    except ValueError as exc:
+        raise SystemExit(f"{readme}: {exc}") from exc
 
 
 def merge_docs(docs: list[dict]) -> dict:

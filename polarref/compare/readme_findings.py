@@ -12,6 +12,7 @@ from pathlib import Path
 
 from polarref.compare.schema import ClaimResult, MetricsFile, load
 from polarref.core.atomic import atomic_write
+from polarref.core.markers import read_block, replace_block
 
 BEGIN = "<!-- compare-findings: generated from reports/*/metrics.json, do not edit by hand -->"
 END = "<!-- /compare-findings -->"
@@ -94,17 +95,15 @@ def findings_block(reports: Path) -> str:
 
 def readme_block(text: str) -> str | None:
     """What stands between the README's markers (None without them)."""
-    if BEGIN not in text or END not in text:
-        return None
-    return text.split(BEGIN, 1)[1].split(END, 1)[0].lstrip("\n")
+    return read_block(text, BEGIN, END)
 
 
 def update_readme(readme: Path, reports: Path) -> Path:
-    text = readme.read_text()
-    if readme_block(text) is None:
-        raise SystemExit(f"{readme}: no {BEGIN!r} ... {END!r} block")
-    head, rest = text.split(BEGIN, 1)
-    return atomic_write(readme, head + BEGIN + "\n" + findings_block(reports) + END + rest.split(END, 1)[1])
+    try:
+        text = replace_block(readme.read_text(), BEGIN, END, findings_block(reports))
+    except ValueError as exc:
+        raise SystemExit(f"{readme}: {exc}") from exc
+    return atomic_write(readme, text)
 
 
 if __name__ == "__main__":  # python -m polarref.compare.readme_findings reports README.md
