@@ -321,10 +321,32 @@ def test_failure_text_names_interrupt_disk_and_memory():
 
 # ---- case 3: sfm on few photos does not self-calibrate ---------------------------------------------
 def test_few_photos_keep_their_exif_camera(small_copy, tmp_path):
-    shutil.rmtree(small_copy / "gt")  # a folder of photos: cameras from EXIF (none here: the default)
+    """A known (EXIF) focal is not refined before 10 registered images: the issue's 2-image run moved
+    f 386 -> 807. (A camera without an EXIF focal is estimated from the images instead, issue 32:
+    tests/test_sfm_collections.py.)"""
+    from PIL import Image
+
+    f_true = _gt_focal(small_copy)
+    shutil.rmtree(small_copy / "gt")  # a folder of photos: cameras from EXIF
+    diag = float(np.hypot(320, 240))
+    f35 = round(f_true * 43.27 / diag)  # COLMAP's 35 mm-equivalent rule (sfm.calibration)
+    for p in sorted((small_copy / "images").iterdir()):
+        ex = Image.Exif()
+        ex[0x010F], ex[0x0110] = "Acme", "One"
+        ex.get_ifd(0x8769)[0xA405] = f35
+        with Image.open(p) as im:
+            im.convert("RGB").save(p.with_suffix(".jpg"), quality=95, exif=ex)
+        p.unlink()
     r = cli("sfm", str(small_copy), "--out", str(tmp_path / "s"), "--preset", "small", "--no-cache", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
     assert "intrinsics not refined (focal,dist requested): 6 registered images, refinement starts at 10" in r.stderr
     cams = json.loads((tmp_path / "s" / "metrics.json").read_text())["cameras"]
     assert len(cams) == 1 and cams[0]["refined"] == cams[0]["initial"]
-    assert cams[0]["initial"][0] == pytest.approx(1.2 * 320)  # the default focal, not moved (f 386 -> 807 before)
+    assert cams[0]["initial"][0] == pytest.approx(f35 / 43.27 * diag, rel=1e-6)  # EXIF's focal, not moved
+
+
+def _gt_focal(scene) -> float:
+    for line in (scene / "gt" / "cameras.txt").read_text().splitlines():
+        if line.strip() and not line.startswith("#"):
+            return float(line.split()[4])
+    raise AssertionError("no camera in gt/cameras.txt")
