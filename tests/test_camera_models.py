@@ -329,3 +329,16 @@ def test_fold_found_with_badly_scaled_coefficients():
     theta = np.linspace(0, 0.99 * t, 2001)
     uv = camera.from_angular(theta, np.zeros_like(theta))
     np.testing.assert_allclose(camera.to_angular(uv)[0], theta, atol=1e-10)
+
+
+def test_fisheye_inverse_does_not_ping_pong_near_the_fold():
+    # Hypothesis found it: theta_d(theta) is monotonic up to theta_max (2.4505 rad) but its
+    # inflection made unguarded Newton alternate between the bracket's ends and stop 0.35 rad off
+    camera = Camera("OPENCV_FISHEYE", 4000, 3000,
+                    [50.0, 50.0, 0.0, 0.0, 0.0, 0.0243328, -0.00355402, 0.0])
+    assert 2.45 < camera.theta_max < 2.451
+    theta, phi = random_rays(np.random.default_rng(165247), camera, 64, 0.9)
+    uv = camera.from_angular(theta, phi)
+    t2, p2 = camera.to_angular(uv)
+    assert np.max(np.abs(t2 - theta)) < 1e-10
+    assert np.max(np.abs(camera.from_angular(t2, p2) - uv)) < 1e-9

@@ -93,6 +93,9 @@ def odd_poly_inverse(y: Array, coeffs: tuple[float, ...], x_lim: float) -> Array
                 hi = np.where(short, 2.0 * hi, hi)
         x = np.clip(yy, lo, hi)
         x = np.where(x >= hi, 0.5 * (lo + hi), x)
+        # rtsafe's guard: a Newton step longer than half the one before it bisects instead;
+        # without it, near an inflection Newton ping-pongs between the bracket's ends forever
+        dx_old = hi - lo
         for _ in range(100):
             val, der = odd_poly(x, coeffs)
             f = val - yy
@@ -100,8 +103,9 @@ def odd_poly_inverse(y: Array, coeffs: tuple[float, ...], x_lim: float) -> Array
             lo = np.where(f <= 0, x, lo)
             step = f / np.where(der > 0, der, np.inf)
             x_new = x - step
-            bad = ~((x_new >= lo) & (x_new <= hi)) | (der <= 0)
+            bad = ~((x_new >= lo) & (x_new <= hi)) | (der <= 0) | (np.abs(step) > 0.5 * dx_old)
             x_new = np.where(bad, 0.5 * (lo + hi), x_new)
+            dx_old = np.abs(x_new - x)
             done = np.abs(x_new - x) <= 4e-16 * np.maximum(np.abs(x), 1e-300)
             x = x_new
             if done.all():
