@@ -161,8 +161,6 @@ def _bound_detection(cfg, asked: int | None, paths: list[Path]):
     images larger than DEFAULT_DETECT_SIDE are detected at that size (keypoints scale back exactly;
     smaller images are untouched), with a warning. Full size asked for (0) but not fitting in the
     memory available: refused with the size that fits."""
-    import dataclasses as dc
-
     side = cfg.features.max_image_size
     sizes = [(p, _image_size_of(p)) for p in paths]
     sizes = [(p, wh) for p, wh in sizes if wh is not None]
@@ -174,7 +172,8 @@ def _bound_detection(cfg, asked: int | None, paths: list[Path]):
         log.warning("%d image(s) larger than %d px (e.g. %s, %dx%d): features detected at %d px (full size would "
                     "need about %.1f GB; --max-image-size 0 keeps it)", big, DEFAULT_DETECT_SIDE, p.name, w, h,
                     DEFAULT_DETECT_SIDE, SIFT_BYTES_PER_PX * w * h / 1e9)
-        return dc.replace(cfg, features=dc.replace(cfg.features, max_image_size=DEFAULT_DETECT_SIDE))
+        rep = dataclasses.replace
+        return rep(cfg, features=rep(cfg.features, max_image_size=DEFAULT_DETECT_SIDE))
     need, avail = SIFT_BYTES_PER_PX * w * h, _available_bytes()
     if avail is not None and need > 0.8 * avail:
         fits = int(max(w, h) * (0.8 * avail / need) ** 0.5)
@@ -255,8 +254,6 @@ def _read_georef(args: argparse.Namespace, root: Path, image_dir: Path):
 
 def _georeference(args: argparse.Namespace, rec, georef, model_format: str) -> None:
     """Georeferenced BA of the finished model: OUT/model-georef/ and OUT/aerotriangulation.json."""
-    import dataclasses as dc
-
     from polarref import metrics as M
     from polarref.georef.adjust import georeference
     from polarref.core.provenance import collect
@@ -266,7 +263,7 @@ def _georeference(args: argparse.Namespace, rec, georef, model_format: str) -> N
                      mark_sigma_px=args.mark_sigma)
     write_model(rec, args.out / "model-georef", model_format)
     M.write_json(args.out / "aerotriangulation.json",
-                 {"record": dc.asdict(r), "provenance": collect()})
+                 {"record": dataclasses.asdict(r), "provenance": collect()})
     line = f"georeferenced ({r.num_priors} priors, {r.num_control} control points): sigma0 {r.sigma0:.3f}"
     if r.check is not None:
         line += (f"; {r.check.count} check points: RMSE horizontal {r.check.rmse_horizontal:.3f} m, "
