@@ -335,9 +335,9 @@ def test_the_scene_scorecard_and_the_twin_tables_share_one_single_run_rule(eucli
     twin = PT.TwinTable("rosetta", 12, 30, {PT.BASELINE: twin_side(PT.BASELINE, euclid, 1000, 5000),
                                             PT.OURS: twin_side(PT.OURS, polar, polar_tp, polar_rp)})
     v = PT.verdicts(twin)
-    assert v["C4"].verdict == _verdict(res, "C4").verdict
-    assert v["C5"].verdict == _verdict(res, "C5").verdict
-    assert {v["C4"].verdict, v["C5"].verdict} <= {"supported", "not supported", "inconclusive"}
+    assert v.c4.verdict == _verdict(res, "C4").verdict
+    assert v.c5.verdict == _verdict(res, "C5").verdict
+    assert {v.c4.verdict, v.c5.verdict} <= {"supported", "not supported", "inconclusive"}
 
 
 def test_c4_without_the_same_pipeline_baseline_is_not_tested():

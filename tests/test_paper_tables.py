@@ -42,11 +42,11 @@ def test_paper_layout_with_a_missing_method_shows_not_run(tmp_path):
     # C4 by the scorecard's whole-method rule: x1.25 lies between x1.10 and x1.26 (the BA alone is x2.00,
     # reported beside it); C5 with the scorecard margin (0.1% of 100,000 = 100 < 500, of 500,000 = 500 < 2,000).
     v = PT.verdicts(t)
-    assert v["C4"].verdict == "inconclusive"
-    assert v["C4"].values["speedup"] == pytest.approx(1.25) and v["C4"].values["ba_speedup"] == pytest.approx(2.0)
-    assert "speed-up Euclidean/polar x1.25" in str(v["C4"]) and "BA time Euclidean/polar x2.00" in str(v["C4"])
-    assert str(v["C5"]).startswith("supported (+500 tie points (margin 100), +2,000 reprojected px (margin 500)")
-    assert f"C4 (faster): {v['C4']}" in md
+    assert v.c4.verdict == "inconclusive"
+    assert v.c4.values["speedup"] == pytest.approx(1.25) and v.c4.values["ba_speedup"] == pytest.approx(2.0)
+    assert "speed-up Euclidean/polar x1.25" in str(v.c4) and "BA time Euclidean/polar x2.00" in str(v.c4)
+    assert str(v.c5).startswith("supported (+500 tie points (margin 100), +2,000 reprojected px (margin 500)")
+    assert f"C4 (faster): {v.c4}" in md
     back = PT.TwinTable.from_dict(json.loads((tmp_path / "rosetta" / "paper-table.json").read_text()))
     assert back.methods[PT.OURS].tie_points == 100_500 and back.methods["pycolmap-global-sift"].status == "failed"
 
@@ -57,9 +57,9 @@ def test_difference_column_is_not_tested_without_both_sides_and_detects_a_real_c
     assert PT.difference("accuracy_px", base, worse) == "+0.050 px"
     assert PT.difference("tie_points", base, None) == "not tested"
     v = PT.verdicts(_table(**{PT.BASELINE: base, PT.OURS: worse}))
-    assert v["C4"].verdict == "not supported" and v["C4"].values["speedup"] == pytest.approx(50 / 60)
-    assert str(v["C5"]).startswith("not supported (-50 tie points")
-    assert {k: str(x) for k, x in PT.verdicts(_table(**{PT.BASELINE: base})).items()} == {
+    assert v.c4.verdict == "not supported" and v.c4.values["speedup"] == pytest.approx(50 / 60)
+    assert str(v.c5).startswith("not supported (-50 tie points")
+    assert {k: str(x) for k, x in PT.verdicts(_table(**{PT.BASELINE: base})).by_claim()} == {
         "C4": "not tested", "C5": "not tested"}
 
 
@@ -78,17 +78,17 @@ def test_readme_puts_the_papers_tables_beside_the_twins(tmp_path):
 def test_the_baseline_against_itself_fails_both_success_rules():
     base = _ok(PT.BASELINE, 0.400, 50.0, 100_000, 500_000, 600.0)
     v = PT.verdicts(_table(**{PT.BASELINE: base, PT.OURS: dataclasses.replace(base, name=PT.OURS)}))
-    assert v["C4"].verdict == "not supported" and v["C4"].values["speedup"] == pytest.approx(1.0)
-    assert v["C5"].verdict == "not supported" and v["C5"].values == {"tie_points": 0, "reprojected_px": 0}
+    assert v.c4.verdict == "not supported" and v.c4.values["speedup"] == pytest.approx(1.0)
+    assert v.c5.verdict == "not supported" and v.c5.values == {"tie_points": 0, "reprojected_px": 0}
 
 
 def test_a_constructed_faster_polar_run_with_more_tie_points_passes_both():
     base = _ok(PT.BASELINE, 0.400, 60.0, 100_000, 500_000, 900.0)
     ours = _ok(PT.OURS, 0.401, 40.0, 100_300, 501_200, 300.0)   # x1.50 overall, x3.00 in BA
     v = PT.verdicts(_table(**{PT.BASELINE: base, PT.OURS: ours}))
-    assert v["C4"].verdict == "supported"
-    assert 1.49 < v["C4"].values["speedup"] < 1.51 and 2.99 < v["C4"].values["ba_speedup"] < 3.01
-    assert v["C5"].verdict == "supported" and v["C5"].values == {"tie_points": 300, "reprojected_px": 1200}
+    assert v.c4.verdict == "supported"
+    assert 1.49 < v.c4.values["speedup"] < 1.51 and 2.99 < v.c4.values["ba_speedup"] < 3.01
+    assert v.c5.verdict == "supported" and v.c5.values == {"tie_points": 300, "reprojected_px": 1200}
 
 
 @pytest.mark.parametrize("polar_min, verdict", [
@@ -101,8 +101,8 @@ def test_a_constructed_faster_polar_run_with_more_tie_points_passes_both():
 def test_c4_thresholds_on_a_twin_are_the_scorecards(polar_min, verdict):
     base = _ok(PT.BASELINE, 0.4, 60.0, 100, 500, 600.0)
     v = PT.verdicts(_table(**{PT.BASELINE: base, PT.OURS: _ok(PT.OURS, 0.4, polar_min, 100, 500, 600.0)}))
-    assert v["C4"].verdict == verdict
-    assert v["C4"].values["speedup"] == pytest.approx(60.0 / polar_min)
+    assert v.c4.verdict == verdict
+    assert v.c4.values["speedup"] == pytest.approx(60.0 / polar_min)
 
 
 @pytest.mark.parametrize("ties, obs, verdict", [
@@ -115,18 +115,18 @@ def test_c4_thresholds_on_a_twin_are_the_scorecards(polar_min, verdict):
 def test_c5_needs_both_counts_above_the_scorecards_margin(ties, obs, verdict):
     base = _ok(PT.BASELINE, 0.4, 60.0, 100_000, 500_000, 600.0)
     v = PT.verdicts(_table(**{PT.BASELINE: base, PT.OURS: _ok(PT.OURS, 0.4, 60.0, ties, obs, 600.0)}))
-    assert v["C5"].verdict == verdict
+    assert v.c5.verdict == verdict
 
 
 def test_missing_values_are_not_tested():
     base = _ok(PT.BASELINE, 0.4, 60.0, 100_000, 500_000, 600.0)
     no_time = dataclasses.replace(_ok(PT.OURS, 0.4, 40.0, 100_500, 502_000, 300.0), efficiency_min=None)
     v = PT.verdicts(_table(**{PT.BASELINE: base, PT.OURS: no_time}))
-    assert v["C4"].verdict == "not tested" and v["C4"].figures == "" and v["C5"].verdict == "supported"
+    assert v.c4.verdict == "not tested" and v.c4.figures == "" and v.c5.verdict == "supported"
     failed = PT.MethodResult(PT.OURS, "timeout", "ours-polar: over 14400 s", 631)
-    assert {k: x.verdict for k, x in PT.verdicts(_table(**{PT.BASELINE: base, PT.OURS: failed})).items()} == {
+    assert {k: x.verdict for k, x in PT.verdicts(_table(**{PT.BASELINE: base, PT.OURS: failed})).by_claim()} == {
         "C4": "not tested", "C5": "not tested"}
-    assert {k: x.verdict for k, x in PT.verdicts(None).items()} == {"C4": "not tested", "C5": "not tested"}
+    assert {k: x.verdict for k, x in PT.verdicts(None).by_claim()} == {"C4": "not tested", "C5": "not tested"}
 
 
 def test_no_second_copy_of_the_scorecards_thresholds():

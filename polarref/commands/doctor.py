@@ -3,16 +3,59 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib
 import json
 import os
 import platform
 import sys
+from dataclasses import dataclass, field
+
+from polarref import __version__
+from polarref.commands._registry import command_modules
+from polarref.core import execution
+from polarref.core.data import data_root
+from polarref.core.provenance import cpu_model, git_state
 
 NAME = "doctor"
 HELP = "print versions, the Mitsuba variant that will be used and why, and where the data is"
 
 PACKAGES = ("numpy", "scipy", "sympy", "mitsuba", "drjit", "pycolmap", "cv2", "matplotlib")
+
+
+@dataclass(frozen=True)
+class VariantChoice:
+    """The Mitsuba variant synth will load (None when the choice failed) and why."""
+
+    variant: str | None
+    reason: str
+
+
+@dataclass(frozen=True)
+class DataFolder:
+    """Where the shared data was found (None: not found) and how."""
+
+    path: str | None
+    reason: str
+
+
+@dataclass(frozen=True)
+class Doctor:
+    """Everything doctor reports. ``versions``: package -> version or "missing (...)", in
+    :data:`PACKAGES` order; ``broken_commands``: command module -> why it failed to import."""
+
+    polarref: str
+    python: str
+    platform: str
+    cpu_count: int | None
+    cpu_model: str
+    git_commit: str
+    git_dirty: bool | None
+    versions: dict[str, str]
+    mitsuba: VariantChoice
+    pycolmap_cuda: str
+    data: DataFolder
+    broken_commands: dict[str, str] = field(default_factory=dict)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -35,72 +78,71 @@ def _pycolmap_cuda() -> str:
     return "yes" if getattr(pycolmap, "has_cuda", False) else "no"
 
 
-def collect() -> dict[str, object]:
-    """Everything doctor reports, as plain data (also recorded in reports)."""
-    from polarref import __version__
-    from polarref.commands._registry import command_modules
-    from polarref.core.data import data_root
-
-    report: dict[str, object] = {
-        "polarref": __version__,
-        "python": sys.version.split()[0],
-        "platform": platform.platform(),
-        "cpu_count": os.cpu_count(),
-    }
-    from polarref.core.provenance import cpu_model, git_state
-
-    report["cpu_model"] = cpu_model()
-    report["git_commit"], report["git_dirty"] = git_state()
-    report.update({name: _version(name) for name in PACKAGES})
-    try:
+def _variant() -> VariantChoice:
+    try:  # synth sits beside polarref and loads Mitsuba lazily: deferred so doctor runs without it
         from synth.mitsuba_variant import selected_variant
 
         choice = selected_variant()
-        report["mitsuba_variant"] = choice.variant
-        report["mitsuba_variant_reason"] = choice.reason
+        return VariantChoice(choice.variant, choice.reason)
     except Exception as exc:
-        report["mitsuba_variant"] = None
-        report["mitsuba_variant_reason"] = f"variant selection failed: {type(exc).__name__}: {exc}"
-    report["pycolmap_cuda"] = _pycolmap_cuda()
+        return VariantChoice(None, f"variant selection failed: {type(exc).__name__}: {exc}")
+
+
+def _data() -> DataFolder:
     root = data_root()
     env = os.environ.get("POLARREF_DATA")
-    report["data"] = str(root) if root else None
-    report["data_reason"] = (
-        f"found at {root}" + (" ($POLARREF_DATA)" if env else "")
-        if root else f"not found ({'$POLARREF_DATA=' + env if env else '../shared/data beside the repo'})"
-    )
+    if root:
+        return DataFolder(str(root), f"found at {root}" + (" ($POLARREF_DATA)" if env else ""))
+    return DataFolder(None, f"not found ({'$POLARREF_DATA=' + env if env else '../shared/data beside the repo'})")
+
+
+def collect() -> Doctor:
+    """Everything doctor reports (also recorded in reports)."""
+    commit, dirty = git_state()
     _, failed = command_modules()
-    report["broken_commands"] = failed
-    return report
+    return Doctor(str(__version__), sys.version.split()[0], platform.platform(), os.cpu_count(), cpu_model(),
+                  commit, dirty, {name: _version(name) for name in PACKAGES}, _variant(), _pycolmap_cuda(),
+                  _data(), dict(failed))
 
 
-def execution_info() -> dict[str, object]:
+def execution_info() -> execution.Description:
     """The execution mode in use (``--workers``/``--scheduler``) and the workers it sees.
 
     Kept out of :func:`collect` (recorded in reports) so that asking for versions never starts
     or contacts a cluster.
     """
-    import dataclasses
+    return execution.current().describe()
 
-    from polarref.core import execution
 
-    desc = execution.current().describe()
-    return {"execution": desc.mode, "execution_detail": desc.detail,
-            "workers": [dataclasses.asdict(w) for w in desc.workers]}
+def to_json(doc: Doctor, ex: execution.Description) -> dict[str, object]:
+    """The ``--json`` object: one flat level, the keys scripts and tests read."""
+    return {"polarref": doc.polarref, "python": doc.python, "platform": doc.platform, "cpu_count": doc.cpu_count,
+            "cpu_model": doc.cpu_model, "git_commit": doc.git_commit, "git_dirty": doc.git_dirty, **doc.versions,
+            "mitsuba_variant": doc.mitsuba.variant, "mitsuba_variant_reason": doc.mitsuba.reason,
+            "pycolmap_cuda": doc.pycolmap_cuda, "data": doc.data.path, "data_reason": doc.data.reason,
+            "broken_commands": doc.broken_commands, "execution": ex.mode, "execution_detail": ex.detail,
+            "workers": [dataclasses.asdict(w) for w in ex.workers]}
+
+
+def _text(doc: Doctor, ex: execution.Description) -> list[tuple[str, object]]:
+    workers = (f"{len(ex.workers)}: " + ", ".join(f"{w.address} (pid {w.pid}, {w.nthreads} thread)"
+                                                  for w in ex.workers)) if ex.workers else "none (serial)"
+    return [("polarref", doc.polarref), ("python", doc.python), ("platform", doc.platform),
+            ("cpu_count", doc.cpu_count), ("cpu_model", doc.cpu_model), ("git_commit", doc.git_commit),
+            ("git_dirty", doc.git_dirty), *doc.versions.items(), ("mitsuba_variant", doc.mitsuba.variant),
+            ("mitsuba_variant_reason", doc.mitsuba.reason), ("pycolmap_cuda", doc.pycolmap_cuda),
+            ("data", doc.data.path), ("data_reason", doc.data.reason),
+            ("broken_commands", ", ".join(f"{k} ({v})" for k, v in doc.broken_commands.items()) or "none"),
+            ("execution", ex.mode), ("execution_detail", ex.detail), ("workers", workers)]
 
 
 def run(args: argparse.Namespace) -> int:
-    report = collect()
-    report.update(execution_info())
+    doc, ex = collect(), execution_info()
     if args.json:
-        print(json.dumps(report, indent=2))
+        print(json.dumps(to_json(doc, ex), indent=2))
         return 0
-    width = max(len(k) for k in report)
-    for key, value in report.items():
-        if key == "broken_commands":
-            value = ", ".join(f"{k} ({v})" for k, v in value.items()) or "none"
-        if key == "workers":
-            value = f"{len(value)}: " + ", ".join(f"{w['address']} (pid {w['pid']}, {w['nthreads']} thread)"
-                                                 for w in value) if value else "none (serial)"
+    rows = _text(doc, ex)
+    width = max(len(k) for k, _ in rows)
+    for key, value in rows:
         print(f"{key:<{width}}  {value}")
     return 0

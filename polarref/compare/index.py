@@ -61,7 +61,7 @@ def _twin_columns(root: Path) -> tuple[list[tuple[str, dict[str, str]]], list]:
             log.warning("skipping %s: %s", f, exc)
             bad.append(f"`{TWIN_TABLES}/{twin}`: {type(exc).__name__}: {exc}")
             continue
-        cols.append((twin, {cid: v.verdict for cid, v in PT.verdicts(table).items()}))
+        cols.append((twin, {cid: v.verdict for cid, v in PT.verdicts(table).by_claim()}))
     if not (tables / "README.md").is_file() and not cols and not bad:
         return [], []
     text = (f"The paper's Tables 1-3 redone on the synthetic twins: [{TWIN_TABLES}/README.md]({TWIN_TABLES}/README.md). "

@@ -9,11 +9,12 @@ from pathlib import Path
 
 from polarref.compare.paper_scale import render_scale
 from polarref.compare.paper_tables import (BASELINE, OURS, PAPER, ROW_LABELS, ROWS, TwinTable, table_cell,
-                                           paper_cell, difference, load_tables, verdicts)
+                                           paper_cell, difference, load_tables, table_of,
+                                           verdicts)
 from polarref.core.atomic import atomic_write
 
 
-def render_readme(tables: dict[str, TwinTable | None], reports_root: str | os.PathLike | None = None,
+def render_readme(tables: list[TwinTable], reports_root: str | os.PathLike | None = None,
                   tables_root: str | os.PathLike | None = None) -> str:
     """The paper's three tables beside ours (a twin without results: every cell "not run"), then
     what changed with scale against the committed small-scene reports under ``reports_root``."""
@@ -23,7 +24,7 @@ def render_readme(tables: dict[str, TwinTable | None], reports_root: str | os.Pa
              "datasets. Twins: our Euclidean BA (OpenMVG column) vs our polar BA in the same pipeline, on "
              "rendered twins with exact ground truth and the same image pairs for every method.", ""]
     for twin, p in PAPER.items():
-        t = tables.get(twin)
+        t = table_of(tables, twin)
         m = t.methods if t else {}
         lines += [f"## Table {p.table}: {p.dataset} ({p.images} images) vs twin `{twin}`", "",
                   "| Indicators | paper: OpenMVG | paper: ours | twin: Euclidean BA | twin: polar BA | twin: difference |",
@@ -33,7 +34,7 @@ def render_readme(tables: dict[str, TwinTable | None], reports_root: str | os.Pa
                          f"| {table_cell(m.get(BASELINE), row)} | {table_cell(m.get(OURS), row)} "
                          f"| {difference(row, m.get(BASELINE), m.get(OURS))} |")
         v = verdicts(t)
-        lines += ["", f"C4 on the twin: {v['C4']}. C5 on the twin: {v['C5']}.", ""]
+        lines += ["", f"C4 on the twin: {v.c4}. C5 on the twin: {v.c5}.", ""]
     lines += render_scale(tables, reports_root, tables_root)
     return "\n".join(lines)
 

@@ -53,7 +53,7 @@ def twin_column(table: PT.TwinTable) -> ScaleColumn:
     base, ours, col = ok.get(PT.BASELINE), ok.get(PT.OURS), ok.get(PYCOLMAP)
     v = PT.verdicts(table)
     return ScaleColumn(
-        f"twin `{table.twin}` ({table.images} views)", v["C4"].verdict, v["C5"].verdict, "",
+        f"twin `{table.twin}` ({table.images} views)", v.c4.verdict, v.c5.verdict, "",
         single_run.ratio(ours and ours.efficiency_min, base and base.efficiency_min),
         single_run.ratio(ours and ours.tie_points, col and col.tie_points),
         ours and ours.rotation_error_deg, col and col.rotation_error_deg,
@@ -189,6 +189,57 @@ def done_when(table: PT.TwinTable) -> list[str]:
     return lines
 
 
+@dataclass(frozen=True)
+class VariantScores:
+    """The figures of one side of a pipeline-variant record."""
+
+    registered: int
+    tie_points: int
+    mean_reprojection_error_px: float
+
+
+@dataclass(frozen=True)
+class PipelineVariant:
+    """A ``variant-*.json`` record of scripts/twin_variant.py (the part the README shows)."""
+
+    method: str
+    images: int
+    variant_settings: dict[str, str]      # setting -> value as written
+    baseline_settings: dict[str, str]
+    variant: VariantScores
+    baseline: VariantScores
+    tie_point_target: int | None
+    git_commit: str                   # "" when the record has no provenance
+
+
+def _scores_from_json(d: dict) -> VariantScores:
+    return VariantScores(int(d["registered"]), int(d["tie_points"]), float(d["mean_reprojection_error_px"]))
+
+
+def variant_from_json(v: dict) -> PipelineVariant:
+    """The record from its parsed JSON (KeyError / TypeError / ValueError when it is not one)."""
+    target = v.get("tie_point_target")
+    return PipelineVariant(str(v["method"]), int(v["images"]), {k: str(x) for k, x in v["variant_settings"].items()},
+                           {k: str(x) for k, x in v["baseline_settings"].items()}, _scores_from_json(v["variant"]),
+                           _scores_from_json(v["baseline"]), None if target is None else int(target),
+                           str((v.get("provenance") or {}).get("git_commit") or ""))
+
+
+def _variant_line(v: PipelineVariant, name: str) -> str:
+    settings = ", ".join(f"{k} = {x}" for k, x in v.variant_settings.items())
+    tables = ", ".join(f"{k} = {x}" for k, x in v.baseline_settings.items())
+    commit = v.git_commit[:7] or "not recorded"
+    var, base = v.variant, v.baseline
+    line = (f"- variant of {v.method} with {settings} (`{name}`, commit {commit}): "
+            f"{var.registered}/{v.images} registered, {var.tie_points:,} tie points, "
+            f"{var.mean_reprojection_error_px:.3f} px (tables' {tables}: {base.tie_points:,}, "
+            f"{base.mean_reprojection_error_px:.3f} px)")
+    if v.tie_point_target is not None:
+        met = "met" if var.tie_points >= v.tie_point_target else "not met"
+        line += f"; >= {v.tie_point_target:,} tie points: **{met}**"
+    return line
+
+
 def variant_lines(twin_dir: str | os.PathLike) -> list[str]:
     """One line per committed pipeline variant of an ours method (``variant-*.json`` beside the
     twin's table, written by scripts/twin_variant.py): its tie points against the twin's target,
@@ -197,20 +248,9 @@ def variant_lines(twin_dir: str | os.PathLike) -> list[str]:
     lines = []
     for f in sorted(Path(twin_dir).glob("variant-*.json")):
         try:
-            v = json.loads(f.read_text())
-            var, base, target = v["variant"], v["baseline"], v.get("tie_point_target")
-            settings = ", ".join(f"{k} = {x}" for k, x in v["variant_settings"].items())
-            tables = ", ".join(f"{k} = {x}" for k, x in v["baseline_settings"].items())
-            commit = (v.get("provenance") or {}).get("git_commit") or "not recorded"
-            line = (f"- variant of {v['method']} with {settings} (`{f.name}`, commit {commit[:7]}): "
-                    f"{var['registered']}/{v['images']} registered, {var['tie_points']:,} tie points, "
-                    f"{var['mean_reprojection_error_px']:.3f} px (tables' {tables}: {base['tie_points']:,}, "
-                    f"{base['mean_reprojection_error_px']:.3f} px)")
+            lines.append(_variant_line(variant_from_json(json.loads(f.read_text())), f.name))
         except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
             raise PolarrefError(f"{f}: not a pipeline-variant record ({type(e).__name__}: {e})") from None
-        if target is not None:
-            line += f"; >= {target:,} tie points: **{'met' if var['tie_points'] >= target else 'not met'}**"
-        lines.append(line)
     return lines
 
 
@@ -218,7 +258,7 @@ def has_results(table: PT.TwinTable | None) -> bool:
     return table is not None and any(r.status != PT.NOT_RUN for r in table.methods.values())
 
 
-def render_scale(tables: dict[str, PT.TwinTable | None], reports_root: str | os.PathLike | None,
+def render_scale(tables: list[PT.TwinTable], reports_root: str | os.PathLike | None,
                  tables_root: str | os.PathLike | None = None) -> list[str]:
     """Markdown lines of the README's "What changed with scale" section (``tables_root``: where
     each twin's folder may hold pipeline-variant records, see :func:`variant_lines`)."""
@@ -231,11 +271,11 @@ def render_scale(tables: dict[str, PT.TwinTable | None], reports_root: str | os.
              "(the shared feature and matching stage counted for each method, render excluded); a small scene's "
              "is the method's runtime in its metrics.json. Timings on a shared, loaded 2-core machine: one run "
              "each.", ""]
-    shown = [t for t in PT.PAPER if has_results(tables.get(t))]
+    shown = [t for t in (PT.table_of(tables, twin) for twin in PT.PAPER) if t is not None and has_results(t)]
     if not shown:
         return lines + ["No twin has results yet: not tested.", ""]
-    for twin in shown:
-        table = tables[twin]
+    for table in shown:
+        twin = table.twin
         small, notes = small_columns(twin, None if reports_root is None else Path(reports_root))
         lines += [f"### `{twin}`", "", *scale_table(twin_column(table), small), ""]
         if notes:

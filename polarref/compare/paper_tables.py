@@ -176,11 +176,23 @@ class TwinVerdict:
         return f"{self.verdict} ({self.figures})" if self.figures else self.verdict
 
 
+@dataclass(frozen=True)
+class TwinVerdicts:
+    """C4 (faster) and C5 (more tie points) on one twin."""
+
+    c4: TwinVerdict
+    c5: TwinVerdict
+
+    def by_claim(self) -> tuple[tuple[str, TwinVerdict], ...]:
+        """(claim id, verdict) pairs, C4 first (the scorecard's ids)."""
+        return (("C4", self.c4), ("C5", self.c5))
+
+
 def _x(v: float | None) -> str:
     return "not measured" if v is None else f"x{v:.2f}"
 
 
-def verdicts(table: TwinTable | None) -> dict[str, TwinVerdict]:
+def verdicts(table: TwinTable | None) -> TwinVerdicts:
     """C4 (faster) and C5 (more tie points) on this twin with the scorecard's single-run rules
     (:mod:`polarref.compare.single_run`): polar vs the Euclidean baseline of the same pipeline, one
     run, so a direction with the scorecard's margins, not a test over seeds; "not tested" when
@@ -188,7 +200,7 @@ def verdicts(table: TwinTable | None) -> dict[str, TwinVerdict]:
     base = table.methods.get(BASELINE) if table else None
     ours = table.methods.get(OURS) if table else None
     if not (base and ours and base.status == ours.status == RunStatus.OK):
-        return {"C4": TwinVerdict(NOT_TESTED), "C5": TwinVerdict(NOT_TESTED)}
+        return TwinVerdicts(TwinVerdict(NOT_TESTED), TwinVerdict(NOT_TESTED))
     word4, speedup = single_run.speedup_verdict(base.efficiency_min, ours.efficiency_min)
     ba = single_run.ratio(base.stages_s.get("bundle adjustment"), ours.stages_s.get("bundle adjustment"))
     fig4 = "" if speedup is None else (
@@ -202,7 +214,7 @@ def verdicts(table: TwinTable | None) -> dict[str, TwinVerdict]:
         f"(margin {single_run.tie_margin(ra):,.0f}); one run")
     c5 = TwinVerdict(word5, fig5, {"tie_points": None if word5 == NOT_TESTED else tb - ta,
                                    "reprojected_px": None if word5 == NOT_TESTED else rb - ra})
-    return {"C4": c4, "C5": c5}
+    return TwinVerdicts(c4, c5)
 
 
 def render_table(table: TwinTable) -> str:
@@ -244,8 +256,8 @@ def render_table(table: TwinTable) -> str:
         if r and r.stages_s:
             lines.append(f"- {LABELS[name]}: " + ", ".join(f"{k} {v:.1f}" for k, v in r.stages_s.items()))
     v = verdicts(table)
-    lines += ["", f"Scorecard on this twin (single-run rules, polar vs Euclidean BA): C4 (faster): {v['C4']}; "
-              f"C5 (more tie points and reprojected px): {v['C5']}.", ""]
+    lines += ["", f"Scorecard on this twin (single-run rules, polar vs Euclidean BA): C4 (faster): {v.c4}; "
+              f"C5 (more tie points and reprojected px): {v.c5}.", ""]
     prov = records.to_dict(table.provenance) if table.provenance is not None else {}
     if prov:
         lines += ["Provenance: " + ", ".join(f"{k} {v}" for k, v in sorted(prov.items())
@@ -278,10 +290,13 @@ def paper_cell(v, row: str) -> str:
     return f"{v:g}" if row in ("accuracy_px", "efficiency_min") else _fmt(row, v)  # as printed
 
 
-def load_tables(root: str | os.PathLike) -> dict[str, TwinTable | None]:
-    root = Path(root)
-    out: dict[str, TwinTable | None] = {}
-    for twin in PAPER:
-        f = root / twin / "paper-table.json"
-        out[twin] = TwinTable.from_dict(json.loads(f.read_text())) if f.is_file() else None
-    return out
+def load_tables(root: str | os.PathLike) -> list[TwinTable]:
+    """The tables of the twins under ``root`` (``root/<twin>/paper-table.json``), in PAPER order;
+    a twin without a table is left out."""
+    files = [Path(root) / twin / "paper-table.json" for twin in PAPER]
+    return [TwinTable.from_dict(json.loads(f.read_text())) for f in files if f.is_file()]
+
+
+def table_of(tables: list[TwinTable], twin: str) -> TwinTable | None:
+    """The table of ``twin`` among ``tables`` (None: not there)."""
+    return next((t for t in tables if t.twin == twin), None)

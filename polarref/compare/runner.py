@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any, Callable, Generic, TypeVar
 
 from polarref.core import records
+from polarref.core.records import JsonValue
 from polarref.core.atomic import atomic_write
 from polarref.core.status import RunStatus
 
@@ -71,7 +72,43 @@ def _decode(job: Callable, value, where: Path):
     return value
 
 
-def _child(job: Callable, kwargs: dict, result_path: str, log_path: str) -> None:
+@dataclass(frozen=True)
+class _JobFile:
+    """``<tag>.result.json``: the job's call and its outcome (``wall_s`` once the parent timed it)."""
+
+    ok: bool
+    job: str = ""
+    kwargs: dict[str, JsonValue] | None = None
+    result: JsonValue = None          # the job's record in its JSON form
+    error: str = ""
+    wall_s: float | None = None
+
+
+def _job_file_to_json(f: _JobFile) -> str:
+    if not f.ok:
+        return json.dumps({"ok": False, "error": f.error})
+    out = {"ok": True, "job": f.job, "kwargs": f.kwargs, "result": f.result}
+    if f.wall_s is not None:
+        out["wall_s"] = f.wall_s
+    return json.dumps(out, allow_nan=True)
+
+
+def _job_file_from_json(path: Path) -> _JobFile | None:
+    """The result file at ``path``; None when it is absent or not one."""
+    try:
+        payload = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(payload, dict):
+        return None
+    if not payload.get("ok"):
+        return _JobFile(False, error=str(payload.get("error", "unknown error")))
+    wall = payload.get("wall_s")
+    return _JobFile(True, str(payload.get("job", "")), payload.get("kwargs"), payload.get("result"),
+                    wall_s=None if wall is None else float(wall))
+
+
+def _child(job: Callable, kwargs: dict[str, JsonValue], result_path: str, log_path: str) -> None:
     fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
     sys.stdout.flush(), sys.stderr.flush()
     os.dup2(fd, 1)
@@ -79,11 +116,11 @@ def _child(job: Callable, kwargs: dict, result_path: str, log_path: str) -> None
     logging.basicConfig(level=logging.INFO, stream=sys.stderr,
                         format="%(levelname)s %(name)s: %(message)s")
     try:
-        payload = {"ok": True, "job": job_name(job), "kwargs": kwargs, "result": _encode(job(**kwargs))}
+        done = _JobFile(True, job_name(job), kwargs, _encode(job(**kwargs)))
     except BaseException as exc:  # report everything, including SystemExit from a library
         traceback.print_exc()
-        payload = {"ok": False, "error": f"{type(exc).__name__}: {exc}".strip()}
-    atomic_write(result_path, json.dumps(payload, allow_nan=True))
+        done = _JobFile(False, error=f"{type(exc).__name__}: {exc}".strip())
+    atomic_write(result_path, _job_file_to_json(done))
 
 
 def _last_log_line(log_path: Path) -> str:
@@ -96,31 +133,25 @@ def _last_log_line(log_path: Path) -> str:
 
 def has_finished_result(result_path: Path) -> bool:
     """Whether ``result_path`` holds a successful, timed result (of whichever call)."""
-    try:
-        payload = json.loads(Path(result_path).read_text())
-    except (OSError, ValueError):
-        return False
-    return isinstance(payload, dict) and bool(payload.get("ok")) and "wall_s" in payload
+    f = _job_file_from_json(result_path)
+    return f is not None and f.ok and f.wall_s is not None
 
 
-def _finished(job: Callable, kwargs: dict, result_path: Path) -> JobOutcome | None:
+def _finished(job: Callable, kwargs: dict[str, JsonValue], result_path: Path) -> JobOutcome | None:
     """The earlier successful result of this very job call, or None (absent, failed, other inputs)."""
-    try:
-        payload = json.loads(result_path.read_text())
-    except (OSError, ValueError):
-        return None
-    if not isinstance(payload, dict) or not payload.get("ok") or payload.get("job") != job_name(job) \
-            or payload.get("kwargs") != json.loads(json.dumps(kwargs)) or "wall_s" not in payload:
+    f = _job_file_from_json(result_path)
+    if f is None or not f.ok or f.job != job_name(job) or f.kwargs != json.loads(json.dumps(kwargs)) \
+            or f.wall_s is None:
         return None
     try:
-        result = _decode(job, payload.get("result"), result_path)
+        result = _decode(job, f.result, result_path)
     except records.RecordError as exc:  # written by an older polarref: run it again
         log.info("not reusing %s: %s", result_path, exc)
         return None
-    return JobOutcome(RunStatus.OK, "", float(payload["wall_s"]), result, reused=True)
+    return JobOutcome(RunStatus.OK, "", f.wall_s, result, reused=True)
 
 
-def run_isolated(job: Callable[..., R], kwargs: dict, timeout_s: float, work_dir: Path, tag: str,
+def run_isolated(job: Callable[..., R], kwargs: dict[str, JsonValue], timeout_s: float, work_dir: Path, tag: str,
                  reuse: bool = False) -> JobOutcome[R]:
     """Run ``job(**kwargs)`` in a spawned process.
 
@@ -157,15 +188,17 @@ def run_isolated(job: Callable[..., R], kwargs: dict, timeout_s: float, work_dir
         tail = _last_log_line(log_path)
         return JobOutcome(RunStatus.FAILED, f"process died with exit code {proc.exitcode}"
                           + (f"; last log line: {tail}" if tail else ""), wall)
-    payload = json.loads(result_path.read_text())
-    if not payload.get("ok"):
-        return JobOutcome(RunStatus.FAILED, payload.get("error", "unknown error"), wall)
+    done = _job_file_from_json(result_path)
+    if done is None:
+        return JobOutcome(RunStatus.FAILED, "malformed job result: not a result file", wall)
+    if not done.ok:
+        return JobOutcome(RunStatus.FAILED, done.error, wall)
     try:
-        result = _decode(job, payload.get("result"), result_path)
+        result = _decode(job, done.result, result_path)
     except records.RecordError as exc:
         return JobOutcome(RunStatus.FAILED, f"malformed job result: {exc}", wall)
-    payload["wall_s"] = wall  # a finished job, complete with its time: what a rerun may reuse
-    atomic_write(result_path, json.dumps(payload, allow_nan=True))
+    # a finished job, complete with its time: what a rerun may reuse
+    atomic_write(result_path, _job_file_to_json(dataclasses.replace(done, wall_s=wall)))
     return JobOutcome(RunStatus.OK, "", wall, result)
 
 
@@ -175,7 +208,7 @@ class IsolatedTask:
     """:func:`run_isolated` arguments as a small picklable record (paths as str)."""
 
     job: Callable
-    kwargs: dict[str, Any]
+    kwargs: dict[str, JsonValue]
     timeout_s: float
     work_dir: str
     tag: str
@@ -194,7 +227,7 @@ def isolated_task(task: IsolatedTask) -> JobOutcome:
     return run_isolated(task.job, task.kwargs, task.timeout_s, Path(task.work_dir), task.tag, task.reuse)
 
 
-def run_isolated_with(executor, job: Callable[..., R], kwargs: dict, timeout_s: float, work_dir: Path, tag: str,
+def run_isolated_with(executor, job: Callable[..., R], kwargs: dict[str, JsonValue], timeout_s: float, work_dir: Path, tag: str,
                       reuse: bool = False) -> JobOutcome[R]:
     """:func:`run_isolated` through ``executor`` (a polarref.core.execution executor); blocks until done."""
     if executor.in_process:

@@ -30,14 +30,15 @@ M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3  # glibc's mallopt parameters (mallo
 MMAP_THRESHOLD = 32 << 20  # glibc's DEFAULT_MMAP_THRESHOLD_MAX on 64-bit
 TRIM_THRESHOLD = 2 * MMAP_THRESHOLD  # what its dynamic rule sets beside it
 
-_STATE: dict = {}
+_state: str | None = None  # set once per process by keep_heap
 
 
 def keep_heap() -> str:
     """Set glibc's mmap and trim thresholds (module docstring) once per process; the state
     as one line for the records."""
-    if "state" in _STATE:
-        return _STATE["state"]
+    global _state
+    if _state is not None:
+        return _state
     state = "C library defaults (not glibc)"
     if sys.platform.startswith("linux"):
         try:
@@ -50,10 +51,10 @@ def keep_heap() -> str:
             state = (f"glibc mallopt: mmap threshold {MMAP_THRESHOLD >> 20} MiB, "
                      f"trim threshold {TRIM_THRESHOLD >> 20} MiB")
         log.debug("heap: %s", state)
-    _STATE["state"] = state
+    _state = state
     return state
 
 
 def heap_state() -> str:
     """The heap setting in force, as :func:`keep_heap` reports it (without setting it)."""
-    return _STATE.get("state", "C library defaults (dynamic thresholds)")
+    return _state if _state is not None else "C library defaults (dynamic thresholds)"

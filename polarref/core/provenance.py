@@ -60,7 +60,7 @@ def cpu_model() -> str:
     return platform.processor() or ""
 
 
-def package_versions() -> dict[str, str]:
+def _package_versions() -> dict[str, str]:
     """name -> version, "missing (...)" when the import fails; polarref's own version first."""
     from polarref import __version__
 
@@ -76,9 +76,9 @@ def package_versions() -> dict[str, str]:
 def blas_threads() -> int | None:
     """The largest thread count of the loaded BLAS libraries (None: none loaded / unknown)."""
     try:
-        from threadpoolctl import threadpool_info
+        from threadpoolctl import ThreadpoolController
 
-        counts = [int(i["num_threads"]) for i in threadpool_info() if i.get("user_api") == "blas"]
+        counts = [int(c.num_threads) for c in ThreadpoolController().lib_controllers if c.user_api == "blas"]
     except Exception:
         return None
     return max(counts) if counts else None
@@ -118,7 +118,7 @@ def collect_record(seeds: dict[str, int] | None = None, threads: dict[str, int] 
         if os.environ.get(var, "").isdigit():
             th.setdefault(var, int(os.environ[var]))
     return Provenance(commit or "", dirty, int(os.cpu_count() or 0), cpu_model(), platform.machine(),
-                      platform.platform(), sys.version.split()[0], package_versions(), th, dict(seeds or {}))
+                      platform.platform(), sys.version.split()[0], _package_versions(), th, dict(seeds or {}))
 
 
 def collect(seeds: dict[str, int] | None = None, threads: dict[str, int] | None = None) -> dict:

@@ -26,6 +26,8 @@ from polarref.core.atomic import atomic_write
 from polarref.core.errors import PolarrefError
 
 T = TypeVar("T")
+# A parsed JSON value (what json.loads returns): the type of arguments that cross a process as JSON.
+JsonValue = typing.Union[str, int, float, bool, None, list["JsonValue"], dict[str, "JsonValue"]]
 
 
 class RecordError(PolarrefError):

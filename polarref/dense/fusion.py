@@ -12,9 +12,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import numpy.lib.recfunctions as rfn
 
 from polarref.core.atomic import atomic_open
 from polarref.dense.consistency import FilteredView
+
+
+# One vertex of the fused cloud's PLY (write_point_cloud / read_point_cloud).
+_PLY = np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4"),
+                 ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+_PLY_TYPES = {"<f8": "double", "<f4": "float", "|u1": "uchar"}
 
 
 @dataclass
@@ -58,17 +65,11 @@ def fuse(filtered: list[FilteredView], voxel: float) -> PointCloud:
 
 def write_point_cloud(path: Path, cloud: PointCloud) -> None:
     """Binary PLY: double x y z, float nx ny nz, uchar red green blue (atomic)."""
-    fields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("nx", "<f4"), ("ny", "<f4"), ("nz", "<f4"),
-              ("red", "u1"), ("green", "u1"), ("blue", "u1")]
     header = ["ply", "format binary_little_endian 1.0", f"element vertex {len(cloud)}"]
-    header += [f"property {'double' if t == '<f8' else 'float' if t == '<f4' else 'uchar'} {n}"
-               for n, t in fields]
+    header += [f"property {_PLY_TYPES[_PLY.fields[n][0].str]} {n}" for n in _PLY.names]
     header.append("end_header")
-    data = np.empty(len(cloud), dtype=fields)
-    for k, name in enumerate("xyz"):
-        data[name] = cloud.points[:, k]
-        data["n" + name] = cloud.normals[:, k]
-    data["red"], data["green"], data["blue"] = cloud.colors.T
+    flat = np.hstack([cloud.points, cloud.normals, cloud.colors.astype(np.float64)])
+    data = rfn.unstructured_to_structured(flat, dtype=_PLY)
     with atomic_open(path) as fh:
         fh.write(("\n".join(header) + "\n").encode("ascii"))
         fh.write(data.tobytes())
@@ -81,9 +82,7 @@ def read_point_cloud(path: Path) -> PointCloud:
         while (line := fh.readline().decode("ascii").strip()) != "end_header":
             if line.startswith("element vertex"):
                 n = int(line.split()[2])
-        dt = np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("nx", "<f4"), ("ny", "<f4"),
-                       ("nz", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")])
-        data = np.frombuffer(fh.read(dt.itemsize * n), dtype=dt, count=n)
-    P = np.stack([data["x"], data["y"], data["z"]], 1)
-    N = np.stack([data["nx"], data["ny"], data["nz"]], 1).astype(np.float64)
-    return PointCloud(P, N, np.stack([data["red"], data["green"], data["blue"]], 1))
+        data = np.frombuffer(fh.read(_PLY.itemsize * n), dtype=_PLY, count=n)
+    columns = lambda names: rfn.structured_to_unstructured(data[list(names)])
+    return PointCloud(columns(("x", "y", "z")).astype(np.float64), columns(("nx", "ny", "nz")).astype(np.float64),
+                      columns(("red", "green", "blue")).astype(np.uint8))

@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from importlib import metadata
 
+from polarref.core.provenance import collect_record
+
 
 @dataclass
 class Provenance:
@@ -22,13 +24,12 @@ class Provenance:
 
 
 def collect(command: str = "", seeds: dict[str, int] | None = None, threads: dict[str, int] | None = None) -> Provenance:
-    from polarref.core.provenance import collect as collect_env
-
-    env = collect_env(seeds, threads)
+    env = collect_record(seeds, threads)
+    versions = dict(env.versions)
     for dist in ("open3d-cpu", "open3d"):  # the dense stage's one extra dependency
         try:
-            env["versions"][dist] = metadata.version(dist)
+            versions[dist] = metadata.version(dist)
         except metadata.PackageNotFoundError:
             pass
-    names = {f for f in Provenance.__dataclass_fields__ if f != "command"}
-    return Provenance(**{k: v for k, v in env.items() if k in names}, command=command)
+    return Provenance(env.git_commit, env.git_dirty, env.cpu_count, env.cpu_model, env.machine, env.platform,
+                      env.python, versions, dict(env.threads), dict(env.seeds), command)
