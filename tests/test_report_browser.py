@@ -50,13 +50,13 @@ def test_report_page_in_headless_chromium(page):
     assert c.network_requests == []                       # loaded with the network emulated offline
     assert c.images >= 5 and c.broken_images == 0
     t = c.summary_table
-    assert t is not None and t["visible"] and t["width"] > 300
-    assert 0 <= t["top"] < t["bottom"] <= 800             # the whole main table above the fold
+    assert t is not None and t.visible and t.width > 300
+    assert 0 <= t.top < t.bottom <= 800                   # the whole main table above the fold
     v = c.canvas
-    assert v["ready"] and v["drawn"] > 100
-    assert v["dark_pixels"] > 1000 and v["variance"] > 10  # not a blank canvas
-    assert c.canvas_after_drag["hash"] != v["hash"]       # orbiting redraws a different picture
-    assert c.canvas_after_drag["dark_pixels"] > 1000
+    assert v is not None and v.ready and v.drawn > 100
+    assert v.dark_pixels > 1000 and v.variance > 10       # not a blank canvas
+    assert c.canvas_after_drag is not None and c.canvas_after_drag.hash != v.hash  # orbiting redraws
+    assert c.canvas_after_drag.dark_pixels > 1000
 
 
 def test_the_checks_catch_a_broken_page(tmp_path):

@@ -177,7 +177,7 @@ def test_new_figures_from_plot_data(tmp_path):
         meth["plot"]["track_length_hist"] = {"edges": [2.0, 3.0, 4.0], "counts": [5, 2]}
     d = _write(tmp_path, data)
     written = build_report(d)
-    assert {"per_image", "histograms"} <= set(written.figures)
+    assert {"per_image", "histograms"} <= {f.key for f in written.figures}
 
 
 def test_index_page_over_report_folders(tmp_path, capsys):

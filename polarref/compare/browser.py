@@ -42,6 +42,26 @@ def find_chromium() -> str | None:
     return None
 
 
+def _field_from_json(reply: dict, name: str) -> str:
+    """The string ``name`` of a CDP reply (PolarrefError naming it when the reply lacks it)."""
+    value = reply.get(name)
+    if not isinstance(value, str):
+        raise PolarrefError(f"Chromium: reply without {name}: {str(reply)[:200]}")
+    return value
+
+
+def _command_to_json(msg_id: int, method: str, params: dict, session: str | None) -> bytes:
+    """One CDP command as the pipe carries it (without the NUL terminator)."""
+    return json.dumps({"id": msg_id, "method": method, "params": params,
+                       **({"sessionId": session} if session else {})}).encode()
+
+
+def _message_from_json(raw: bytes) -> tuple[int | None, dict]:
+    """(reply id or None for an event, the parsed message)."""
+    msg = json.loads(raw)
+    return msg.get("id"), msg
+
+
 class Chromium:
     """One headless Chromium process driven over CDP; use as a context manager."""
 
@@ -85,21 +105,18 @@ class Chromium:
             buf += chunk
             while b"\0" in buf:
                 raw, buf = buf.split(b"\0", 1)
-                msg = json.loads(raw)
-                if "id" in msg:
+                msg_id, msg = _message_from_json(raw)
+                if msg_id is not None:
                     with self._cv:
-                        self._replies[msg["id"]] = msg
+                        self._replies[msg_id] = msg
                         self._cv.notify_all()
                 else:
                     self._events.put(msg)
 
-    def send(self, method: str, params: dict | None = None, session: str | None = None) -> dict:
+    def _send(self, method: str, params: dict | None = None, session: str | None = None) -> dict:
         """Send one command and wait for its result (raises PolarrefError on a CDP error or timeout)."""
         self._next += 1
-        msg = {"id": self._next, "method": method, "params": params or {}}
-        if session:
-            msg["sessionId"] = session
-        os.write(self._cmd_w, json.dumps(msg).encode() + b"\0")
+        os.write(self._cmd_w, _command_to_json(self._next, method, params or {}, session) + b"\0")
         deadline = time.monotonic() + self.timeout_s
         with self._cv:
             while self._next not in self._replies and -1 not in self._replies:
@@ -111,6 +128,18 @@ class Chromium:
         if "error" in reply:
             raise PolarrefError(f"Chromium: {method}: {reply['error'].get('message')}")
         return reply.get("result", {})
+
+    def open_page(self) -> str:
+        """A new blank tab, attached: its session id."""
+        target = _field_from_json(self._send("Target.createTarget", {"url": "about:blank"}), "targetId")
+        return _field_from_json(self._send("Target.attachToTarget", {"targetId": target, "flatten": True}),
+                                "sessionId")
+
+    def screenshot(self, session: str, width: int, height: int) -> bytes:
+        """PNG of the top ``width`` x ``height`` of the page."""
+        reply = self._send("Page.captureScreenshot", {"format": "png", "clip": {
+            "x": 0, "y": 0, "width": width, "height": height, "scale": 1}}, session)
+        return base64.b64decode(_field_from_json(reply, "data"))
 
     def events(self) -> list[dict]:
         """Events received so far (drained)."""
@@ -140,7 +169,7 @@ class Chromium:
 
     def close(self) -> None:
         try:
-            self.send("Browser.close")
+            self._send("Browser.close")
         except PolarrefError:
             pass
         try:
@@ -162,6 +191,41 @@ class Chromium:
         self.close()
 
 
+@dataclass(frozen=True)
+class TableProbe:
+    """The summary table's bounding box (CSS px) and whether it is the element seen at its centre."""
+
+    top: float
+    bottom: float
+    width: float
+    height: float
+    viewport: float
+    visible: bool
+
+
+@dataclass(frozen=True)
+class CanvasProbe:
+    """Pixel statistics of the 3D view's canvas (``hash``: of the pixel values, to tell redraws apart)."""
+
+    pixels: int
+    dark_pixels: int
+    variance: float
+    hash: int
+    rect: tuple[float, float, float, float]   # page x, y, width, height
+    drawn: int                                # frames the viewer says it drew
+    ready: bool
+
+
+@dataclass(frozen=True)
+class PageProbe:
+    """What the page script :data:`_PROBE` measured."""
+
+    images: int
+    broken_images: int
+    table: TableProbe | None
+    canvas: CanvasProbe | None
+
+
 @dataclass
 class PageCheck:
     """What a headless load of a report page showed."""
@@ -170,12 +234,42 @@ class PageCheck:
     network_requests: list[str] = field(default_factory=list)   # anything not file: or data:
     images: int = 0
     broken_images: int = 0
-    summary_table: dict[str, Any] | None = None    # bounding rect + whether it is the element seen at its centre
-    canvas: dict[str, Any] | None = None           # pixel statistics of the 3D view
-    canvas_after_drag: dict[str, Any] | None = None  # the same after a mouse drag across it (orbit)
+    summary_table: TableProbe | None = None
+    canvas: CanvasProbe | None = None
+    canvas_after_drag: CanvasProbe | None = None  # the same after a mouse drag across it (orbit)
     screenshot_png: bytes | None = None
 
 
+def _canvas_from_json(c: dict | None) -> CanvasProbe | None:
+    if c is None:
+        return None
+    return CanvasProbe(int(c["pixels"]), int(c["dark_pixels"]), float(c["variance"]), int(c["hash"]),
+                       tuple(float(x) for x in c["rect"]), int(c["drawn"]), bool(c["ready"]))
+
+
+def _probe_from_json(v: dict) -> PageProbe:
+    """The probe's JSON value as a record."""
+    t = v["table"]
+    table = None if t is None else TableProbe(float(t["top"]), float(t["bottom"]), float(t["width"]),
+                                              float(t["height"]), float(t["viewport"]), bool(t["visible"]))
+    return PageProbe(int(v["images"]), int(v["broken"]), table, _canvas_from_json(v["canvas"]))
+
+
+def _value_from_json(reply: dict):
+    """The value of a ``Runtime.evaluate`` reply (``returnByValue``); PolarrefError when the script threw."""
+    if "exceptionDetails" in reply:
+        raise PolarrefError(f"page script failed: {reply['exceptionDetails'].get('text')}")
+    return reply["result"].get("value")
+
+
+def _evaluate(br: "Chromium", sid: str, expression: str):
+    """Evaluate ``expression`` in the page and return its value (awaiting a promise)."""
+    return _value_from_json(br._send("Runtime.evaluate", {"expression": expression, "returnByValue": True,
+                                                         "awaitPromise": True}, sid))
+
+
+# let the viewer's first requestAnimationFrame and any late console message arrive
+_TWO_FRAMES = "new Promise(r => requestAnimationFrame(() => requestAnimationFrame(r)))"
 _PROBE = """(() => {
   const imgs = Array.from(document.images);
   const t = document.querySelector('#summary table');
@@ -208,7 +302,8 @@ _PROBE = """(() => {
 })()"""
 
 
-def _errors(events: list[dict]) -> tuple[list[str], list[str]]:
+def _errors_from_json(events: list[dict]) -> tuple[list[str], list[str]]:
+    """Console errors and non-local requests among the CDP events (parsed JSON messages)."""
     errors, requests = [], []
     for ev in events:
         m, p = ev.get("method"), ev.get("params", {})
@@ -234,49 +329,38 @@ def check_page(html_path: str | Path, width: int = 1280, height: int = 800, scre
     """
     url = Path(html_path).resolve().as_uri()
     with Chromium(chromium, timeout_s) as br:
-        target = br.send("Target.createTarget", {"url": "about:blank"})["targetId"]
-        sid = br.send("Target.attachToTarget", {"targetId": target, "flatten": True})["sessionId"]
+        sid = br.open_page()
         for method in ("Runtime.enable", "Log.enable", "Network.enable", "Page.enable"):
-            br.send(method, session=sid)
-        br.send("Network.emulateNetworkConditions", {"offline": True, "latency": 0, "downloadThroughput": 0,
+            br._send(method, session=sid)
+        br._send("Network.emulateNetworkConditions", {"offline": True, "latency": 0, "downloadThroughput": 0,
                                                      "uploadThroughput": 0}, sid)
-        br.send("Emulation.setDeviceMetricsOverride", {"width": width, "height": height,
+        br._send("Emulation.setDeviceMetricsOverride", {"width": width, "height": height,
                                                        "deviceScaleFactor": 1, "mobile": False}, sid)
-        br.send("Page.navigate", {"url": url}, sid)
+        br._send("Page.navigate", {"url": url}, sid)
         events = br.wait_event("Page.loadEventFired", sid)
         # let the viewer's first requestAnimationFrame and any late console message arrive
-        br.send("Runtime.evaluate", {"expression": "new Promise(r => requestAnimationFrame(() => "
-                                     "requestAnimationFrame(r)))", "awaitPromise": True}, sid)
-        probe = br.send("Runtime.evaluate", {"expression": _PROBE, "returnByValue": True}, sid)
-        if "exceptionDetails" in probe:
-            raise PolarrefError(f"page probe failed: {probe['exceptionDetails'].get('text')}")
-        value = probe["result"]["value"]
-        shot = None
-        if screenshot:
-            shot = base64.b64decode(br.send("Page.captureScreenshot", {
-                "format": "png", "clip": {"x": 0, "y": 0, "width": width, "height": height, "scale": 1}}, sid)["data"])
-        after = _drag(br, sid) if drag and value["canvas"] else None
-        errors, requests = _errors(events + br.events())
-    return PageCheck(errors, requests, value["images"], value["broken"], value["table"], value["canvas"],
-                     after, shot)
+        _evaluate(br, sid, _TWO_FRAMES)
+        probe = _probe_from_json(_evaluate(br, sid, _PROBE))
+        shot = br.screenshot(sid, width, height) if screenshot else None
+        after = _drag(br, sid) if drag and probe.canvas else None
+        errors, requests = _errors_from_json(events + br.events())
+    return PageCheck(errors, requests, probe.images, probe.broken_images, probe.table, probe.canvas, after, shot)
 
 
-def _drag(br: Chromium, sid: str) -> dict:
+def _drag(br: Chromium, sid: str) -> CanvasProbe | None:
     """Scroll the canvas into view, drag across it with the left button, probe again."""
-    br.send("Runtime.evaluate", {"expression": "document.getElementById('view3d-canvas').scrollIntoView()"}, sid)
-    pos = br.send("Runtime.evaluate", {"expression": "(() => {const r = document.getElementById('view3d-canvas')"
-                                       ".getBoundingClientRect(); return [r.left, r.top, r.width, r.height];})()",
-                                       "returnByValue": True}, sid)["result"]["value"]
+    _evaluate(br, sid, "document.getElementById('view3d-canvas').scrollIntoView()")
+    pos = _evaluate(br, sid, "(() => {const r = document.getElementById('view3d-canvas')"
+                             ".getBoundingClientRect(); return [r.left, r.top, r.width, r.height];})()")
     x0, y0 = pos[0] + pos[2] / 2, pos[1] + pos[3] / 2
-    mouse = lambda kind, x, buttons: br.send("Input.dispatchMouseEvent", {
+    mouse = lambda kind, x, buttons: br._send("Input.dispatchMouseEvent", {
         "type": kind, "x": x, "y": y0, "button": "left", "buttons": buttons, "clickCount": 1}, sid)
     mouse("mousePressed", x0, 1)
     for k in range(1, 6):
         mouse("mouseMoved", x0 + 30 * k, 1)
     mouse("mouseReleased", x0 + 150, 0)
-    br.send("Runtime.evaluate", {"expression": "new Promise(r => requestAnimationFrame(() => "
-                                 "requestAnimationFrame(r)))", "awaitPromise": True}, sid)
-    return br.send("Runtime.evaluate", {"expression": _PROBE, "returnByValue": True}, sid)["result"]["value"]["canvas"]
+    _evaluate(br, sid, _TWO_FRAMES)
+    return _probe_from_json(_evaluate(br, sid, _PROBE)).canvas
 
 
 def screenshot(html_path: str | Path, png_path: str | Path, width: int = 1280, height: int = 800) -> PageCheck:

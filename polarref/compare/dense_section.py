@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from polarref.compare.report_render import DrawnFigure
 from polarref.core.status import RunStatus
 
 log = logging.getLogger(__name__)
@@ -106,13 +107,13 @@ def dense_blocks(metrics, figure_keys: set[str]) -> list:
     return blocks
 
 
-def draw_dense_figure(metrics, out_dir: Path, fig_dir: Path) -> dict[str, Path]:
+def draw_dense_figure(metrics, out_dir: Path, fig_dir: Path) -> DrawnFigure | None:
     """Side-by-side snapshot (matplotlib, headless) of the dense runs that left GT-frame outputs."""
     sec = getattr(metrics, "dense", None)
     runs = [r for r in (sec.runs if sec else []) if r.status == RunStatus.OK
             and (out_dir / r.out_dir / "fused_gt.ply").is_file()]
     if not runs:
-        return {}
+        return None
     import matplotlib
 
     matplotlib.use("Agg")
@@ -157,4 +158,4 @@ def draw_dense_figure(metrics, out_dir: Path, fig_dir: Path) -> dict[str, Path]:
     path = fig_dir / f"{FIGURE_KEY}.png"
     fig.savefig(path, dpi=110)
     plt.close(fig)
-    return {FIGURE_KEY: path}
+    return DrawnFigure(FIGURE_KEY, path)

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from polarref.core.atomic import atomic_open
+from polarref.compare.report_render import DrawnFigure
 from polarref.compare.schema import Histogram, MetricsFile
 from polarref.core.status import RunStatus
 
@@ -282,9 +283,9 @@ FIGURES = (
 )
 
 
-def draw_all(metrics: MetricsFile, fig_dir: Path) -> dict[str, Path]:
-    """Draw every figure the data allows; returns {key: png path}. A failing figure is logged, not fatal."""
-    out: dict[str, Path] = {}
+def draw_all(metrics: MetricsFile, fig_dir: Path) -> list[DrawnFigure]:
+    """Draw every figure the data allows, in FIGURES order. A failing figure is logged, not fatal."""
+    out: list[DrawnFigure] = []
     for key, _, fn in FIGURES:
         try:
             p = fn(metrics, fig_dir / f"{key}.png")
@@ -292,5 +293,5 @@ def draw_all(metrics: MetricsFile, fig_dir: Path) -> dict[str, Path]:
             log.warning("figure %s failed: %s: %s", key, type(exc).__name__, exc)
             continue
         if p is not None:
-            out[key] = p
+            out.append(DrawnFigure(key, p))
     return out

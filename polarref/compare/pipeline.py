@@ -22,6 +22,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable
 
+from polarref.camera import Camera
 from polarref.core import execution
 from polarref.compare import claims as claims_mod
 from polarref.compare import presets, scenes, view3d
@@ -76,7 +77,7 @@ class _Context:
     seed: int
     preset: str                                      # ComparePreset.name (a JSON-able job argument)
     cache: Path                                      # shared feature/match cache of our SfM
-    camera: dict[str, object] = field(default_factory=dict)      # jobs.camera_to_json
+    camera: Camera                                   # the fixed camera every job is given
     db_results: dict[str, tuple[JobOutcome, Path | None]] = field(default_factory=dict)  # shared stage -> (outcome, db)
     run: Callable | None = None                      # how a job runs; None: run_isolated, here
     locks: dict[str, threading.Lock] = field(default_factory=lambda: defaultdict(threading.Lock))
@@ -107,7 +108,7 @@ def _shared(ctx: _Context, key: str):
 def _shared_once(ctx: _Context, key: str):
     if key in ctx.db_results:
         return ctx.db_results[key]
-    common = dict(image_dir=str(ctx.scene.image_dir), camera=ctx.camera)
+    common = dict(image_dir=str(ctx.scene.image_dir), camera=camera_to_json(ctx.camera))
     if key == "ours-features":
         job, kw, extra = jobs.ours_features, dict(preset=ctx.preset, cache_dir=str(ctx.cache)), None
     elif key == "db-pycolmap-sift":
@@ -152,7 +153,7 @@ def _run_method(ctx: _Context, spec: MethodSpec) -> tuple[MethodRun, Reconstruct
                           ctx.timeout, work, "job")
     else:
         outcome = ctx.job(jobs.ours_sfm,
-                          dict(image_dir=str(ctx.scene.image_dir), camera=ctx.camera, ba=spec.ba,
+                          dict(image_dir=str(ctx.scene.image_dir), camera=camera_to_json(ctx.camera), ba=spec.ba,
                                work_dir=str(work), preset=ctx.preset, cache_dir=str(ctx.cache)),
                           ctx.timeout, work, "job")
     if outcome.status != RunStatus.OK:
@@ -251,7 +252,7 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
         raise PolarrefError(f"cannot create report folder {out}: {exc}") from exc
     timeout = float(cfg.method_timeout_s or cfg.preset.method_timeout_s)
     ctx = _Context(scene, out / "runs", timeout, cfg.seed, cfg.preset.name, out / "runs" / "ours-features" / "cache",
-                   camera=camera_to_json(scene.camera), reuse=not cfg.overwrite)
+                   camera=scene.camera, reuse=not cfg.overwrite)
     from polarref.metrics import scene_size
 
     resumed = ctx.reuse and has_finished_result(ctx.runs / "ours-features" / "job.result.json")

@@ -26,17 +26,15 @@ class ComparePreset:
     sfm_preset: str               # polarref.sfm.config.PRESETS key of our pipeline
 
 
-PRESETS: dict[str, ComparePreset] = {p.name: p for p in (
-    ComparePreset("small", method_timeout_s=120.0, claims_budget_s=float("inf"), run_budget_s=None,
-                  max_width=768, sfm_preset="small"),
-    # the default run's claims must fit its 290 s budget (10 + 5 seeds need ~40 s on 2 idle cores)
-    ComparePreset("default", method_timeout_s=90.0, claims_budget_s=60.0, run_budget_s=290.0,
-                  max_width=1024, sfm_preset="default"),
-    ComparePreset("large", method_timeout_s=1800.0, claims_budget_s=300.0, run_budget_s=None,
-                  max_width=1536, sfm_preset="default"),
-)}
+SMALL = ComparePreset("small", method_timeout_s=120.0, claims_budget_s=float("inf"), run_budget_s=None,
+                      max_width=768, sfm_preset="small")
+# the default run's claims must fit its 290 s budget (10 + 5 seeds need ~40 s on 2 idle cores)
+DEFAULT = ComparePreset("default", method_timeout_s=90.0, claims_budget_s=60.0, run_budget_s=290.0,
+                        max_width=1024, sfm_preset="default")
+LARGE = ComparePreset("large", method_timeout_s=1800.0, claims_budget_s=300.0, run_budget_s=None,
+                      max_width=1536, sfm_preset="default")
+PRESETS: dict[str, ComparePreset] = {p.name: p for p in (SMALL, DEFAULT, LARGE)}
 NAMES = tuple(PRESETS)
-DEFAULT = PRESETS["default"]
 
 
 def get(name: str) -> ComparePreset:

@@ -358,11 +358,13 @@ def build_report(out_dir: str | Path, metrics: MetricsFile | None = None) -> Wri
     fig_dir = out_dir / "figures"
     drawn = figs.draw_all(metrics, fig_dir)
     try:
-        drawn.update(draw_dense_figure(metrics, out_dir, fig_dir))
+        dense = draw_dense_figure(metrics, out_dir, fig_dir)
     except Exception as exc:  # a broken plot must not lose the tables
         logging.getLogger(__name__).warning("figure dense failed: %s: %s", type(exc).__name__, exc)
-    blocks = build_blocks(metrics, set(drawn))
+        dense = None
+    drawn += [dense] if dense is not None else []
+    blocks = build_blocks(metrics, {f.key for f in drawn})
     md, page = out_dir / "report.md", out_dir / "report.html"
     write_text_atomic(md, to_markdown(blocks))
     write_text_atomic(page, to_html(blocks, fig_dir, f"polarref compare: {metrics.scene.name}", REPORT_LAYOUT))
-    return WrittenPages(md, page, drawn)
+    return WrittenPages(md, page, tuple(drawn))

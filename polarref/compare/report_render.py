@@ -14,12 +14,20 @@ from pathlib import Path
 
 
 @dataclass(frozen=True)
+class DrawnFigure:
+    """One figure a report build drew: its key (the report's ``Fig`` block) and its PNG."""
+
+    key: str
+    path: Path
+
+
+@dataclass(frozen=True)
 class WrittenPages:
-    """What a report or index build wrote: its two pages and the figures drawn (key -> png)."""
+    """What a report or index build wrote: its two pages and the figures drawn."""
 
     markdown: Path
     html: Path
-    figures: dict[str, Path] = field(default_factory=dict)
+    figures: tuple[DrawnFigure, ...] = ()
 
 
 @dataclass

@@ -140,6 +140,11 @@ def describe(view: View3D) -> str:
 _JS = Path(__file__).with_name("viewer.js")
 
 
+def _page_data_to_json(view: View3D, colors: dict[str, str], visible: list[str]) -> str:
+    """The viewer's data (viewer.js reads it): the view's record plus the layer colours and switches."""
+    return json.dumps({**to_dict(view), "colors": colors, "visible": visible}, separators=(",", ":"))
+
+
 def to_html(view: View3D, colors: dict[str, str], visible: list[str]) -> str:
     """A self-contained <div> with the canvas, layer toggles, the data and the viewer script.
 
@@ -147,10 +152,7 @@ def to_html(view: View3D, colors: dict[str, str], visible: list[str]) -> str:
         colors: layer key -> "#rrggbb" (the figures' colours, so the view and the plots agree).
         visible: layer keys switched on when the page opens.
     """
-    data = to_dict(view)
-    data["colors"] = colors
-    data["visible"] = visible
-    payload = json.dumps(data, separators=(",", ":")).replace("</", "<\\/")
+    payload = _page_data_to_json(view, colors, visible).replace("</", "<\\/")
     return ('<div id="view3d" class="view3d"><canvas id="view3d-canvas" width="960" height="540" '
             'aria-label="3D view: drag to orbit, wheel to zoom, shift-drag to pan"></canvas>'
             '<div id="view3d-controls" class="view3d-controls"></div></div>'

@@ -27,7 +27,8 @@ from polarref.core.errors import PolarrefError
 
 T = TypeVar("T")
 # A parsed JSON value (what json.loads returns): the type of arguments that cross a process as JSON.
-JsonValue = typing.Union[str, int, float, bool, None, list["JsonValue"], dict[str, "JsonValue"]]
+_JSON = typing.ForwardRef("JsonValue")
+JsonValue = typing.Union[str, int, float, bool, None, list[_JSON], dict[str, _JSON]]
 
 
 class RecordError(PolarrefError):
