@@ -310,9 +310,9 @@ def test_controlled_missing_falls_back_to_scene_rule():
 
 
 def test_derivation_evidence_is_a_typed_record_that_round_trips(tmp_path):
-    from polarref.compare import jobs
+    from polarref.compare import claim_jobs
 
-    ev = jobs.derivation_evidence(n=200, out_json=str(tmp_path / "derivations.json"))
+    ev = claim_jobs.derivation_evidence(n=200, out_json=str(tmp_path / "derivations.json"))
     assert isinstance(ev, DerivationEvidence) and ev.samples_per_case == 200 and len(ev.cases) >= 3
     assert records.load(DerivationEvidence, tmp_path / "derivations.json") == ev
     c1, c2 = claims.equation_claims(ev, "")

@@ -239,9 +239,9 @@ def evaluate_into(metrics: MetricsFile, runs: Path, seed: int, budget_s: float, 
 
     With ``reuse``, finished experiment jobs of an earlier run (same arguments) are loaded.
     """
-    from polarref.compare import jobs
+    from polarref.compare import claim_jobs
 
-    d = run_isolated(jobs.derivation_evidence,
+    d = run_isolated(claim_jobs.derivation_evidence,
                      dict(n=DERIVATION_SAMPLES, out_json=str(runs / "claims" / "derivations.json")),
                      timeout_s, runs / "claims", "derivations", reuse)
     evidence = d.result if d.status == RunStatus.OK else None
@@ -251,7 +251,7 @@ def evaluate_into(metrics: MetricsFile, runs: Path, seed: int, budget_s: float, 
     else:
         limit = (NO_DEADLINE_TIMEOUT_S if not np.isfinite(budget_s)
                  else min(max(timeout_s, 3 * budget_s), 2 * budget_s + 10))
-        e = run_isolated(jobs.claim_experiments,
+        e = run_isolated(claim_jobs.claim_experiments,
                          dict(seed=seed, budget_s=budget_s, out_json=str(runs / "claims" / "experiments.json")),
                          limit, runs / "claims", "experiments", reuse)
         exp, why = (e.result if e.status == RunStatus.OK else None), e.reason

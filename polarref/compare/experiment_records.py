@@ -1,5 +1,5 @@
 """Typed results of the claim experiments (:mod:`polarref.compare.experiments`) and of the
-derivation evidence (:func:`polarref.compare.jobs.derivation_evidence`).
+derivation evidence (:func:`polarref.compare.claim_jobs.derivation_evidence`).
 
 The field names are the JSON keys of ``runs/claims/experiments.json`` and ``derivations.json``;
 the files are written with :func:`polarref.core.records.save`. A section that raised keeps only its

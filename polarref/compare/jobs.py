@@ -14,9 +14,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from polarref.core import records
 from polarref.camera import Camera
-from polarref.compare.experiment_records import DerivationEvidence, Experiments
 from polarref.compare import ours
 from polarref.model.run import MethodRun
 from polarref.peers.colmap_sfm import (ColmapSfMOptions, copy_database, count_verified_pairs,
@@ -107,26 +105,3 @@ def ours_sfm(image_dir: str, camera: dict, ba: str, work_dir: str, preset: str, 
     ``scripts/twin_variant.py`` (tracks and mapping only: the caches do not depend on it)."""
     config = ours.sfm_config(preset, Path(cache_dir), pairs_file, track_conflicts)
     return ours.run(Path(image_dir), camera_from_json(camera), ba, Path(work_dir), config)
-
-
-def claim_experiments(seed: int, budget_s: float, out_json: str) -> Experiments:
-    """Controlled BA experiments for the scorecard (conditioning, correlation, robustness)."""
-    from polarref.compare import experiments
-
-    return experiments.run_all(seed=seed, budget_s=budget_s, out_json=Path(out_json))
-
-
-def derivation_evidence(n: int, out_json: str) -> DerivationEvidence:
-    """Numeric evidence on the printed view-angle equation and claim 7, from ``derivations.paper``.
-
-    Runs in its own process: the derivations package imports SymPy/mpmath, which runtime code
-    must not import.
-    """
-    import dataclasses
-
-    from derivations import paper
-
-    cases = [dataclasses.asdict(c) for c in paper.all_case_evidence(n=n)]
-    result = records.coerce(DerivationEvidence, {"cases": cases, "samples_per_case": n, "seed": paper.SEED})
-    records.save(result, out_json)
-    return result
