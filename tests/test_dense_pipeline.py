@@ -102,7 +102,7 @@ def test_compare_report_dense_section(sphere_run, tmp_path):
     import shutil
 
     from polarref.compare import schema
-    from polarref.compare.dense_section import DenseRun, DenseSection
+    from polarref.compare.schema import DenseRun, DenseSection
     from polarref.compare.report import build_report
     from polarref.core.data import REPO_ROOT
 

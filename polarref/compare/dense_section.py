@@ -1,82 +1,18 @@
-"""``polarref compare --dense``: the dense stage from the GT poses, ours-euclidean and ours-polar.
-
-Self-contained: the typed record stored under ``dense`` in metrics.json, the runner called after
-the methods, the report blocks and the side-by-side figure (clouds on top, meshes below, all in
-the GT frame, one shared viewpoint) drawn from ``OUT/dense/<name>/{fused,mesh}_gt.ply``.
+"""``polarref compare --dense`` in the report: the dense section's blocks and the side-by-side
+figure (clouds on top, meshes below, all in the GT frame, one shared viewpoint) drawn from
+``OUT/dense/<name>/{fused,mesh}_gt.ply``. The stage itself runs in :mod:`polarref.compare.dense_stage`;
+its record (``DenseSection``) is part of metrics.json (:mod:`polarref.compare.schema`).
 """
 
 from __future__ import annotations
 
-import logging
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from polarref.compare.report_render import DrawnFigure
 from polarref.core.status import RunStatus
 
-log = logging.getLogger(__name__)
-
-DENSE_SOURCES = ("gt", "ours-euclidean", "ours-polar")
 FIGURE_KEY = "dense_side_by_side"
-
-
-@dataclass
-class DenseRun:
-    """One dense reconstruction, scored in the GT frame (None = not measured)."""
-
-    name: str                              # "gt" or a method name
-    status: RunStatus
-    message: str = ""
-    out_dir: str = ""                      # relative to the report folder
-    tau: float | None = None
-    tau_rel: float | None = None
-    cloud_fscore: float | None = None
-    cloud_precision: float | None = None
-    cloud_recall: float | None = None
-    accuracy_median: float | None = None
-    completeness_median: float | None = None
-    mesh_fscore: float | None = None
-    depth_median_abs: float | None = None
-    fused_points: int = 0
-    dense_runtime_s: float | None = None
-
-
-@dataclass
-class DenseSection:
-    runs: list[DenseRun] = field(default_factory=list)
-
-
-def run_dense_stage(scene_root: Path, model_dirs: dict[str, str | None], out: Path) -> DenseSection:
-    """Dense stage per source in :data:`DENSE_SOURCES`; ``model_dirs``: method name -> model folder."""
-    from polarref.dense.pipeline import DenseConfig, run_dense
-    from polarref.core.errors import PolarrefError
-
-    section = DenseSection()
-    for name in DENSE_SOURCES:
-        model = "gt" if name == "gt" else model_dirs.get(name)
-        run = DenseRun(name, RunStatus.SKIPPED, out_dir=f"dense/{name}")
-        section.runs.append(run)
-        if model is None:
-            run.message = "method did not run or produced no model"
-            continue
-        log.info("dense stage from %s poses", name)
-        try:
-            m = run_dense(scene_root, model, out / "dense" / name, DenseConfig(), overwrite=True)
-        except PolarrefError as exc:
-            run.status, run.message = RunStatus.FAILED, str(exc)
-            continue
-        run.status = RunStatus.OK
-        run.fused_points = m.num_fused_points
-        run.dense_runtime_s = m.runtime_s.get("dense_total")
-        if m.gt is not None and m.gt.cloud is not None:
-            run.tau, run.tau_rel = m.gt.tau, m.gt.tau_rel
-            c = m.gt.cloud
-            run.cloud_fscore, run.cloud_precision, run.cloud_recall = c.fscore, c.precision, c.recall
-            run.accuracy_median, run.completeness_median = c.accuracy_median, c.completeness_median
-            run.mesh_fscore = m.gt.mesh.fscore if m.gt.mesh is not None else None
-            run.depth_median_abs = m.gt.depth_median_abs
-    return section
 
 
 def _f(v, nd=3) -> str:

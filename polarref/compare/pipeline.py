@@ -324,7 +324,7 @@ def run_compare(cfg: CompareConfig) -> tuple[Path, MetricsFile]:
             metrics.ba_traces.append(BATrace(spec.ba, f"{scene.name}: final global BA of our SfM",
                                              list(run.final_ba_trace)))
     if cfg.dense:  # after the budgeted part: the dense stage has its own (benchmarked) cost
-        from polarref.compare.dense_section import run_dense_stage
+        from polarref.compare.dense_stage import run_dense_stage
 
         metrics.dense = run_dense_stage(scene.root, {n: (runs[n].model_dir or None) if n in runs else None
                                                      for n in ("ours-euclidean", "ours-polar")}, out)

@@ -14,7 +14,6 @@ from typing import ClassVar
 
 from polarref.core import records
 from polarref.core.atomic import atomic_write
-from polarref.compare.dense_section import DenseSection
 from polarref.core.errors import PolarrefError
 from polarref.metrics import SCHEMA_VERSION, ReconstructionMetrics
 from polarref.core.status import RunStatus
@@ -251,6 +250,34 @@ class View3D:
 
 
 @dataclass
+class DenseRun:
+    """One dense reconstruction, scored in the GT frame (None = not measured)."""
+
+    name: str                              # "gt" or a method name
+    status: RunStatus
+    message: str = ""
+    out_dir: str = ""                      # relative to the report folder
+    tau: float | None = None
+    tau_rel: float | None = None
+    cloud_fscore: float | None = None
+    cloud_precision: float | None = None
+    cloud_recall: float | None = None
+    accuracy_median: float | None = None
+    completeness_median: float | None = None
+    mesh_fscore: float | None = None
+    depth_median_abs: float | None = None
+    fused_points: int = 0
+    dense_runtime_s: float | None = None
+
+
+@dataclass
+class DenseSection:
+    """``polarref compare --dense``: one run per pose source (:mod:`polarref.compare.dense_stage`)."""
+
+    runs: list[DenseRun] = field(default_factory=list)
+
+
+@dataclass
 class MetricsFile:
     """Everything a report shows."""
 
@@ -264,7 +291,7 @@ class MetricsFile:
     ba_traces: list[BATrace] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     view3d: View3D | None = None
-    dense: DenseSection | None = None  # compare --dense (polarref.compare.dense_section)
+    dense: DenseSection | None = None  # compare --dense (polarref.compare.dense_stage)
 
     def method(self, name: str) -> MethodResult | None:
         return next((m for m in self.methods if m.name == name), None)
