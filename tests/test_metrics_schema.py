@@ -121,3 +121,41 @@ def test_v1_file_with_unknown_names_is_rejected():
     v1["methods"][0]["mean_reprojection_error_px_per_point"] = 0.3   # a v2 name in a v1 method
     with pytest.raises(records.RecordError, match="unknown key"):
         schema.from_dict(v1)
+
+
+@pytest.mark.parametrize("finished", [True, False])
+def test_the_report_entry_is_the_method_run_seen_by_the_report(finished):
+    """metrics.json keeps the report's view of a MethodRun (issue 29 (b)): built in one place,
+    every figure the run holds carried over unchanged, nothing the run does not hold invented."""
+    from polarref.compare.methods import select
+    from polarref.compare.pipeline import method_result
+    from polarref.core.status import RunStatus
+    from polarref.model.run import MethodRun
+
+    spec = select(["ours-polar"])[0]
+    run = MethodRun("ours-polar", form="polar", status=RunStatus.OK if finished else RunStatus.TIMEOUT,
+                    reason="" if finished else "timed out after 90 s", timeout_s=90.0,
+                    stage_runtime_s={"features": 1.25, "mapping (excl. BA)": 2.5, "bundle adjustment": 0.75},
+                    wall_s=9.0, peak_rss_mb=512.0, model_dir="/elsewhere/model" if finished else "",
+                    metrics=_metrics() if finished else None)
+    res = method_result(spec, run, None, num_images=3)
+    back = schema.from_dict(json.loads(schema.dumps(_file_with(res)))).methods[0]
+    assert (back.name, back.ba, back.status, back.reason, back.timeout_s) == \
+        ("ours-polar", "polar", run.status, run.reason, 90.0)
+    assert back.stage_runtime_s == run.stage_runtime_s
+    # the runtime is the sum of the timed stages once the method's own job finished, unknown before
+    assert back.runtime_s == (4.5 if finished else None)
+    if finished:   # the one ReconstructionMetrics record, as `polarref sfm` writes it (NaN -> None)
+        assert records.to_dict(back.metrics) == json.loads(json.dumps(records.to_dict(run.metrics)))
+        assert back.metric("tie_points") == 40 and back.metric("median_reprojection_error_px") is None
+    else:
+        assert back.metrics is None and back.metric("tie_points") is None
+    # machine facts of the process stay in the run's own result file, not in the published figures
+    assert "peak_rss_mb" not in json.loads(schema.dumps(_file_with(res)))["methods"][0]
+
+
+def _file_with(res):
+    m = schema.from_dict(copy.deepcopy(synthetic_metrics()))
+    m.methods = [res]
+    m.pairs, m.claims = [], []
+    return m
