@@ -5,6 +5,7 @@ from __future__ import annotations
 import copy
 import importlib.util
 import json
+import re
 from pathlib import Path
 
 import pytest
@@ -36,6 +37,11 @@ def test_a_committed_report_equals_itself_and_any_figure_change_is_found(tmp_pat
     same["ba_traces"][0]["points"][1]["time_s"] = 99.0
     timing = next(c for c in same["claims"] if any(f["unit"] == "s" for f in c["figures"]))
     timing["verdict"] = "supported" if timing["verdict"] != "supported" else "not supported"
+    for f in timing["figures"]:            # ratios, their spread, the slack: all from the clock
+        if f["unit"] != "count" and isinstance(f["value"], float):
+            f["value"] *= 1.5
+    worded = next(c for c in same["claims"] if "; this run: commit " in c["rationale"])
+    worded["rationale"] = re.sub(r"this run: commit [0-9a-f]+", "this run: commit 0123456789", worded["rationale"])
     b = _write(tmp_path / "b" / "metrics.json", same)
     assert diff_reports.main([str(a), str(b)]) == 0
     assert diff_reports.main([str(tmp_path / "a"), str(tmp_path / "b")]) == 0   # folders
@@ -47,6 +53,14 @@ def test_a_committed_report_equals_itself_and_any_figure_change_is_found(tmp_pat
     assert diff_reports.main([str(a), str(c)]) == 1
     out = capsys.readouterr().out
     assert "metrics.tie_points" in out and out.splitlines()[-1].startswith("1 difference(s)")
+    reworded = copy.deepcopy(base)   # the wording outside the provenance clause is compared
+    worded = next(c for c in reworded["claims"] if "; this run: commit " in c["rationale"])
+    worded["rationale"] = worded["rationale"].replace("Pre-registration:", "Preregistration:")
+    counted = copy.deepcopy(base)    # a count of a timing claim is the method's, not the clock's
+    timing = next(c for c in counted["claims"] if any(f["unit"] == "s" for f in c["figures"]))
+    next(f for f in timing["figures"] if f["unit"] == "count")["value"] += 1
+    for name, data in (("e", reworded), ("f", counted)):
+        assert diff_reports.main([str(a), str(_write(tmp_path / name / "metrics.json", data))]) == 1
     tiny = copy.deepcopy(base)
     ok = next(m for m in tiny["methods"] if m["metrics"])
     ok["metrics"]["mean_reprojection_error_px"] *= 1 + 1e-13
