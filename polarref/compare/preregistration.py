@@ -94,7 +94,7 @@ def file_commit(path: Path = PATH) -> FileCommit:
             return None
         return r.stdout.strip() if r.returncode == 0 else None
 
-    log = git("log", "-1", "--format=%H %cI", "--", path.name)
+    log = git("log", "-1", "--follow", "--format=%H %cI", "--", path.name)  # a move is no change
     if not log:
         return FileCommit("", "", None)
     commit, date = log.split(" ", 1)
