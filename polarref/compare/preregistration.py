@@ -94,7 +94,8 @@ def file_commit(path: Path = PATH) -> FileCommit:
             return None
         return r.stdout.strip() if r.returncode == 0 else None
 
-    log = git("log", "-1", "--follow", "--format=%H %cI", "--", path.name)  # a move is no change
+    # --follow with A/M only: moving the file (a pure rename) is no change of the pre-registration
+    log = git("log", "-1", "--follow", "--diff-filter=AM", "--format=%H %cI", "--", path.name)
     if not log:
         return FileCommit("", "", None)
     commit, date = log.split(" ", 1)
