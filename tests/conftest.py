@@ -21,6 +21,26 @@ def shared_data():
     return root
 
 
+# ---- ParallaxBA's fake pile (shared data): one reading for every test that uses it -------------
+@pytest.fixture(scope="session")
+def fakepile_files(shared_data):
+    """The fake pile as its files read (``io.parallaxba.ParallaxBAProblem``); shared: do not modify."""
+    from polarref.io.parallaxba import read_parallaxba
+
+    return read_parallaxba(shared_data / "parallaxba_fakepile")
+
+
+@pytest.fixture(scope="session")
+def fakepile(shared_data):
+    """The fake pile as a prepared ``BAProblem`` (``ba.loaders``, ``ba.prepare``); shared: solve a copy."""
+    from polarref.ba import prepare
+    from polarref.ba.loaders import load_problem
+
+    p, _ = load_problem(str(shared_data / "parallaxba_fakepile"))
+    prepare(p)
+    return p
+
+
 # ---- rendered synthetic scenes (owner: synth/rendering) --------------------------------------
 def _cached_scene(scene: str, preset_name: str, seed: int = 0):
     """Render (once, resumably) into the shared cache and return the scene folder Path.

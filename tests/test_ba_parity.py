@@ -17,7 +17,6 @@ import pytest
 import polarref.ba.parallax as parallax_mod
 from polarref.ba import BAOptions, prepare, solve
 from polarref.ba.adapter import problem_from_reconstruction
-from polarref.ba.loaders import load_problem
 from polarref.ba.parallax import direction_frames
 from polarref.ba.solver import make_param
 from polarref.ba.synthetic import synthetic_reconstruction
@@ -139,13 +138,6 @@ def test_direction_frames_put_each_point_at_the_chart_origin(small):
                                atol=1e-15)
     pts = make_param(small, BAOptions(param="parallax")).init_points()
     assert np.abs(pts[:, :2]).max() < 1e-12
-
-
-@pytest.fixture(scope="module")
-def fakepile(shared_data):
-    p, _ = load_problem(str(shared_data / "parallaxba_fakepile"))
-    prepare(p)
-    return p
 
 
 def test_fakepile_parallax_reaches_parallaxba_cost_in_few_iterations(fakepile):

@@ -13,13 +13,8 @@ from polarref.io.parallaxba import (cam_from_world_rotation, euler_from_cam_from
                                     write_parallaxba)
 
 
-@pytest.fixture(scope="module")
-def fakepile(shared_data):
-    return read_parallaxba(shared_data / "parallaxba_fakepile")
-
-
-def test_counts_and_anchors(fakepile):
-    p = fakepile
+def test_counts_and_anchors(fakepile_files):
+    p = fakepile_files
     assert (p.num_cameras, p.num_points, len(p.obs.uv)) == (47, 11318, 26050)
     assert np.array_equal(p.main_anchor, p.obs.image[p.track_start[:-1]])
     np.testing.assert_allclose(p.K, [[1071.18, 0, 646.269], [0, 1070.36, 350.651], [0, 0, 1]])
@@ -41,8 +36,8 @@ def _alternatives(euler):
                 yield "".join(order), transpose, sign, np.swapaxes(R, 1, 2) if transpose else R
 
 
-def test_verified_convention_beats_every_alternative(fakepile):
-    p = fakepile
+def test_verified_convention_beats_every_alternative(fakepile_files):
+    p = fakepile_files
     e = reprojection_errors(p, triangulate_dlt(p))
     assert np.isfinite(e).all()  # every observation in front of its camera
     med = np.median(e)
@@ -57,8 +52,8 @@ def test_verified_convention_beats_every_alternative(fakepile):
     assert min(others) > 10 * med
 
 
-def test_cameras_look_at_the_scene(fakepile):
-    p = fakepile
+def test_cameras_look_at_the_scene(fakepile_files):
+    p = fakepile_files
     X = triangulate_dlt(p)
     to_scene = np.median(X, axis=0) - p.centers
     to_scene /= np.linalg.norm(to_scene, axis=1, keepdims=True)
@@ -75,11 +70,11 @@ def test_euler_round_trip():
     np.testing.assert_allclose(cam_from_world_rotation(euler_from_cam_from_world(R)), R, atol=1e-13)
 
 
-def test_write_read_round_trip(fakepile, tmp_path):
-    write_parallaxba(fakepile, tmp_path)
+def test_write_read_round_trip(fakepile_files, tmp_path):
+    write_parallaxba(fakepile_files, tmp_path)
     again = read_parallaxba(tmp_path)
-    for field in fakepile.__dataclass_fields__:
-        np.testing.assert_array_equal(getattr(again, field), getattr(fakepile, field))
+    for field in fakepile_files.__dataclass_fields__:
+        np.testing.assert_array_equal(getattr(again, field), getattr(fakepile_files, field))
 
 
 def _folder(tmp_path, cam="0 0 0 0 0 0\n0.1 0 0 1 0 0\n", feat="2 0 1 2 1 3 4\n",
@@ -112,16 +107,16 @@ def test_minimal_good_folder(tmp_path):
     np.testing.assert_allclose(p.t[1], -p.R[1] @ [1, 0, 0])
 
 
-def test_to_reconstruction(fakepile):
+def test_to_reconstruction(fakepile_files):
     from polarref.io.parallaxba import parallaxba_to_reconstruction
-    rec = parallaxba_to_reconstruction(fakepile)
+    rec = parallaxba_to_reconstruction(fakepile_files)
     assert len(rec.images) == 47 and rec.num_observations == 26050
     e_rec = np.sort(rec.reprojection_errors())
-    e = np.sort(reprojection_errors(fakepile, triangulate_dlt(fakepile)))
+    e = np.sort(reprojection_errors(fakepile_files, triangulate_dlt(fakepile_files)))
     np.testing.assert_allclose(e_rec, e, rtol=1e-9, atol=1e-9)
     # main anchors survive: the first track element of each point is its main anchor image
-    first = np.array([rec.points3D[j + 1].track[0, 0] - 1 for j in range(fakepile.num_points)])
-    np.testing.assert_array_equal(first, fakepile.main_anchor)
+    first = np.array([rec.points3D[j + 1].track[0, 0] - 1 for j in range(fakepile_files.num_points)])
+    np.testing.assert_array_equal(first, fakepile_files.main_anchor)
 
 
 def _numbered(tmp_path, n="90", xyz=None, K="100 0 50\n0 100 40\n0 0 1\n"):
