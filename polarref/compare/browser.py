@@ -62,6 +62,13 @@ def _message_from_json(raw: bytes) -> tuple[int | None, dict]:
     return msg.get("id"), msg
 
 
+def _result_from_json(reply: dict, method: str) -> dict:
+    """The ``result`` of a CDP reply; PolarrefError with CDP's message when the reply is an error."""
+    if "error" in reply:
+        raise PolarrefError(f"Chromium: {method}: {reply['error'].get('message')}")
+    return reply.get("result", {})
+
+
 class Chromium:
     """One headless Chromium process driven over CDP; use as a context manager."""
 
@@ -125,9 +132,7 @@ class Chromium:
                     raise PolarrefError(f"Chromium did not answer {method} within {self.timeout_s:.0f} s")
                 self._cv.wait(left)
             reply = self._replies.pop(self._next, None) or self._replies[-1]
-        if "error" in reply:
-            raise PolarrefError(f"Chromium: {method}: {reply['error'].get('message')}")
-        return reply.get("result", {})
+        return _result_from_json(reply, method)
 
     def open_page(self) -> str:
         """A new blank tab, attached: its session id."""
