@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from polarref.core import records
 from polarref.core.errors import PolarrefError
 
 PATH = Path(__file__).with_name("preregistration.toml")
@@ -43,11 +44,25 @@ class ClaimPlan:
 
 
 @dataclass(frozen=True)
+class ReplicationPlan:
+    """The ``[replication]`` section: the scenes on which the scene-dependent claims are rerun."""
+
+    measure: str
+    scene: str                       # synthetic scene of ``polarref compare``
+    preset: str
+    scene_seeds: tuple[int, ...]     # ``polarref compare --seed``: render, noise and method seeds
+    real_sets: tuple[str, ...]       # folder names under the data root
+    methods: tuple[str, ...]
+    claims: tuple[str, ...]
+
+
+@dataclass(frozen=True)
 class Preregistration:
     path: Path
     alpha: float
     power: float
     claims: tuple[ClaimPlan, ...]
+    replication: ReplicationPlan | None = None
 
     def claim(self, claim_id: str) -> ClaimPlan:
         for c in self.claims:
@@ -73,7 +88,20 @@ def load(path: Path = PATH) -> Preregistration:
         rest = tuple((k, v) for k, v in sec.items() if k not in _LIST_KEYS and k != "measure")
         claims.append(ClaimPlan(cid, str(sec.get("measure", "")), values=rest, **lists))
     p = raw.get("power", {})
-    return Preregistration(Path(path), float(p.get("alpha", 0.05)), float(p.get("power", 0.8)), tuple(claims))
+    return Preregistration(Path(path), float(p.get("alpha", 0.05)), float(p.get("power", 0.8)), tuple(claims),
+                           _replication(raw.get("replication"), path))
+
+
+def _replication(sec: dict | None, path: Path) -> ReplicationPlan | None:
+    if sec is None:
+        return None
+    try:
+        plan = records.from_dict(ReplicationPlan, sec, label=f"{Path(path).name} [replication]")
+    except records.RecordError as exc:
+        raise PolarrefError(str(exc)) from exc
+    if len(plan.scene_seeds) + len(plan.real_sets) < 2 or len(set(plan.scene_seeds)) != len(plan.scene_seeds):
+        raise PolarrefError(f"{path}: [replication] needs >= 2 distinct scenes")
+    return plan
 
 
 @dataclass(frozen=True)
