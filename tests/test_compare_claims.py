@@ -10,7 +10,8 @@ import numpy as np
 
 from polarref.core import records
 from polarref.compare import claims, claims_experiments, claims_robustness, schema
-from polarref.compare.experiment_records import Conditioning, DerivationEvidence, Experiments, Robustness, Timing
+from polarref.compare.experiment_records import (Conditioning, DerivationEvidence, Experiments, FormRuns, Robustness,
+                                                 Timing)
 
 
 def _metrics(euclid_runtime, polar_runtime, euclid_tp=1000, polar_tp=1000, euclid_rp=5000, polar_rp=5000,
@@ -495,3 +496,52 @@ def test_c5_with_the_committed_pilot_is_underpowered_unless_an_interval_excludes
     assert v == "not supported"
     v, *_ = claims_robustness.more_tie_points(rob(None))      # identical counts: [0, 0] excludes +0.18 %
     assert v == "not supported"
+
+
+def _point_runs(rates, points=100, ok=True):
+    """Low-parallax runs with per-point scores: ``rates`` is each seed's point success rate."""
+    return {"runs": [{"seed": k, "success": ok, "rotation_error_deg": 0.03, "points_scored": points,
+                      "points_depth_ok": round(r * points)} for k, r in enumerate(rates)], "errors": []}
+
+
+def _rob_points(eu, pa):
+    unit = lambda e, p, ok=True: {"start": _point_runs([0.5] * len(e), ok=False),   # noqa: E731
+                                  "euclidean": _point_runs(e), "parallax": _point_runs(p)}
+    return records.coerce(Robustness, {
+        "seeds_run": len(eu), "success_rule": "r", "outlier_problem": "o", "parallax_problem": "l",
+        "outliers": {"0.1": {"start": _runs([0] * 5, rot=2.0), "euclidean": _runs([1, 0, 1, 0, 1]),
+                             "parallax": _runs([1, 0, 1, 0, 1])}},
+        "low_parallax": {"0.003": unit(eu, pa)}})
+
+
+EU_RATES = [0.40, 0.30, 0.50, 0.45, 0.35]
+
+
+@pytest.mark.parametrize("pa, half", [
+    ([r + 0.2 for r in EU_RATES], "supported"),          # more points right on every seed
+    ([r - 0.2 for r in EU_RATES], "not supported"),      # fewer: the rule fails for the parallax form
+    (EU_RATES, "not supported"),                         # same rates, same errors: no form more robust
+])
+def test_low_parallax_point_success_is_continuous_and_paired(pa, half):
+    """Issue 30: the low-parallax half scores points (continuous rates in [0.2, 0.8] are possible),
+    compares the forms per seed, and can fail."""
+    rob = _rob_points(EU_RATES, pa)
+    c8 = claims_robustness.robustness_claim(rob, "")
+    f = {x.key: x.value for x in c8.figures}
+    assert f["lp0_euclidean"] == pytest.approx(np.mean(EU_RATES))
+    assert f["lp0_parallax"] == pytest.approx(np.mean(pa))
+    assert f["lp0_start_success"] == 0.0                   # a failed run scores no point
+    assert f["lp0_euclidean_wlo"] < np.mean(EU_RATES) < f["lp0_euclidean_whi"]
+    assert f"low parallax: {half}" in c8.rationale
+    assert "2 of 2 levels have a Euclidean success rate in [0.2, 0.8]" in c8.rationale
+
+
+def test_point_rate_needs_the_run_to_succeed():
+    runs = records.coerce(FormRuns, _point_runs([0.6, 0.3]))
+    assert claims_robustness.seed_rates(runs) == {0: 0.6, 1: 0.3}
+    failed = records.coerce(FormRuns, _point_runs([0.6], ok=False))
+    assert claims_robustness.point_rate(failed.runs[0]) == 0.0
+    binary = records.coerce(FormRuns, _runs([1, 0]))
+    assert claims_robustness.seed_rates(binary) is None     # outlier runs stay per run
+    lo, hi = claims_robustness.bootstrap_mean(np.array([0.1, 0.2, 0.3, 0.4]))
+    assert 0.1 <= lo < 0.25 < hi <= 0.4

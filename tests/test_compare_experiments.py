@@ -10,7 +10,7 @@ import pytest
 from polarref.core import records
 from polarref.compare.experiment_records import Experiments
 from polarref.compare import claims, claims_experiments, experiments
-from polarref.compare.experiment_problems import (bearing_errors_deg, low_parallax_problem,
+from polarref.compare.experiment_problems import (bearing_errors_deg, depth_errors, low_parallax_problem,
                                                   observation_geometry, relative_rotation_errors_deg)
 from polarref.core.geometry import Rigid3, so3_exp
 
@@ -61,6 +61,44 @@ def test_errors_are_gauge_free():
     im.cam_from_world = Rigid3(R, -R @ im.cam_from_world.center)
     err = relative_rotation_errors_deg(moved, truth)
     assert np.sort(err)[-4:] == pytest.approx([1.0] * 4, abs=1e-6) and np.sort(err)[:-4].max() < 1e-6
+
+
+def test_depth_errors_are_similarity_invariant_and_see_one_wrong_depth():
+    from polarref.compare.experiment_problems import similarity_draws
+
+    init, truth = low_parallax_problem(5, 40, 0.003, seed=2)
+    assert depth_errors(truth, truth).max() == 0.0
+    base = depth_errors(init, truth)
+    for T in similarity_draws(7, 3):                        # rotation, translation, scale; then units
+        assert depth_errors(T.apply(init), truth) == pytest.approx(base, abs=1e-9)
+    moved = T.apply(truth)
+    pid = next(iter(moved.points3D))
+    C = moved.images[int(moved.points3D[pid].track[0, 0])].cam_from_world.center
+    # push one point 20 % farther from one of its cameras along that ray: only it moves, by log(1.2)
+    # averaged over its track's cameras (the median over the points stays 0)
+    moved.points3D[pid].xyz = C + 1.2 * (moved.points3D[pid].xyz - C)
+    err = depth_errors(moved, truth)
+    assert np.count_nonzero(err > 1e-9) == 1 and 0.0 < err[0] <= np.log(1.2) + 1e-9
+
+
+def test_low_parallax_point_success_is_a_continuous_rate():
+    """Issue 30: at low parallax the per-run rule succeeded always; the per-point rate is strictly
+    between 0 and 1 on a level where depths are hard to recover, and 1 on an easy one."""
+    from polarref.ba.synthetic import clone
+    from polarref.compare.claims_robustness import point_rate
+    from polarref.compare.experiment_records import RobustRun
+
+    rates = {}
+    for ratio in (0.1, 0.002):
+        init, truth, opts, check = experiments.robust_problem("low_parallax", ratio, 100, (6, 80))
+        rec = clone(init)
+        summ = experiments._adjust(rec, "euclidean", **opts)
+        row = records.coerce(RobustRun, experiments._score(rec, truth, summ, check) | {"seed": 100})
+        assert row.success and row.points_scored > 50
+        rates[ratio] = point_rate(row)
+        start = records.coerce(RobustRun, experiments._score_state(init, truth, 1.0, check) | {"seed": 100})
+        assert point_rate(start) == 0.0                     # the start point fails the run rule
+    assert rates[0.1] == 1.0 and 0.05 < rates[0.002] < 0.95
 
 
 def test_tiny_experiments_shapes_and_finiteness(tmp_path):

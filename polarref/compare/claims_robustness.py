@@ -13,7 +13,7 @@ from polarref.compare.claims_experiments import (ALPHA, PAPER_FORM, POWER_TEXT, 
 from polarref.compare.preregistration import mde
 from polarref.compare.thresholds import (BOOTSTRAP_REPS, BOOTSTRAP_SEED, MDE_ALPHA, MDE_POWER, PAPER_OBS_REL, PAPER_TIE_REL, PILOT_SD_OBS_REL,
                                          PILOT_SD_TIE_REL)
-from polarref.compare.experiment_records import FormRuns, Robustness
+from polarref.compare.experiment_records import FormRuns, Robustness, RobustRun
 from polarref.compare.schema import ClaimResult, Figure
 
 _NONE = FormRuns()   # a form that did not run
@@ -29,12 +29,45 @@ C8 = ("C8", "Angular/parallax forms are more robust to outliers (Sec. 1.2.1) and
 
 # ---- C8 -------------------------------------------------------------------------------------
 
+def point_rate(r: RobustRun) -> float | None:
+    """A low-parallax run's point success rate (success x points_depth_ok / points_scored); None for
+    a run without point scores (outlier levels, records from before issue 30's per-point rule)."""
+    if r.points_scored is None or r.points_depth_ok is None:
+        return None
+    return float(r.success) * r.points_depth_ok / max(r.points_scored, 1)
+
+
+def seed_rates(v: FormRuns) -> dict[int, float] | None:
+    """Per-seed point success rates when every run has them (a continuous rate), else None."""
+    rates = {r.seed: point_rate(r) for r in v.runs}
+    return rates if rates and all(x is not None for x in rates.values()) else None
+
+
 def _rate(v: FormRuns):
+    """(success rate, median rotation error, runs): the mean point success rate over the seeds
+    where the runs have one, else the fraction of successful runs."""
     runs = v.runs
     if not runs:
         return None, None, 0
-    return (float(np.mean([r.success for r in runs])),
-            float(np.median(np.array([r.rotation_error_deg for r in runs], float))), len(runs))
+    per_seed = seed_rates(v)
+    rate = np.mean(list(per_seed.values())) if per_seed else np.mean([r.success for r in runs])
+    return float(rate), float(np.median(np.array([r.rotation_error_deg for r in runs], float))), len(runs)
+
+
+def bootstrap_mean(x: np.ndarray, reps: int = BOOTSTRAP_REPS, seed: int = BOOTSTRAP_SEED) -> tuple[float, float]:
+    """95 % percentile bootstrap interval of the mean of ``x`` (seeded; resamples the seeds)."""
+    x = np.asarray(x, float)
+    idx = np.random.default_rng(seed).integers(0, len(x), (reps, len(x)))
+    means = x[idx].mean(axis=1)
+    return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
+
+
+def _paired_rates(form: FormRuns, base: FormRuns) -> np.ndarray | None:
+    """Per-seed difference form - base of the point success rates (None when not both continuous)."""
+    a, b = seed_rates(form), seed_rates(base)
+    if a is None or b is None:
+        return None
+    return np.array([a[s] - b[s] for s in a if s in b], float)
 
 
 def _paired_ratio(form: FormRuns, base: FormRuns, key: str = "rotation_error_deg") -> np.ndarray:
@@ -72,12 +105,19 @@ def bootstrap_gm(ratio: np.ndarray, reps: int = BOOTSTRAP_REPS, seed: int = BOOT
     return float(np.percentile(gm, 2.5)), float(np.percentile(gm, 97.5))
 
 
-def _compare(a: float | None, na: int, e: float | None, ne: int, ratio: np.ndarray) -> str:
-    """Better/worse when the success-rate difference's 95 % interval excludes 0; with no such
-    difference, when the bootstrap interval of the geometric-mean rotation-error ratio excludes 1."""
+def _compare(a: float | None, na: int, e: float | None, ne: int, ratio: np.ndarray,
+             paired: np.ndarray | None = None) -> str:
+    """Better/worse when the success-rate difference's 95 % interval excludes 0 (continuous point
+    rates, ``paired`` per seed: its bootstrap interval; else Newcombe's); with no such difference,
+    when the bootstrap interval of the geometric-mean rotation-error ratio excludes 1."""
     if a is None or e is None:
         return "unknown"
-    lo, hi = rate_difference(a, na, e, ne)
+    if paired is not None and len(paired) >= 2:
+        lo, hi = bootstrap_mean(paired)
+    elif paired is not None:
+        lo, hi = float("nan"), float("nan")
+    else:
+        lo, hi = rate_difference(a, na, e, ne)
     if lo > 0:
         return "better"
     if hi < 0:
@@ -99,10 +139,14 @@ def _level(key: str, name: str, forms: dict[str, FormRuns], figs: list, flipped:
     parts, outcome = [f"start {{{key}_start_success}}"], {}
     eu = forms.get("euclidean", _NONE)
     for p, (sr, med, n) in rates.items():
-        wlo, whi = wilson(sr * n, n) if sr is not None else (None, None)
-        figs += [fig(f"{key}_{p}", f"{name}: {p} success rate ({n} runs)", sr),
-                 fig(f"{key}_{p}_wlo", f"{name}: {p} success rate, Wilson 95 % lower", wlo),
-                 fig(f"{key}_{p}_whi", f"{name}: {p} success rate, Wilson 95 % upper", whi),
+        per_seed = seed_rates(forms[p])
+        kind = "point success rate, mean over seeds" if per_seed else "success rate"
+        how = "bootstrap over the seeds" if per_seed else "Wilson"
+        wlo, whi = ((bootstrap_mean(list(per_seed.values())) if per_seed else wilson(sr * n, n))
+                    if sr is not None else (None, None))
+        figs += [fig(f"{key}_{p}", f"{name}: {p} {kind} ({n} runs)", sr),
+                 fig(f"{key}_{p}_wlo", f"{name}: {p} {kind}, {how} 95 % lower", wlo),
+                 fig(f"{key}_{p}_whi", f"{name}: {p} {kind}, {how} 95 % upper", whi),
                  fig(f"{key}_{p}_med", f"{name}: {p} median relative-rotation error", med, "deg")]
         runs = forms[p].runs
         flips = [r.flipped_fraction for r in runs if r.flipped_fraction is not None]
@@ -126,7 +170,7 @@ def _level(key: str, name: str, forms: dict[str, FormRuns], figs: list, flipped:
                      fig(f"{key}_{p}_ratio_hi", f"{name}: that ratio, bootstrap 95 % upper", bhi, "x")]
             text += f", {{{key}_{p}_ratio}} [{{{key}_{p}_ratio_lo}}, {{{key}_{p}_ratio_hi}}] vs euclidean"
             e_rate, _, e_n = rates.get("euclidean", (None, None, 0))
-            outcome[p] = _compare(sr, n, e_rate, e_n, ratio)
+            outcome[p] = _compare(sr, n, e_rate, e_n, ratio, _paired_rates(forms[p], eu))
         parts.append(text + ")")
     init_rms = [r.initial_rms_px for r in eu.runs if r.initial_rms_px is not None]
     if init_rms:
@@ -183,8 +227,12 @@ def robustness_claim(rob: Robustness | None, reason: str) -> ClaimResult:
     rationale = ("Success rate (median relative-rotation error, median LM iterations, paired rotation-error ratio "
                  "vs euclidean) per form, beside the start point's success rate -- " + "; ".join(texts)
                  + f". Success: {rob.success_rule}. Levels whose start point succeeds in more than "
-                 f"{START_MAX_SUCCESS:.0%} of the runs are left out. Success rates with Wilson 95 % intervals; "
-                 "better/worse = the 95 % interval of the difference of the success rates (Newcombe) excludes 0, or, "
+                 f"{START_MAX_SUCCESS:.0%} of the runs are left out. Outlier levels: success rates of the runs with Wilson "
+                 "95 % intervals, better/worse = the 95 % interval of the difference of the success rates (Newcombe) "
+                 "excludes 0; low-parallax levels: the point success rate (a continuous rate per run: at any parallax "
+                 "rotations and bearings stay observable, so a per-run rule succeeded always or never), its 95 % "
+                 "bootstrap interval over the seeds, better/worse = the bootstrap interval of the per-seed paired "
+                 "difference excludes 0; or, "
                  "without such a difference, the 95 % bootstrap interval of the geometric-mean rotation-error "
                  f"ratio (seeded, {BOOTSTRAP_REPS} resamples of the seeds) excludes 1. Levels pre-registered from "
                  "the pilot where the Euclidean success rate lay in [0.2, 0.8]; " + _in_band(rob) + "."

@@ -125,6 +125,25 @@ def bearing_errors_deg(rec, truth) -> np.ndarray:
     return np.asarray(out, float)
 
 
+def depth_errors(rec, truth) -> np.ndarray:
+    """(points,) per point: |mean over its track of log(estimated / true camera-to-point distance)|
+    after removing the median of that log ratio over all points (the unknown scale of the gauge).
+
+    Unchanged by a similarity of the world (distances scale alike, the median takes the scale
+    out), and sensitive to what low parallax leaves unobservable: the depth along the ray.
+    """
+    logs = []
+    for pid, pt in truth.points3D.items():
+        if pid not in rec.points3D:
+            continue
+        Xe, Xt = rec.points3D[pid].xyz, pt.xyz
+        ratio = [np.log(np.linalg.norm(Xe - rec.images[int(i)].cam_from_world.center)
+                        / np.linalg.norm(Xt - truth.images[int(i)].cam_from_world.center)) for i in pt.track[:, 0]]
+        logs.append(np.mean(ratio))
+    logs = np.asarray(logs, float)
+    return np.abs(logs - np.median(logs)) if len(logs) else logs
+
+
 def observation_geometry(rec) -> dict:
     """Fractions of observations behind the camera / outside the image, at the current poses."""
     n = behind = outside = 0

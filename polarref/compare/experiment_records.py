@@ -107,6 +107,11 @@ class RobustRun:
     iterations: int | None = None
     inlier_observations: int | None = None    # outlier levels only (C5's counts)
     tie_points: int | None = None
+    # low-parallax levels only: points scored and those whose depth is within the pre-registered
+    # tolerance (experiment_problems.depth_errors); the run's point success rate is
+    # success x points_depth_ok / points_scored (claims_robustness.point_rate)
+    points_scored: int | None = None
+    points_depth_ok: int | None = None
 
 
 @dataclass
