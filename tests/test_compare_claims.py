@@ -538,7 +538,7 @@ def test_low_parallax_point_success_is_continuous_and_paired(pa, half):
 
 def test_point_rate_needs_the_run_to_succeed():
     runs = records.coerce(FormRuns, _point_runs([0.6, 0.3]))
-    assert claims_robustness.seed_rates(runs) == {0: 0.6, 1: 0.3}
+    assert claims_robustness.seed_rates(runs) == claims_robustness.SeedRates((0, 1), (0.6, 0.3))
     failed = records.coerce(FormRuns, _point_runs([0.6], ok=False))
     assert claims_robustness.point_rate(failed.runs[0]) == 0.0
     binary = records.coerce(FormRuns, _runs([1, 0]))

@@ -6,6 +6,8 @@ every threshold); this module applies them to :func:`polarref.compare.experiment
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from polarref.compare.claims_experiments import (ALPHA, PAPER_FORM, POWER_TEXT, START_MAX_SUCCESS, TIE_MARGIN_REL,
@@ -37,10 +39,25 @@ def point_rate(r: RobustRun) -> float | None:
     return float(r.success) * r.points_depth_ok / max(r.points_scored, 1)
 
 
-def seed_rates(v: FormRuns) -> dict[int, float] | None:
+@dataclass(frozen=True)
+class SeedRates:
+    """One form's point success rate per seed at one level; ``seeds``, ``rates``: (S,)."""
+
+    seeds: tuple[int, ...]
+    rates: tuple[float, ...]
+
+    def minus(self, base: SeedRates) -> np.ndarray:
+        """(common seeds,) paired differences self - base, in this record's seed order."""
+        b = dict(zip(base.seeds, base.rates))
+        return np.array([r - b[s] for s, r in zip(self.seeds, self.rates) if s in b], float)
+
+
+def seed_rates(v: FormRuns) -> SeedRates | None:
     """Per-seed point success rates when every run has them (a continuous rate), else None."""
-    rates = {r.seed: point_rate(r) for r in v.runs}
-    return rates if rates and all(x is not None for x in rates.values()) else None
+    rates = [point_rate(r) for r in v.runs]
+    if not rates or any(x is None for x in rates):
+        return None
+    return SeedRates(tuple(r.seed for r in v.runs), tuple(rates))
 
 
 def _rate(v: FormRuns):
@@ -50,7 +67,7 @@ def _rate(v: FormRuns):
     if not runs:
         return None, None, 0
     per_seed = seed_rates(v)
-    rate = np.mean(list(per_seed.values())) if per_seed else np.mean([r.success for r in runs])
+    rate = np.mean(per_seed.rates) if per_seed else np.mean([r.success for r in runs])
     return float(rate), float(np.median(np.array([r.rotation_error_deg for r in runs], float))), len(runs)
 
 
@@ -65,9 +82,7 @@ def bootstrap_mean(x: np.ndarray, reps: int = BOOTSTRAP_REPS, seed: int = BOOTST
 def _paired_rates(form: FormRuns, base: FormRuns) -> np.ndarray | None:
     """Per-seed difference form - base of the point success rates (None when not both continuous)."""
     a, b = seed_rates(form), seed_rates(base)
-    if a is None or b is None:
-        return None
-    return np.array([a[s] - b[s] for s in a if s in b], float)
+    return None if a is None or b is None else a.minus(b)
 
 
 def _paired_ratio(form: FormRuns, base: FormRuns, key: str = "rotation_error_deg") -> np.ndarray:
@@ -142,7 +157,7 @@ def _level(key: str, name: str, forms: dict[str, FormRuns], figs: list, flipped:
         per_seed = seed_rates(forms[p])
         kind = "point success rate, mean over seeds" if per_seed else "success rate"
         how = "bootstrap over the seeds" if per_seed else "Wilson"
-        wlo, whi = ((bootstrap_mean(list(per_seed.values())) if per_seed else wilson(sr * n, n))
+        wlo, whi = ((bootstrap_mean(np.array(per_seed.rates)) if per_seed else wilson(sr * n, n))
                     if sr is not None else (None, None))
         figs += [fig(f"{key}_{p}", f"{name}: {p} {kind} ({n} runs)", sr),
                  fig(f"{key}_{p}_wlo", f"{name}: {p} {kind}, {how} 95 % lower", wlo),
