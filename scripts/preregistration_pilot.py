@@ -22,15 +22,14 @@ from threadpoolctl import threadpool_limits
 from polarref.compare import experiments
 from polarref.compare.claims_experiments import paired_series
 from polarref.compare.claims_robustness import paired_relative, point_rate
-from polarref.compare.experiment_records import RobustRun
-from polarref.core import records
 from polarref.compare.preregistration import PREREG
 
 
 def main() -> None:
     c3, c5 = PREREG.claim("C3"), PREREG.claim("C5")
     with threadpool_limits(limits=1, user_api="blas"):
-        tim = experiments.timing(c3.pilot_seeds[0], time.perf_counter() + 1e9, seeds=len(c3.pilot_seeds))
+        tim = experiments.timing(c3.pilot_seeds[0], time.perf_counter() + 1e9, seeds=len(c3.pilot_seeds),
+                                 real=False)
         rob = experiments.robustness(c5.pilot_seeds[0], time.perf_counter() + 1e9, seeds=len(c5.pilot_seeds),
                                      ratios=())
     assert tim.seeds == list(c3.pilot_seeds), tim.seeds
@@ -68,7 +67,7 @@ def c8_sweep() -> None:
                     init, truth, opts, check_rms = experiments.robust_problem(half, lv, s, sizes[half])
                     rec = clone(init)
                     summ = experiments._adjust(rec, "euclidean", **opts)
-                    row = records.coerce(RobustRun, experiments._score(rec, truth, summ, check_rms) | {"seed": s})
+                    row = experiments._score(rec, truth, summ, check_rms, s)
                     ok.append(row.success)
                     points.append(point_rate(row))
                 rate = f"{np.mean(ok):.2f} ({sum(ok)}/{len(ok)})"

@@ -545,3 +545,54 @@ def test_point_rate_needs_the_run_to_succeed():
     assert claims_robustness.seed_rates(binary) is None     # outlier runs stay per run
     lo, hi = claims_robustness.bootstrap_mean(np.array([0.1, 0.2, 0.3, 0.4]))
     assert 0.1 <= lo < 0.25 < hi <= 0.4
+
+
+def _with_real(exp, *ratios_per_problem, skipped=""):
+    """``exp`` with real problems whose interleaved repeats give these euclidean/polar ratios."""
+    from polarref.compare.experiment_records import RealProblemTiming, RealRun
+
+    exp.timing.real = [RealProblemTiming(f"problem{i}", "n cams", "", {
+        "euclidean": RealRun([1.0 * r for r in ratios], 0.5, 10, "function_tolerance"),
+        "polar": RealRun([1.0] * len(ratios), 0.5, 8, "function_tolerance")})
+        for i, ratios in enumerate(ratios_per_problem)]
+    if skipped:
+        exp.timing.real.append(RealProblemTiming("absent", skipped=skipped))
+    return exp
+
+
+FAST, SLOW = [1.6, 1.65, 1.55, 1.6, 1.62], [0.5, 0.52, 0.49, 0.5, 0.51]
+
+
+@pytest.mark.parametrize("synthetic, real, verdict", [
+    (1 / 1.5, [FAST, FAST], "supported"),            # every family at or above 1.4 x 0.9
+    (1 / 1.5, [FAST, SLOW], "inconclusive"),         # a real problem contradicts the synthetic seeds
+    (1.0, [SLOW, SLOW], "not supported"),
+    (1.0, [FAST], "inconclusive"),                   # e.g. euclidean stalls at the iteration cap there
+])
+def test_controlled_speedup_with_real_problems(synthetic, real, verdict):
+    exp = _with_real(_timing(RMS, RMS, ROT, ROT, WALL, [w * synthetic for w in WALL]), *real,
+                     skipped="not in the reference data")
+    c4 = _verdict(claims.scene_claims(_metrics(10, 7), exp), "C4")
+    assert c4.verdict == verdict
+    figs = {x.key: x.value for x in c4.figures}
+    for i, ratios in enumerate(real):
+        assert figs[f"real{i}_gm"] == pytest.approx(np.exp(np.mean(np.log(ratios))))
+        assert figs[f"real{i}_lo"] < figs[f"real{i}_gm"] < figs[f"real{i}_hi"]
+    assert "absent: not run (not in the reference data)" in c4.rationale
+
+
+def test_seeds_needed_is_the_smallest_n_whose_mde_reaches_the_effect():
+    from scipy.stats import t as student_t
+
+    from polarref.compare.preregistration import seeds_needed
+
+    def brute(sd, effect):                     # the paired-t MDE formula, n counted up one by one
+        n = 2
+        while (student_t.ppf(0.975, n - 1) + student_t.ppf(0.8, n - 1)) * sd / np.sqrt(n) > effect:
+            n += 1
+        return n
+
+    for sd, effect in ((1.0, 1.0), (0.112316, np.log(1.4)), (0.029282, 0.0018), (0.3, 0.01)):
+        assert seeds_needed(sd, effect, 0.05, 0.8) == brute(sd, effect)
+    assert seeds_needed(1.0, 1e-6, 0.05, 0.8, n_max=1000) is None          # not affordable: None
+    assert seeds_needed(float("inf"), 1.0, 0.05, 0.8) is None

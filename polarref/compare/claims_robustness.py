@@ -12,7 +12,7 @@ import numpy as np
 
 from polarref.compare.claims_experiments import (ALPHA, PAPER_FORM, POWER_TEXT, START_MAX_SUCCESS, TIE_MARGIN_REL,
                                                  fig, not_tested, powered, tost)
-from polarref.compare.preregistration import mde
+from polarref.compare.preregistration import mde, seeds_needed
 from polarref.compare.thresholds import (BOOTSTRAP_REPS, BOOTSTRAP_SEED, MDE_ALPHA, MDE_POWER, PAPER_OBS_REL, PAPER_TIE_REL, PILOT_SD_OBS_REL,
                                          PILOT_SD_TIE_REL)
 from polarref.compare.experiment_records import FormRuns, Robustness, RobustRun
@@ -306,12 +306,14 @@ def more_tie_points(rob: Robustness | None) -> tuple[str, list[Figure], str, int
                  fig(f"c5_{k}_margin", f"controlled: margin (pre-registered), {name}", 100 * margin, "%"),
                  fig(f"c5_{k}_mde", f"controlled: minimum detectable difference ({POWER_TEXT}), {name}",
                      100 * mde(sd, n, MDE_ALPHA, MDE_POWER), "%"),
-                 fig(f"c5_{k}_paper", f"the paper's effect (Table 1), {name}", 100 * paper, "%")]
+                 fig(f"c5_{k}_paper", f"the paper's effect (Table 1), {name}", 100 * paper, "%"),
+                 fig(f"c5_{k}_n_needed", f"controlled: paired runs needed for a minimum detectable difference at the "
+                     f"paper's effect, {name}", seeds_needed(sd, paper, MDE_ALPHA, MDE_POWER), "count")]
         detectable &= mde(sd, n, MDE_ALPHA, MDE_POWER) <= paper
         decided |= hi < paper            # the interval excludes the paper's effect
         parts.append(f"{name}: start {{c5_{k}_start}}, euclidean {{c5_{k}_eu}}, polar {{c5_{k}_d}} ({1 - 2 * ALPHA:.0%} CI {{c5_{k}_ci_lo}} to "
                      f"{{c5_{k}_ci_hi}}, margin {{c5_{k}_margin}}; minimum detectable {{c5_{k}_mde}} vs the paper's "
-                     f"{{c5_{k}_paper}}): {outcomes[-1]}")
+                     f"{{c5_{k}_paper}}, {{c5_{k}_n_needed}} paired runs needed to detect it, {n} run): {outcomes[-1]}")
     verdict = ("supported" if all(o == "more" for o in outcomes) else
                "not supported" if any(o in ("equal", "fewer") for o in outcomes) else "inconclusive")
     verdict = powered(verdict, detectable, decided)

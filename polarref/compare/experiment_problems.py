@@ -144,7 +144,14 @@ def depth_errors(rec, truth) -> np.ndarray:
     return np.abs(logs - np.median(logs)) if len(logs) else logs
 
 
-def observation_geometry(rec) -> dict:
+@dataclass(frozen=True)
+class ObservationGeometry:
+    observations: int
+    behind_fraction: float        # of the observations, point behind the camera
+    outside_fraction: float       # in front, but projecting outside the image
+
+
+def observation_geometry(rec) -> ObservationGeometry:
     """Fractions of observations behind the camera / outside the image, at the current poses."""
     n = behind = outside = 0
     for pt in rec.points3D.values():
@@ -158,7 +165,7 @@ def observation_geometry(rec) -> dict:
                 continue
             u, v = cam.project(Xc[None])[0]
             outside += not (0 <= u <= cam.width and 0 <= v <= cam.height)
-    return {"observations": n, "behind_fraction": behind / max(n, 1), "outside_fraction": outside / max(n, 1)}
+    return ObservationGeometry(n, behind / max(n, 1), outside / max(n, 1))
 
 
 # ---- similarity transforms of the world (issue 30: verdicts must not depend on the frame) ----

@@ -20,7 +20,7 @@ from polarref.core import records
 from polarref.core.errors import PolarrefError
 
 PATH = Path(__file__).with_name("preregistration.toml")
-_LIST_KEYS = ("test_seeds", "pilot_seeds", "levels", "outlier_levels", "parallax_levels")
+_LIST_KEYS = ("test_seeds", "pilot_seeds", "levels", "outlier_levels", "parallax_levels", "real_problems")
 
 
 @dataclass(frozen=True)
@@ -34,6 +34,7 @@ class ClaimPlan:
     levels: tuple = ()
     outlier_levels: tuple[float, ...] = ()
     parallax_levels: tuple[float, ...] = ()
+    real_problems: tuple[str, ...] = ()          # items of the reference data (C4), skipped when absent
     values: tuple[tuple[str, float | str], ...] = ()
 
     def value(self, name: str) -> float:
@@ -138,6 +139,22 @@ def mde(sd: float, n: int, alpha: float, power: float) -> float:
     if n < 2 or not np.isfinite(sd):
         return float("inf")
     return float((student_t.ppf(1 - alpha / 2, n - 1) + student_t.ppf(power, n - 1)) * sd / np.sqrt(n))
+
+
+def seeds_needed(sd: float, effect: float, alpha: float, power: float, n_max: int = 100_000) -> int | None:
+    """Smallest number of pairs whose :func:`mde` is at or below ``effect`` (None beyond ``n_max``
+    or without a pilot): how many seeds an experiment needs to detect the effect it tests."""
+    if not (np.isfinite(sd) and effect > 0):
+        return None
+    lo, hi = 2, 2
+    while mde(sd, hi, alpha, power) > effect:     # the MDE falls with n: double, then bisect
+        if hi >= n_max:
+            return None
+        lo, hi = hi, min(2 * hi, n_max)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        lo, hi = (mid + 1, hi) if mde(sd, mid, alpha, power) > effect else (lo, mid)
+    return hi
 
 
 PREREG = load()
