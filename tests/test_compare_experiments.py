@@ -339,3 +339,12 @@ def test_real_timing_on_ladybug_or_skipped_with_reason(monkeypatch, tmp_path):
     # both forms reach the same pixel accuracy on it (polar adds a view-angle residual, so not the same cost)
     eu, po = real.forms["euclidean"].final_rms_px, real.forms["polar"].final_rms_px
     assert po == pytest.approx(eu, rel=0.05)
+
+
+def test_real_problems_only_without_a_claims_budget():
+    assert experiments._real_allowed(float("inf")) is True
+    why = experiments._real_allowed(60.0)
+    assert isinstance(why, str) and "claims budget (60 s)" in why
+    tim = experiments.timing(0, time.perf_counter() + 100, seeds=1, repeats=1, size=(5, 40), real=why)
+    assert [r.name for r in tim.real] == list(experiments.REAL_PROBLEMS)
+    assert all(r.skipped == why and not r.forms for r in tim.real)
