@@ -40,7 +40,7 @@ def test_low_parallax_points_stay_in_front(forward, param):
     rec = clone(init)
     s = adjust(rec, BAOptions(param=param, max_iterations=40))
     geo = observation_geometry(rec)
-    assert geo["behind_fraction"] == 0.0
+    assert geo.behind_fraction == 0.0
     assert s.behind_camera == {"initial": 0, "final": 0}
     omega = np.asarray(s.points_state)[:, 2]
     assert omega.min() >= 0.0 and omega.max() < np.pi
@@ -64,14 +64,14 @@ def test_behind_camera_counts_written_back_geometry():
         C = init.images[int(pt.track[0, 0])].cam_from_world.center
         pt.xyz = C - 0.5 * (pt.xyz - C)  # mirrored through the camera centre
     geo0 = observation_geometry(init)
-    expected = round(geo0["behind_fraction"] * geo0["observations"])
+    expected = round(geo0.behind_fraction * geo0.observations)
     assert expected >= 4
     for param in ["euclidean", *FORMS]:
         rec = clone(init)
         s = adjust(rec, BAOptions(param=param, max_iterations=0))
         assert s.behind_camera["initial"] == expected, param
         geo = observation_geometry(rec)
-        assert s.behind_camera["final"] == round(geo["behind_fraction"] * geo["observations"])
+        assert s.behind_camera["final"] == round(geo.behind_fraction * geo.observations)
     # forward rig: omega -> -omega sends a point through infinity to behind every camera
     _, fwd = low_parallax_problem(4, 20, 3e-3, seed=0)
     p = problem_from_reconstruction(fwd)

@@ -10,7 +10,8 @@ import numpy as np
 
 from polarref.core import records
 from polarref.compare import claims, claims_experiments, claims_robustness, schema
-from polarref.compare.experiment_records import Conditioning, DerivationEvidence, Experiments, Robustness, Timing
+from polarref.compare.experiment_records import (Conditioning, DerivationEvidence, Experiments, FormRuns, Robustness,
+                                                 Timing)
 
 
 def _metrics(euclid_runtime, polar_runtime, euclid_tp=1000, polar_tp=1000, euclid_rp=5000, polar_rp=5000,
@@ -495,3 +496,103 @@ def test_c5_with_the_committed_pilot_is_underpowered_unless_an_interval_excludes
     assert v == "not supported"
     v, *_ = claims_robustness.more_tie_points(rob(None))      # identical counts: [0, 0] excludes +0.18 %
     assert v == "not supported"
+
+
+def _point_runs(rates, points=100, ok=True):
+    """Low-parallax runs with per-point scores: ``rates`` is each seed's point success rate."""
+    return {"runs": [{"seed": k, "success": ok, "rotation_error_deg": 0.03, "points_scored": points,
+                      "points_depth_ok": round(r * points)} for k, r in enumerate(rates)], "errors": []}
+
+
+def _rob_points(eu, pa):
+    unit = lambda e, p, ok=True: {"start": _point_runs([0.5] * len(e), ok=False),   # noqa: E731
+                                  "euclidean": _point_runs(e), "parallax": _point_runs(p)}
+    return records.coerce(Robustness, {
+        "seeds_run": len(eu), "success_rule": "r", "outlier_problem": "o", "parallax_problem": "l",
+        "outliers": {"0.1": {"start": _runs([0] * 5, rot=2.0), "euclidean": _runs([1, 0, 1, 0, 1]),
+                             "parallax": _runs([1, 0, 1, 0, 1])}},
+        "low_parallax": {"0.003": unit(eu, pa)}})
+
+
+EU_RATES = [0.40, 0.30, 0.50, 0.45, 0.35]
+
+
+@pytest.mark.parametrize("pa, half", [
+    ([r + 0.2 for r in EU_RATES], "supported"),          # more points right on every seed
+    ([r - 0.2 for r in EU_RATES], "not supported"),      # fewer: the rule fails for the parallax form
+    (EU_RATES, "not supported"),                         # same rates, same errors: no form more robust
+])
+def test_low_parallax_point_success_is_continuous_and_paired(pa, half):
+    """Issue 30: the low-parallax half scores points (continuous rates in [0.2, 0.8] are possible),
+    compares the forms per seed, and can fail."""
+    rob = _rob_points(EU_RATES, pa)
+    c8 = claims_robustness.robustness_claim(rob, "")
+    f = {x.key: x.value for x in c8.figures}
+    assert f["lp0_euclidean"] == pytest.approx(np.mean(EU_RATES))
+    assert f["lp0_parallax"] == pytest.approx(np.mean(pa))
+    assert f["lp0_start_success"] == 0.0                   # a failed run scores no point
+    assert f["lp0_euclidean_wlo"] < np.mean(EU_RATES) < f["lp0_euclidean_whi"]
+    assert f"low parallax: {half}" in c8.rationale
+    assert "2 of 2 levels have a Euclidean success rate in [0.2, 0.8]" in c8.rationale
+
+
+def test_point_rate_needs_the_run_to_succeed():
+    runs = records.coerce(FormRuns, _point_runs([0.6, 0.3]))
+    assert claims_robustness.seed_rates(runs) == claims_robustness.SeedRates((0, 1), (0.6, 0.3))
+    failed = records.coerce(FormRuns, _point_runs([0.6], ok=False))
+    assert claims_robustness.point_rate(failed.runs[0]) == 0.0
+    binary = records.coerce(FormRuns, _runs([1, 0]))
+    assert claims_robustness.seed_rates(binary) is None     # outlier runs stay per run
+    lo, hi = claims_robustness.bootstrap_mean(np.array([0.1, 0.2, 0.3, 0.4]))
+    assert 0.1 <= lo < 0.25 < hi <= 0.4
+
+
+def _with_real(exp, *ratios_per_problem, skipped=""):
+    """``exp`` with real problems whose interleaved repeats give these euclidean/polar ratios."""
+    from polarref.compare.experiment_records import RealProblemTiming, RealRun
+
+    exp.timing.real = [RealProblemTiming(f"problem{i}", "n cams", "", {
+        "euclidean": RealRun([1.0 * r for r in ratios], 0.5, 10, "function_tolerance"),
+        "polar": RealRun([1.0] * len(ratios), 0.5, 8, "function_tolerance")})
+        for i, ratios in enumerate(ratios_per_problem)]
+    if skipped:
+        exp.timing.real.append(RealProblemTiming("absent", skipped=skipped))
+    return exp
+
+
+FAST, SLOW = [1.6, 1.65, 1.55, 1.6, 1.62], [0.5, 0.52, 0.49, 0.5, 0.51]
+
+
+@pytest.mark.parametrize("synthetic, real, verdict", [
+    (1 / 1.5, [FAST, FAST], "supported"),            # every family at or above 1.4 x 0.9
+    (1 / 1.5, [FAST, SLOW], "inconclusive"),         # a real problem contradicts the synthetic seeds
+    (1.0, [SLOW, SLOW], "not supported"),
+    (1.0, [FAST], "inconclusive"),                   # e.g. euclidean stalls at the iteration cap there
+])
+def test_controlled_speedup_with_real_problems(synthetic, real, verdict):
+    exp = _with_real(_timing(RMS, RMS, ROT, ROT, WALL, [w * synthetic for w in WALL]), *real,
+                     skipped="not in the reference data")
+    c4 = _verdict(claims.scene_claims(_metrics(10, 7), exp), "C4")
+    assert c4.verdict == verdict
+    figs = {x.key: x.value for x in c4.figures}
+    for i, ratios in enumerate(real):
+        assert figs[f"real{i}_gm"] == pytest.approx(np.exp(np.mean(np.log(ratios))))
+        assert figs[f"real{i}_lo"] < figs[f"real{i}_gm"] < figs[f"real{i}_hi"]
+    assert "absent: not run (not in the reference data)" in c4.rationale
+
+
+def test_seeds_needed_is_the_smallest_n_whose_mde_reaches_the_effect():
+    from scipy.stats import t as student_t
+
+    from polarref.compare.preregistration import seeds_needed
+
+    def brute(sd, effect):                     # the paired-t MDE formula, n counted up one by one
+        n = 2
+        while (student_t.ppf(0.975, n - 1) + student_t.ppf(0.8, n - 1)) * sd / np.sqrt(n) > effect:
+            n += 1
+        return n
+
+    for sd, effect in ((1.0, 1.0), (0.112316, np.log(1.4)), (0.029282, 0.0018), (0.3, 0.01)):
+        assert seeds_needed(sd, effect, 0.05, 0.8) == brute(sd, effect)
+    assert seeds_needed(1.0, 1e-6, 0.05, 0.8, n_max=1000) is None          # not affordable: None
+    assert seeds_needed(float("inf"), 1.0, 0.05, 0.8) is None

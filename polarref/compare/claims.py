@@ -69,15 +69,15 @@ def equation_claims(evidence: DerivationEvidence | None, reason: str) -> list[Cl
     cases = evidence.cases
     n = evidence.samples_per_case
 
-    def worst(key):
-        vals = [c[key] for c in cases if c[key] is not None and np.isfinite(c[key])]
+    def worst(key, among=cases):
+        vals = [getattr(c, key) for c in among if getattr(c, key) is not None and np.isfinite(getattr(c, key))]
         return max(vals) if vals else None
 
-    generic = [c for c in cases if c["case"].startswith("random") or c["case"].startswith("negative")]
+    generic = [c for c in cases if c.case.startswith("random") or c.case.startswith("negative")]
     printed = worst("printed_eq3_max_err")
-    nan = sum(int(c["printed_eq3_nan"]) for c in cases)
-    comp = max(c["printed_is_complement_max_err"] for c in generic)
-    corr = max(c["corrected_eq3_max_err"] for c in generic)
+    nan = sum(int(c.printed_eq3_nan) for c in cases)
+    comp = worst("printed_is_complement_max_err", generic)
+    corr = worst("corrected_eq3_max_err", generic)
     corr_all = worst("corrected_eq3_max_err")
     figs1 = [_fig("printed", "printed Eq. 3, max |error| over all cases", printed, "rad"),
              _fig("nan", "samples where the printed formula is undefined (NaN)", nan, "count"),

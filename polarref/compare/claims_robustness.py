@@ -6,14 +6,16 @@ every threshold); this module applies them to :func:`polarref.compare.experiment
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from polarref.compare.claims_experiments import (ALPHA, PAPER_FORM, POWER_TEXT, START_MAX_SUCCESS, TIE_MARGIN_REL,
                                                  fig, not_tested, powered, tost)
-from polarref.compare.preregistration import mde
+from polarref.compare.preregistration import mde, seeds_needed
 from polarref.compare.thresholds import (BOOTSTRAP_REPS, BOOTSTRAP_SEED, MDE_ALPHA, MDE_POWER, PAPER_OBS_REL, PAPER_TIE_REL, PILOT_SD_OBS_REL,
                                          PILOT_SD_TIE_REL)
-from polarref.compare.experiment_records import FormRuns, Robustness
+from polarref.compare.experiment_records import FormRuns, Robustness, RobustRun
 from polarref.compare.schema import ClaimResult, Figure
 
 _NONE = FormRuns()   # a form that did not run
@@ -29,12 +31,58 @@ C8 = ("C8", "Angular/parallax forms are more robust to outliers (Sec. 1.2.1) and
 
 # ---- C8 -------------------------------------------------------------------------------------
 
+def point_rate(r: RobustRun) -> float | None:
+    """A low-parallax run's point success rate (success x points_depth_ok / points_scored); None for
+    a run without point scores (outlier levels, records from before issue 30's per-point rule)."""
+    if r.points_scored is None or r.points_depth_ok is None:
+        return None
+    return float(r.success) * r.points_depth_ok / max(r.points_scored, 1)
+
+
+@dataclass(frozen=True)
+class SeedRates:
+    """One form's point success rate per seed at one level; ``seeds``, ``rates``: (S,)."""
+
+    seeds: tuple[int, ...]
+    rates: tuple[float, ...]
+
+    def minus(self, base: SeedRates) -> np.ndarray:
+        """(common seeds,) paired differences self - base, in this record's seed order."""
+        b = dict(zip(base.seeds, base.rates))
+        return np.array([r - b[s] for s, r in zip(self.seeds, self.rates) if s in b], float)
+
+
+def seed_rates(v: FormRuns) -> SeedRates | None:
+    """Per-seed point success rates when every run has them (a continuous rate), else None."""
+    rates = [point_rate(r) for r in v.runs]
+    if not rates or any(x is None for x in rates):
+        return None
+    return SeedRates(tuple(r.seed for r in v.runs), tuple(rates))
+
+
 def _rate(v: FormRuns):
+    """(success rate, median rotation error, runs): the mean point success rate over the seeds
+    where the runs have one, else the fraction of successful runs."""
     runs = v.runs
     if not runs:
         return None, None, 0
-    return (float(np.mean([r.success for r in runs])),
-            float(np.median(np.array([r.rotation_error_deg for r in runs], float))), len(runs))
+    per_seed = seed_rates(v)
+    rate = np.mean(per_seed.rates) if per_seed else np.mean([r.success for r in runs])
+    return float(rate), float(np.median(np.array([r.rotation_error_deg for r in runs], float))), len(runs)
+
+
+def bootstrap_mean(x: np.ndarray, reps: int = BOOTSTRAP_REPS, seed: int = BOOTSTRAP_SEED) -> tuple[float, float]:
+    """95 % percentile bootstrap interval of the mean of ``x`` (seeded; resamples the seeds)."""
+    x = np.asarray(x, float)
+    idx = np.random.default_rng(seed).integers(0, len(x), (reps, len(x)))
+    means = x[idx].mean(axis=1)
+    return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
+
+
+def _paired_rates(form: FormRuns, base: FormRuns) -> np.ndarray | None:
+    """Per-seed difference form - base of the point success rates (None when not both continuous)."""
+    a, b = seed_rates(form), seed_rates(base)
+    return None if a is None or b is None else a.minus(b)
 
 
 def _paired_ratio(form: FormRuns, base: FormRuns, key: str = "rotation_error_deg") -> np.ndarray:
@@ -72,12 +120,19 @@ def bootstrap_gm(ratio: np.ndarray, reps: int = BOOTSTRAP_REPS, seed: int = BOOT
     return float(np.percentile(gm, 2.5)), float(np.percentile(gm, 97.5))
 
 
-def _compare(a: float | None, na: int, e: float | None, ne: int, ratio: np.ndarray) -> str:
-    """Better/worse when the success-rate difference's 95 % interval excludes 0; with no such
-    difference, when the bootstrap interval of the geometric-mean rotation-error ratio excludes 1."""
+def _compare(a: float | None, na: int, e: float | None, ne: int, ratio: np.ndarray,
+             paired: np.ndarray | None = None) -> str:
+    """Better/worse when the success-rate difference's 95 % interval excludes 0 (continuous point
+    rates, ``paired`` per seed: its bootstrap interval; else Newcombe's); with no such difference,
+    when the bootstrap interval of the geometric-mean rotation-error ratio excludes 1."""
     if a is None or e is None:
         return "unknown"
-    lo, hi = rate_difference(a, na, e, ne)
+    if paired is not None and len(paired) >= 2:
+        lo, hi = bootstrap_mean(paired)
+    elif paired is not None:
+        lo, hi = float("nan"), float("nan")
+    else:
+        lo, hi = rate_difference(a, na, e, ne)
     if lo > 0:
         return "better"
     if hi < 0:
@@ -99,10 +154,14 @@ def _level(key: str, name: str, forms: dict[str, FormRuns], figs: list, flipped:
     parts, outcome = [f"start {{{key}_start_success}}"], {}
     eu = forms.get("euclidean", _NONE)
     for p, (sr, med, n) in rates.items():
-        wlo, whi = wilson(sr * n, n) if sr is not None else (None, None)
-        figs += [fig(f"{key}_{p}", f"{name}: {p} success rate ({n} runs)", sr),
-                 fig(f"{key}_{p}_wlo", f"{name}: {p} success rate, Wilson 95 % lower", wlo),
-                 fig(f"{key}_{p}_whi", f"{name}: {p} success rate, Wilson 95 % upper", whi),
+        per_seed = seed_rates(forms[p])
+        kind = "point success rate, mean over seeds" if per_seed else "success rate"
+        how = "bootstrap over the seeds" if per_seed else "Wilson"
+        wlo, whi = ((bootstrap_mean(np.array(per_seed.rates)) if per_seed else wilson(sr * n, n))
+                    if sr is not None else (None, None))
+        figs += [fig(f"{key}_{p}", f"{name}: {p} {kind} ({n} runs)", sr),
+                 fig(f"{key}_{p}_wlo", f"{name}: {p} {kind}, {how} 95 % lower", wlo),
+                 fig(f"{key}_{p}_whi", f"{name}: {p} {kind}, {how} 95 % upper", whi),
                  fig(f"{key}_{p}_med", f"{name}: {p} median relative-rotation error", med, "deg")]
         runs = forms[p].runs
         flips = [r.flipped_fraction for r in runs if r.flipped_fraction is not None]
@@ -126,7 +185,7 @@ def _level(key: str, name: str, forms: dict[str, FormRuns], figs: list, flipped:
                      fig(f"{key}_{p}_ratio_hi", f"{name}: that ratio, bootstrap 95 % upper", bhi, "x")]
             text += f", {{{key}_{p}_ratio}} [{{{key}_{p}_ratio_lo}}, {{{key}_{p}_ratio_hi}}] vs euclidean"
             e_rate, _, e_n = rates.get("euclidean", (None, None, 0))
-            outcome[p] = _compare(sr, n, e_rate, e_n, ratio)
+            outcome[p] = _compare(sr, n, e_rate, e_n, ratio, _paired_rates(forms[p], eu))
         parts.append(text + ")")
     init_rms = [r.initial_rms_px for r in eu.runs if r.initial_rms_px is not None]
     if init_rms:
@@ -183,8 +242,12 @@ def robustness_claim(rob: Robustness | None, reason: str) -> ClaimResult:
     rationale = ("Success rate (median relative-rotation error, median LM iterations, paired rotation-error ratio "
                  "vs euclidean) per form, beside the start point's success rate -- " + "; ".join(texts)
                  + f". Success: {rob.success_rule}. Levels whose start point succeeds in more than "
-                 f"{START_MAX_SUCCESS:.0%} of the runs are left out. Success rates with Wilson 95 % intervals; "
-                 "better/worse = the 95 % interval of the difference of the success rates (Newcombe) excludes 0, or, "
+                 f"{START_MAX_SUCCESS:.0%} of the runs are left out. Outlier levels: success rates of the runs with Wilson "
+                 "95 % intervals, better/worse = the 95 % interval of the difference of the success rates (Newcombe) "
+                 "excludes 0; low-parallax levels: the point success rate (a continuous rate per run: at any parallax "
+                 "rotations and bearings stay observable, so a per-run rule succeeded always or never), its 95 % "
+                 "bootstrap interval over the seeds, better/worse = the bootstrap interval of the per-seed paired "
+                 "difference excludes 0; or, "
                  "without such a difference, the 95 % bootstrap interval of the geometric-mean rotation-error "
                  f"ratio (seeded, {BOOTSTRAP_REPS} resamples of the seeds) excludes 1. Levels pre-registered from "
                  "the pilot where the Euclidean success rate lay in [0.2, 0.8]; " + _in_band(rob) + "."
@@ -243,12 +306,14 @@ def more_tie_points(rob: Robustness | None) -> tuple[str, list[Figure], str, int
                  fig(f"c5_{k}_margin", f"controlled: margin (pre-registered), {name}", 100 * margin, "%"),
                  fig(f"c5_{k}_mde", f"controlled: minimum detectable difference ({POWER_TEXT}), {name}",
                      100 * mde(sd, n, MDE_ALPHA, MDE_POWER), "%"),
-                 fig(f"c5_{k}_paper", f"the paper's effect (Table 1), {name}", 100 * paper, "%")]
+                 fig(f"c5_{k}_paper", f"the paper's effect (Table 1), {name}", 100 * paper, "%"),
+                 fig(f"c5_{k}_n_needed", f"controlled: paired runs needed for a minimum detectable difference at the "
+                     f"paper's effect, {name}", seeds_needed(sd, paper, MDE_ALPHA, MDE_POWER), "count")]
         detectable &= mde(sd, n, MDE_ALPHA, MDE_POWER) <= paper
         decided |= hi < paper            # the interval excludes the paper's effect
         parts.append(f"{name}: start {{c5_{k}_start}}, euclidean {{c5_{k}_eu}}, polar {{c5_{k}_d}} ({1 - 2 * ALPHA:.0%} CI {{c5_{k}_ci_lo}} to "
                      f"{{c5_{k}_ci_hi}}, margin {{c5_{k}_margin}}; minimum detectable {{c5_{k}_mde}} vs the paper's "
-                     f"{{c5_{k}_paper}}): {outcomes[-1]}")
+                     f"{{c5_{k}_paper}}, {{c5_{k}_n_needed}} paired runs needed to detect it, {n} run): {outcomes[-1]}")
     verdict = ("supported" if all(o == "more" for o in outcomes) else
                "not supported" if any(o in ("equal", "fewer") for o in outcomes) else "inconclusive")
     verdict = powered(verdict, detectable, decided)

@@ -10,7 +10,6 @@ condition number) are ``None`` once recorded, as everywhere in polarref's JSON.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 # ---- C3/C4: timing --------------------------------------------------------------------------
 
@@ -43,12 +42,34 @@ class TimingForm:
 
 
 @dataclass
+class RealRun:
+    """One form on one real problem: the wall time of each interleaved repeat, and the first
+    repeat's outcome (the solves are deterministic: every repeat ends the same)."""
+
+    walls: list[float] = field(default_factory=list)
+    final_rms_px: float | None = None         # pixel RMS (the forms' costs differ: polar adds a residual)
+    iterations: int | None = None
+    termination: str = ""
+
+
+@dataclass
+class RealProblemTiming:
+    """C4 on one problem of the reference data (issue 30); ``skipped``: why it did not run."""
+
+    name: str
+    description: str = ""
+    skipped: str = ""
+    forms: dict[str, RealRun] = field(default_factory=dict)     # form -> its runs
+
+
+@dataclass
 class Timing:
     problem: str = ""
     trace_problem: str = ""
     seeds: list[int] = field(default_factory=list)
     params: dict[str, TimingForm] = field(default_factory=dict)   # form -> its runs
     error: str = ""
+    real: list[RealProblemTiming] = field(default_factory=list)   # C4's real problems
 
 
 # ---- C6/C7: conditioning --------------------------------------------------------------------
@@ -107,6 +128,11 @@ class RobustRun:
     iterations: int | None = None
     inlier_observations: int | None = None    # outlier levels only (C5's counts)
     tie_points: int | None = None
+    # low-parallax levels only: points scored and those whose depth is within the pre-registered
+    # tolerance (experiment_problems.depth_errors); the run's point success rate is
+    # success x points_depth_ok / points_scored (claims_robustness.point_rate)
+    points_scored: int | None = None
+    points_depth_ok: int | None = None
 
 
 @dataclass
@@ -179,13 +205,36 @@ class Experiments:
 
 
 @dataclass
+class CaseEvidence:
+    """One sampled case of ``derivations.paper.CaseEvidence`` (the same field names; runtime code
+    does not import the derivations package, which imports SymPy). Max errors in rad; a figure
+    that was NaN is None once recorded."""
+
+    case: str
+    samples: int | None = None
+    excluded_near_pole: int | None = None
+    printed_eq3_max_err: float | None = None
+    printed_eq3_nan: int = 0
+    printed_is_complement_max_err: float | None = None
+    corrected_eq3_max_err: float | None = None
+    corrected_eq3_nan: int | None = None
+    corrected_eq3_max_err_all: float | None = None
+    stable_max_err: float | None = None
+    generated_max_err: float | None = None
+    stable_vs_mpmath_max_err: float | None = None
+    stable_all_vs_mpmath_max_err: float | None = None
+    truth_vs_mpmath_max_err: float | None = None
+    eq4_max_err: float | None = None
+    eq5_sin_max_err: float | None = None
+    eq5_nan: int | None = None
+    eq8_max_err: float | None = None
+    claim7_max_err: float | None = None
+
+
+@dataclass
 class DerivationEvidence:
-    """``derivations.paper.all_case_evidence`` as data.
+    """``derivations.paper.all_case_evidence`` as data."""
 
-    ``cases`` are the ``derivations.paper.CaseEvidence`` fields per case; runtime code does not
-    import the derivations package (it imports SymPy), so their type is not named here.
-    """
-
-    cases: list[dict[str, Any]]
+    cases: list[CaseEvidence]
     samples_per_case: int
     seed: int | None = None

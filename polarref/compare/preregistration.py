@@ -16,10 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
+from polarref.core import records
 from polarref.core.errors import PolarrefError
 
 PATH = Path(__file__).with_name("preregistration.toml")
-_LIST_KEYS = ("test_seeds", "pilot_seeds", "levels", "outlier_levels", "parallax_levels")
+_LIST_KEYS = ("test_seeds", "pilot_seeds", "levels", "outlier_levels", "parallax_levels", "real_problems")
 
 
 @dataclass(frozen=True)
@@ -33,6 +34,7 @@ class ClaimPlan:
     levels: tuple = ()
     outlier_levels: tuple[float, ...] = ()
     parallax_levels: tuple[float, ...] = ()
+    real_problems: tuple[str, ...] = ()          # items of the reference data (C4), skipped when absent
     values: tuple[tuple[str, float | str], ...] = ()
 
     def value(self, name: str) -> float:
@@ -43,11 +45,25 @@ class ClaimPlan:
 
 
 @dataclass(frozen=True)
+class ReplicationPlan:
+    """The ``[replication]`` section: the scenes on which the scene-dependent claims are rerun."""
+
+    measure: str
+    scene: str                       # synthetic scene of ``polarref compare``
+    preset: str
+    scene_seeds: tuple[int, ...]     # ``polarref compare --seed``: render, noise and method seeds
+    real_sets: tuple[str, ...]       # folder names under the data root
+    methods: tuple[str, ...]
+    claims: tuple[str, ...]
+
+
+@dataclass(frozen=True)
 class Preregistration:
     path: Path
     alpha: float
     power: float
     claims: tuple[ClaimPlan, ...]
+    replication: ReplicationPlan | None = None
 
     def claim(self, claim_id: str) -> ClaimPlan:
         for c in self.claims:
@@ -73,7 +89,20 @@ def load(path: Path = PATH) -> Preregistration:
         rest = tuple((k, v) for k, v in sec.items() if k not in _LIST_KEYS and k != "measure")
         claims.append(ClaimPlan(cid, str(sec.get("measure", "")), values=rest, **lists))
     p = raw.get("power", {})
-    return Preregistration(Path(path), float(p.get("alpha", 0.05)), float(p.get("power", 0.8)), tuple(claims))
+    return Preregistration(Path(path), float(p.get("alpha", 0.05)), float(p.get("power", 0.8)), tuple(claims),
+                           _replication(raw.get("replication"), path))
+
+
+def _replication(sec: dict | None, path: Path) -> ReplicationPlan | None:
+    if sec is None:
+        return None
+    try:
+        plan = records.from_dict(ReplicationPlan, sec, label=f"{Path(path).name} [replication]")
+    except records.RecordError as exc:
+        raise PolarrefError(str(exc)) from exc
+    if len(plan.scene_seeds) + len(plan.real_sets) < 2 or len(set(plan.scene_seeds)) != len(plan.scene_seeds):
+        raise PolarrefError(f"{path}: [replication] needs >= 2 distinct scenes")
+    return plan
 
 
 @dataclass(frozen=True)
@@ -111,6 +140,22 @@ def mde(sd: float, n: int, alpha: float, power: float) -> float:
     if n < 2 or not np.isfinite(sd):
         return float("inf")
     return float((student_t.ppf(1 - alpha / 2, n - 1) + student_t.ppf(power, n - 1)) * sd / np.sqrt(n))
+
+
+def seeds_needed(sd: float, effect: float, alpha: float, power: float, n_max: int = 100_000) -> int | None:
+    """Smallest number of pairs whose :func:`mde` is at or below ``effect`` (None beyond ``n_max``
+    or without a pilot): how many seeds an experiment needs to detect the effect it tests."""
+    if not (np.isfinite(sd) and effect > 0):
+        return None
+    lo, hi = 2, 2
+    while mde(sd, hi, alpha, power) > effect:     # the MDE falls with n: double, then bisect
+        if hi >= n_max:
+            return None
+        lo, hi = hi, min(2 * hi, n_max)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        lo, hi = (mid + 1, hi) if mde(sd, mid, alpha, power) > effect else (lo, mid)
+    return hi
 
 
 PREREG = load()

@@ -65,7 +65,8 @@ def _controlled_lines(m: MetricsFile) -> list[str]:
     if c4 is not None:
         out.append(f"  C4 ({c4.verdict}): BA-only speed-up Euclidean/polar, geometric mean "
                    f"x{_n(_fig(c4, 'c_gm'), '.2f')} [{_n(_fig(c4, 'c_gm_lo'), '.2f')}, {_n(_fig(c4, 'c_gm_hi'), '.2f')}] "
-                   f"vs the paper's x{_n(_fig(c4, 'c_paper'), '.1f')} (minimum detectable x{_n(_fig(c4, 'c_mde'), '.2f')}).")
+                   f"vs the paper's x{_n(_fig(c4, 'c_paper'), '.1f')} (minimum detectable x{_n(_fig(c4, 'c_mde'), '.2f')})"
+                   + _real_part(c4) + ".")
     if c5 is not None:
         out.append(f"  C5 ({c5.verdict}): tie points polar - Euclidean {_n(_fig(c5, 'c5_tp_d'), '+.2f')}% "
                    f"[{_n(_fig(c5, 'c5_tp_ci_lo'), '.2f')}, {_n(_fig(c5, 'c5_tp_ci_hi'), '.2f')}], minimum detectable "
@@ -79,6 +80,17 @@ def _controlled_lines(m: MetricsFile) -> list[str]:
         out.append(f"  Share of the {len(m.claims[-1].invariance.draws) if m.claims[-1].invariance else 0} "
                    f"moved frames (rotation, translation, scale, units) giving the same verdict: {', '.join(shares)}.")
     return out
+
+
+def _real_part(c4: ClaimResult) -> str:
+    """The real problems' speed-ups of C4 (figures real<i>_gm/_lo/_hi), named by their labels."""
+    parts = []
+    for f in c4.figures:
+        if f.key.startswith("real") and f.key.endswith("_gm"):
+            k = f.key[:-3]
+            parts.append(f"{f.label.split(':')[0]} x{_n(f.value, '.2f')} [{_n(_fig(c4, k + '_lo'), '.2f')}, "
+                         f"{_n(_fig(c4, k + '_hi'), '.2f')}]")
+    return ("; real problems: " + ", ".join(parts)) if parts else ""
 
 
 def findings_block(reports: Path) -> str:

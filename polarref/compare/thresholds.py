@@ -41,6 +41,7 @@ PAPER_TIE_REL, PAPER_OBS_REL = _C5.value("paper_effect_tie_rel"), _C5.value("pap
 SUCCESS_RMS_NOISE_FACTOR = 2.0   # final pixel RMS below this many times the added noise
 SUCCESS_ROT_DEG = 0.5            # mean relative-rotation error below this
 SUCCESS_BEARING_DEG = 1.0        # 95th percentile of the bearing error below this
+SUCCESS_DEPTH_REL = _C8.value("point_depth_tol")   # low parallax, per point: depth within this (issue 30)
 
 # ---- report tables (report.py) -----------------------------------------------------------------
 # "Equivalent" accuracy in the paper's table: 0.482 vs 0.481 px. We call two mean reprojection
