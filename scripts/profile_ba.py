@@ -47,7 +47,7 @@ import sys
 import time
 
 from polarref.ba import kernels
-from polarref.ba.bench import _resolve
+from polarref.bench.ba import _resolve
 from polarref.ba.loaders import load_problem
 from polarref.ba.options import PARAMS, BAOptions
 from polarref.ba.problem import prepare
