@@ -31,7 +31,9 @@ kernel path; with the split of setup, first iteration (first build, step and tri
 tail after the last iteration record (write-back, final pixel cost). ``--anchor-schur cross``
 runs the three-slot forms on the reference elimination (anchor cross terms) instead of the
 X-space one (ba/xspace.py), so both can be timed from one checkout (``--stages`` too);
-``--paired`` times both in one run, interleaved solve by solve, with the per-round ratios.
+``--paired`` times both in one run, interleaved solve by solve, with the per-round ratios;
+``--max-iterations N`` caps every solve (large problems), ``--json OUT`` writes the figures
+with provenance and the load average beside the markdown.
 
 ``--cprofile N``: instead, ``cProfile`` with process CPU time as its clock around two solves of
 at most N iterations per form (kernel path): CPU ms per accepted iteration and the functions
@@ -75,6 +77,9 @@ def main(argv=None) -> int:
     ap.add_argument("--paired", action="store_true",
                     help="--bench-cpu's figure for both eliminations, interleaved, with paired "
                          "ratios")
+    ap.add_argument("--max-iterations", type=int, default=None,
+                    help="--paired: cap every solve at N LM steps (large problems)")
+    ap.add_argument("--json", default=None, help="--paired: also write the figures to this JSON file")
     args = ap.parse_args(argv)
     keep_heap()  # as the BA bench does (polarref/core/heap.py)
     if args.stages:
@@ -227,7 +232,10 @@ def paired(args) -> int:
 
     solver_mod.time = types.SimpleNamespace(perf_counter=time.process_time)
     kernels.warm_up()
-    print(f"load {os.getloadavg()[0]:.1f}; {args.repeat} rounds\n\n| problem | form | "
+    load0 = os.getloadavg()[0]
+    cap = {} if args.max_iterations is None else {"max_iterations": args.max_iterations}
+    rows = []
+    print(f"load {load0:.1f}; {args.repeat} rounds\n\n| problem | form | "
           "elimination | iterations | cpu ms / accepted, min | median | x Euclidean, paired | "
           "X-space / cross, paired | final cost |\n|---|---|---|---|---|---|---|---|---|")
     cfgs = [("euclidean", "cross")] + [(f, m) for f in args.forms.split(",") if f != "euclidean"
@@ -244,7 +252,7 @@ def paired(args) -> int:
                 for _ in range(args.repeat):
                     for f, m in cfgs:
                         runs[(f, m)].append(solve(base.copy(), BAOptions(
-                            param=f, kernels="numba", anchor_schur=m), prepared=True))
+                            param=f, kernels="numba", anchor_schur=m, **cap), prepared=True))
                 fig = {c: [(s.wall_s - s.setup_s) / max(s.accepted_iterations, 1) for s in rs]
                        for c, rs in runs.items()}
                 for c in cfgs:
@@ -255,10 +263,37 @@ def paired(args) -> int:
                     print(f"| {spec} | {c[0]} | {c[1]} | {s.iterations}/{s.accepted_iterations} | "
                           f"{1e3 * min(fig[c]):.2f} | {1e3 * statistics.median(fig[c]):.2f} | "
                           f"{eu:.2f}x | {vs} | {s.final_cost!r} |")
+                    rows.append({"problem": spec, "form": c[0], "elimination": c[1], "iterations": s.iterations,
+                                 "accepted": s.accepted_iterations, "linear_solver": s.linear_solver,
+                                 "cpu_s_per_accepted": fig[c], "x_euclidean_paired": eu,
+                                 "xspace_over_cross_paired": float(vs) if vs else None,
+                                 "final_cost": s.final_cost, "num_cameras": base.num_cameras,
+                                 "num_observations": base.num_observations})
                 sys.stdout.flush()
     finally:
         solver_mod.time = time
+    if args.json:
+        _write_json(args, rows, load0)
     return 0
+
+
+def _write_json(args, rows: list, load0: float) -> None:
+    """The --paired figures with provenance (core.provenance) and the load before and after."""
+    import json
+    from pathlib import Path
+
+    from polarref.core.atomic import atomic_write
+    from polarref.core.provenance import collect_record
+    from polarref.core.records import to_dict
+
+    doc = {"command": "python scripts/profile_ba.py " + " ".join(sys.argv[1:]),
+           "clock": "process CPU time (time.process_time), 1 BLAS thread",
+           "figure": "(wall_s - setup_s) / accepted iterations per solve, in CPU seconds",
+           "load_1min": [load0, os.getloadavg()[0]], "repeat": args.repeat,
+           "max_iterations": args.max_iterations, "rows": rows,
+           "environment": to_dict(collect_record(threads={"ours_blas": 1}))}
+    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(Path(args.json), json.dumps(doc, indent=1) + "\n")
 
 
 def bench_cpu(args) -> int:

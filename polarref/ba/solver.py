@@ -246,8 +246,8 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     # three-slot forms: points eliminated in the variable y = dq + B dc (xspace.py), where
     # the maps B carry the anchors' Jacobians; else (per build) the reference cross terms
     xs = None
-    if (options.anchor_schur == "xspace" and anchored and st.fused and not lazy
-            and not any_pt_fixed):
+    if (options.anchor_schur == "xspace" and anchored and st.fused and not any_pt_fixed
+            and (not lazy or hasattr(param, "anchor_maps_for_rows"))):
         xs = AnchorElimination(st, *param.anchor_cams)
     builds_x = builds_ref = 0
     use_x = False
@@ -291,8 +291,9 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         if need_build:
             tic = time.perf_counter()
             if lazy:
+                use_x = xs is not None
                 V, g_p, blocks = chunked.build(st, param, R, C, pts, w,
-                                               pt_free if any_pt_fixed else None)
+                                               pt_free if any_pt_fixed else None, xs, mask_v)
             else:
                 if w is not None:
                     r_w, Jp_w = r * w, Jp * w[:, :, None]
@@ -318,6 +319,18 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
                     V[ai, ac, :] *= 0.0
                     V[ai, :, ac] *= 0.0
                     g_p[ai, ac] = 0.0
+            if lazy and use_x and not xs.carries_maps(active):
+                # an omega held at its bound with B != 0: this build by cross terms (xspace.py)
+                use_x = False
+                V, g_p, blocks = chunked.build(st, param, R, C, pts, w, None)
+                if active is not None:
+                    ai, ac = np.nonzero(active)
+                    V[ai, ac, :] *= 0.0
+                    V[ai, :, ac] *= 0.0
+                    g_p[ai, ac] = 0.0
+            if lazy:
+                builds_x += use_x
+                builds_ref += xs is not None and not use_x
             # gauge-fixed columns and fixed cameras are masked on the assembled blocks
             if not lazy:
                 use_x = xs is not None and xs.carries(Jc_w[1], active)
