@@ -232,6 +232,9 @@ def paired(args) -> int:
 
     solver_mod.time = types.SimpleNamespace(perf_counter=time.process_time)
     kernels.warm_up()
+    from polarref.core.provenance import collect_record
+
+    env = collect_record(threads={"ours_blas": 1})   # before the run: the tree it ran from
     load0 = os.getloadavg()[0]
     cap = {} if args.max_iterations is None else {"max_iterations": args.max_iterations}
     rows = []
@@ -273,17 +276,16 @@ def paired(args) -> int:
     finally:
         solver_mod.time = time
     if args.json:
-        _write_json(args, rows, load0)
+        _write_json(args, rows, load0, env)
     return 0
 
 
-def _write_json(args, rows: list, load0: float) -> None:
+def _write_json(args, rows: list, load0: float, env) -> None:
     """The --paired figures with provenance (core.provenance) and the load before and after."""
     import json
     from pathlib import Path
 
     from polarref.core.atomic import atomic_write
-    from polarref.core.provenance import collect_record
     from polarref.core.records import to_dict
 
     doc = {"command": "python scripts/profile_ba.py " + " ".join(sys.argv[1:]),
@@ -291,7 +293,7 @@ def _write_json(args, rows: list, load0: float) -> None:
            "figure": "(wall_s - setup_s) / accepted iterations per solve, in CPU seconds",
            "load_1min": [load0, os.getloadavg()[0]], "repeat": args.repeat,
            "max_iterations": args.max_iterations, "rows": rows,
-           "environment": to_dict(collect_record(threads={"ours_blas": 1}))}
+           "environment": to_dict(env)}
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
     atomic_write(Path(args.json), json.dumps(doc, indent=1) + "\n")
 
