@@ -124,3 +124,33 @@ def test_block_sparse_schur_equals_numpy_sparse_system(problem, form):
     assert np.abs(S0).max() > 0 and np.abs(S1 - S1.T).max() == 0.0      # the BSR is symmetric exactly
     np.testing.assert_allclose(S1, S0, rtol=0, atol=1e-12 * np.abs(S0).max())
     np.testing.assert_allclose(b1, b0, rtol=0, atol=1e-12 * np.abs(b0).max())
+
+
+def test_dense_camera_pair_blocks_equal_the_dense_kernel(problem):
+    """The Euclidean dense path's products into camera-pair blocks, scattered into S, give the
+    upper triangle (what the Cholesky reads) and b of the kernel writing into S directly."""
+    from polarref.ba import kernels
+    from polarref.ba.parameterization import make_param
+    from polarref.ba.schur import SchurStructure
+
+    if not kernels.available():
+        pytest.skip("numba kernels unavailable")
+    p = problem
+    prm = make_param(p, BAOptions(param="euclidean"))
+    r, Jp, Jc = prm.evaluate(p.R, p.C, prm.init_points(), True, factored=False)
+    st = SchurStructure(prm.slot_cams, prm.slot_cols, p.obs_pt, p.cam_mask.any(1), p.num_points, fast=True)
+    st.use_gemm = False
+    st._build_blocks()
+    mask_v = p.cam_mask[st.var_cams].astype(float)
+    g_c, W, U = st.apply_mask(mask_v, *st.build(Jc, Jp, r))
+    V, g_p = st.point_terms(Jp, r)
+    out = []
+    for blocks in (False, True):
+        st.dense_blocks = blocks
+        S, b, _ = st.reduced_system(U, W, V + 1e-2 * np.eye(3), g_c, g_p, np.full((st.Nv, 6), 0.3))
+        out.append((np.triu(S), b))
+    (S0, b0), (S1, b1) = out
+    assert np.abs(S0).max() > 0
+    np.testing.assert_allclose(S1, S0, rtol=0, atol=1e-12 * np.abs(S0).max())
+    np.testing.assert_allclose(b1, b0, rtol=0, atol=1e-12 * np.abs(b0).max())
+    assert "camera-pair blocks" in st.linear_solver_name()

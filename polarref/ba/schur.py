@@ -181,7 +181,11 @@ class SchurStructure:
             self.obs_bounds = np.r_[self.pt_starts, M].astype(np.int64)
         else:
             self._build_u_reducers(vc, slot_entry)
-        if fast and self.sparse_S:
+        # Euclidean-structured entry-pair path: products into contiguous camera-pair blocks
+        # (scattered into the dense S once per step): ~1.5x the rate of writing them into
+        # six rows of the dense S (reports/bench-ba-scale/schur-roofline.md)
+        self.dense_blocks = fast and not self.sparse_S and not self.use_gemm and not self.fused
+        if fast and (self.sparse_S or self.dense_blocks):
             self._build_blocks()
         elif not self.use_gemm and (self.sparse_S or not fast):
             self._build_pairs(counts)
@@ -297,7 +301,7 @@ class SchurStructure:
         self.pair_blk = np.ascontiguousarray(inv[:n], np.int64)
         self.u_blk, self.diag_blk = inv[n:n + nu], inv[n + nu:]
         self.K = len(allk)
-        ca, cb = allk // nv, allk % nv
+        self.blk_ca, self.blk_cb = ca, cb = allk // nv, allk % nv
         self.blk_off = np.flatnonzero(ca != cb)
         rows, cols = np.r_[ca, cb[self.blk_off]], np.r_[cb, ca[self.blk_off]]
         self.bsr_order = np.lexsort((cols, rows))
@@ -307,7 +311,8 @@ class SchurStructure:
     # ------------------------------------------------------------------------------------------
     def linear_solver_name(self) -> str:
         how = ("dense syrk" if self.use_gemm else
-               "entry-pair kernel" + (", block-sparse S" if self.sparse_S else "") if self.fast
+               "entry-pair kernel" + (", block-sparse S" if self.sparse_S else ", camera-pair blocks"
+                                      if self.dense_blocks else "") if self.fast
                else "camera-pair GEMMs")
         kern = "; numba kernels" if self.fast else "; numpy"
         solver = ("PCG block-Jacobi" + (f" ({sum(self.pcg_iterations)} CG iterations in "
@@ -451,7 +456,11 @@ class SchurStructure:
         b = -g_c.copy()
         fused = self.fused and cross
         if self.fast and self.sparse_S:
-            return self._block_system(U_blocks, W, Li, q, b, diag_c), b.reshape(-1), Li
+            return self._bsr(self._blocks(U_blocks, W, Li, q, b, diag_c)), b.reshape(-1), Li
+        if self.dense_blocks:  # the upper block triangle (ca <= cb), what the Cholesky reads
+            S = np.zeros((Nv, 6, Nv, 6))
+            S[self.blk_ca, :, self.blk_cb, :] = self._blocks(U_blocks, W, Li, q, b, diag_c)
+            return S.reshape(6 * Nv, 6 * Nv), b.reshape(-1), Li
         if self.fast and not self.sparse_S and not self.use_gemm:
             from polarref.ba import kernels
             S = np.zeros((Nv, 6, Nv, 6))
@@ -496,10 +505,9 @@ class SchurStructure:
         S[np.diag_indices_from(S)] += diag_c.reshape(-1)
         return S, b.reshape(-1), Li
 
-    def _block_system(self, U_blocks, W, Li, q, b, diag_c):
-        """Kernel path, sparse S: U, the entry-pair Schur products and the damping into the
-        blocks of the pattern (:meth:`_build_blocks`), then the symmetric BSR matrix; b
-        (Nv, 6) gets the points' share in place."""
+    def _blocks(self, U_blocks, W, Li, q, b, diag_c) -> np.ndarray:
+        """(K, 6, 6): U, the entry-pair Schur products and the damping in the blocks of the
+        pattern (:meth:`_build_blocks`); b (Nv, 6) gets the points' share in place."""
         from polarref.ba import kernels
         blocks = np.zeros((self.K, 6, 6))
         blocks[self.u_blk] = U_blocks[self.u_up]
@@ -508,6 +516,10 @@ class SchurStructure:
                                  blocks, b, self.entry_cam)
         i6 = np.arange(6)
         blocks[self.diag_blk[:, None], i6, i6] += diag_c
+        return blocks
+
+    def _bsr(self, blocks: np.ndarray):
+        """The symmetric BSR matrix of the upper blocks (their transposes below)."""
         data = np.concatenate([blocks, blocks[self.blk_off].transpose(0, 2, 1)])[self.bsr_order]
         return scipy.sparse.bsr_matrix((data, self.bsr_indices, self.bsr_indptr),
                                        shape=(6 * self.Nv, 6 * self.Nv))
