@@ -79,6 +79,8 @@ def main(argv=None) -> int:
                          "ratios")
     ap.add_argument("--max-iterations", type=int, default=None,
                     help="--paired: cap every solve at N LM steps (large problems)")
+    ap.add_argument("--skip-warm-solves", action="store_true",
+                    help="--paired: no untimed one-step solve per configuration first (large problems)")
     ap.add_argument("--json", default=None, help="--paired: also write the figures to this JSON file")
     args = ap.parse_args(argv)
     keep_heap()  # as the BA bench does (polarref/core/heap.py)
@@ -248,7 +250,7 @@ def paired(args) -> int:
             for spec in args.problems:
                 base, _ = load_problem(_resolve(spec))
                 prepare(base)
-                for f, m in cfgs:
+                for f, m in cfgs if not args.skip_warm_solves else ():
                     solve(base.copy(), BAOptions(param=f, kernels="numba", anchor_schur=m,
                                                  max_iterations=1), prepared=True)
                 runs: dict = {c: [] for c in cfgs}
@@ -271,13 +273,26 @@ def paired(args) -> int:
                                  "cpu_s_per_accepted": fig[c], "x_euclidean_paired": eu,
                                  "xspace_over_cross_paired": float(vs) if vs else None,
                                  "final_cost": s.final_cost, "num_cameras": base.num_cameras,
-                                 "num_observations": base.num_observations})
+                                 "num_observations": base.num_observations,
+                                 "runs": [_run_record(x) for x in runs[c]]})
                 sys.stdout.flush()
     finally:
         solver_mod.time = time
     if args.json:
         _write_json(args, rows, load0, env)
     return 0
+
+
+def _run_record(s) -> dict:
+    """One solve's counts and stage times, and its cost per LM step were every step accepted:
+    (evaluate + schur + solve + update) per step + the normal equations per build (a rejected
+    step reuses the build, so forms that reject different numbers of steps compare on this)."""
+    builds = s.accepted_iterations + (0 if str(s.termination) == "function_tolerance" else 1)
+    t = dict(s.time_in)
+    per_step = sum(t.get(k, 0.0) for k in ("evaluate", "schur", "solve", "update")) / max(s.iterations, 1)
+    return {"iterations": s.iterations, "accepted": s.accepted_iterations, "termination": str(s.termination),
+            "builds": builds, "time_in_cpu_s": t, "setup_cpu_s": s.setup_s,
+            "cpu_s_per_step_all_accepted": per_step + t.get("normal_equations", 0.0) / max(builds, 1)}
 
 
 def _write_json(args, rows: list, load0: float, env) -> None:
