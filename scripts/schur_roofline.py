@@ -12,7 +12,9 @@ minimum over ``--repeat`` calls:
   now), and the scatter of the blocks into the dense S,
 * the whole Schur stage as the solver runs it (``SchurStructure.reduced_system``: the point
   blocks' inverse factors, U, the products, the damping) on both paths,
-* the dense GEMM rate (``roofline.gemm_gflops``) in the same process.
+* the dense GEMM rate in the same process, timed the same way (CPU time, best of 5 numpy
+  float64 1500x1500 products; ``roofline.gemm_gflops`` times wall, which a loaded machine
+  stretches).
 
 Rates are the roofline's analytic flops (roofline.py) over these times. Writes OUT.json (with
 provenance and the load average) and OUT.md.
@@ -37,7 +39,7 @@ from polarref.ba.loaders import load_problem  # noqa: E402
 from polarref.ba.options import BAOptions  # noqa: E402
 from polarref.ba.parameterization import make_param  # noqa: E402
 from polarref.ba.problem import prepare  # noqa: E402
-from polarref.ba.roofline import gemm_gflops, lm_flops  # noqa: E402
+from polarref.ba.roofline import lm_flops  # noqa: E402
 from polarref.ba.schur import SchurStructure, _c, chol_inv3  # noqa: E402
 from polarref.bench.ba import _resolve  # noqa: E402
 from polarref.core.atomic import atomic_write  # noqa: E402
@@ -53,6 +55,14 @@ def _best(fn, repeat: int) -> float:
         fn()
         best = min(best, time.process_time() - t)
     return best
+
+
+def gemm_cpu_gflops(n: int = 1500, repeat: int = 5, seed: int = 0) -> float:
+    """numpy's float64 (n x n) @ (n x n) in GFLOP/s of process CPU time (best of ``repeat``)."""
+    rng = np.random.default_rng(seed)
+    a, b = rng.standard_normal((n, n)), rng.standard_normal((n, n))
+    a @ b
+    return 2.0 * n**3 / _best(lambda: a @ b, repeat) / 1e9
 
 
 def measure(spec: str, repeat: int) -> dict:
@@ -109,7 +119,7 @@ def markdown(doc: dict) -> str:
     out = [f"Schur stage vs GEMM (issue 35), commit {doc['environment']['git_commit'][:7]}"
            f"{' (dirty)' if doc['environment']['git_dirty'] else ''}, process CPU time, 1 thread, min of "
            f"{doc['repeat']}; load {doc['load_1min'][0]:.1f}-{doc['load_1min'][1]:.1f} on "
-           f"{doc['environment']['cpu_count']} cores (indicative). GEMM {g1:.2f} GFLOP/s (1 thread, same run). "
+           f"{doc['environment']['cpu_count']} cores (indicative). GEMM {g1:.2f} GFLOP/s (1 thread, CPU time, same run). "
            "Rates: the roofline's Schur flops / time (x GEMM).", "",
            "| problem | cams | entry pairs | blocks | kernel, dense S ms | kernel, blocks ms | scatter ms "
            "| point factors ms | stage before ms | stage now ms | kernel GFLOP/s before / now | "
@@ -144,7 +154,7 @@ def main(argv=None) -> int:
     load0 = os.getloadavg()[0]
     with threadpool_limits(limits=1, user_api="blas"):
         problems = [measure(p, args.repeat) for p in args.problems]
-        gemm = gemm_gflops(1)
+        gemm = gemm_cpu_gflops()
     doc = {"command": "python scripts/schur_roofline.py " + " ".join(sys.argv[1:]), "repeat": args.repeat,
            "clock": "process CPU time (time.process_time)", "gemm_gflops_1t": gemm,
            "load_1min": [load0, os.getloadavg()[0]], "problems": problems, "environment": to_dict(env)}
