@@ -182,8 +182,8 @@ class SchurStructure:
         else:
             self._build_u_reducers(vc, slot_entry)
         # Euclidean-structured entry-pair path: products into contiguous camera-pair blocks
-        # (scattered into the dense S once per step): ~1.5x the rate of writing them into
-        # six rows of the dense S (reports/bench-ba-scale/schur-roofline.md)
+        # (scattered into the dense S once per step): 1.7x the rate of writing them into
+        # six rows of the dense S on scale-1e5 (reports/bench-ba-scale/schur-roofline.md)
         self.dense_blocks = fast and not self.sparse_S and not self.use_gemm and not self.fused
         if fast and (self.sparse_S or self.dense_blocks):
             self._build_blocks()
