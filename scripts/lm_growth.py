@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from polarref.ba import BAOptions, prepare  # noqa: E402
-from polarref.ba.bench import FULL, _resolve  # noqa: E402
+from polarref.bench.ba import FULL, _resolve  # noqa: E402
 from polarref.ba.entry import solve  # noqa: E402
 from polarref.ba.loaders import load_problem  # noqa: E402
 from polarref.ba.parameterization import PARAMS  # noqa: E402

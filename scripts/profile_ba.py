@@ -31,7 +31,9 @@ kernel path; with the split of setup, first iteration (first build, step and tri
 tail after the last iteration record (write-back, final pixel cost). ``--anchor-schur cross``
 runs the three-slot forms on the reference elimination (anchor cross terms) instead of the
 X-space one (ba/xspace.py), so both can be timed from one checkout (``--stages`` too);
-``--paired`` times both in one run, interleaved solve by solve, with the per-round ratios.
+``--paired`` times both in one run, interleaved solve by solve, with the per-round ratios;
+``--max-iterations N`` caps every solve (large problems), ``--json OUT`` writes the figures
+with provenance and the load average beside the markdown.
 
 ``--cprofile N``: instead, ``cProfile`` with process CPU time as its clock around two solves of
 at most N iterations per form (kernel path): CPU ms per accepted iteration and the functions
@@ -47,7 +49,7 @@ import sys
 import time
 
 from polarref.ba import kernels
-from polarref.ba.bench import _resolve
+from polarref.bench.ba import _resolve
 from polarref.ba.loaders import load_problem
 from polarref.ba.options import PARAMS, BAOptions
 from polarref.ba.problem import prepare
@@ -75,6 +77,11 @@ def main(argv=None) -> int:
     ap.add_argument("--paired", action="store_true",
                     help="--bench-cpu's figure for both eliminations, interleaved, with paired "
                          "ratios")
+    ap.add_argument("--max-iterations", type=int, default=None,
+                    help="--paired: cap every solve at N LM steps (large problems)")
+    ap.add_argument("--skip-warm-solves", action="store_true",
+                    help="--paired: no untimed one-step solve per configuration first (large problems)")
+    ap.add_argument("--json", default=None, help="--paired: also write the figures to this JSON file")
     args = ap.parse_args(argv)
     keep_heap()  # as the BA bench does (polarref/core/heap.py)
     if args.stages:
@@ -227,7 +234,13 @@ def paired(args) -> int:
 
     solver_mod.time = types.SimpleNamespace(perf_counter=time.process_time)
     kernels.warm_up()
-    print(f"load {os.getloadavg()[0]:.1f}; {args.repeat} rounds\n\n| problem | form | "
+    from polarref.core.provenance import collect_record
+
+    env = collect_record(threads={"ours_blas": 1})   # before the run: the tree it ran from
+    load0 = os.getloadavg()[0]
+    cap = {} if args.max_iterations is None else {"max_iterations": args.max_iterations}
+    rows = []
+    print(f"load {load0:.1f}; {args.repeat} rounds\n\n| problem | form | "
           "elimination | iterations | cpu ms / accepted, min | median | x Euclidean, paired | "
           "X-space / cross, paired | final cost |\n|---|---|---|---|---|---|---|---|---|")
     cfgs = [("euclidean", "cross")] + [(f, m) for f in args.forms.split(",") if f != "euclidean"
@@ -237,14 +250,14 @@ def paired(args) -> int:
             for spec in args.problems:
                 base, _ = load_problem(_resolve(spec))
                 prepare(base)
-                for f, m in cfgs:
+                for f, m in cfgs if not args.skip_warm_solves else ():
                     solve(base.copy(), BAOptions(param=f, kernels="numba", anchor_schur=m,
                                                  max_iterations=1), prepared=True)
                 runs: dict = {c: [] for c in cfgs}
                 for _ in range(args.repeat):
                     for f, m in cfgs:
                         runs[(f, m)].append(solve(base.copy(), BAOptions(
-                            param=f, kernels="numba", anchor_schur=m), prepared=True))
+                            param=f, kernels="numba", anchor_schur=m, **cap), prepared=True))
                 fig = {c: [(s.wall_s - s.setup_s) / max(s.accepted_iterations, 1) for s in rs]
                        for c, rs in runs.items()}
                 for c in cfgs:
@@ -255,10 +268,49 @@ def paired(args) -> int:
                     print(f"| {spec} | {c[0]} | {c[1]} | {s.iterations}/{s.accepted_iterations} | "
                           f"{1e3 * min(fig[c]):.2f} | {1e3 * statistics.median(fig[c]):.2f} | "
                           f"{eu:.2f}x | {vs} | {s.final_cost!r} |")
+                    rows.append({"problem": spec, "form": c[0], "elimination": c[1], "iterations": s.iterations,
+                                 "accepted": s.accepted_iterations, "linear_solver": s.linear_solver,
+                                 "cpu_s_per_accepted": fig[c], "x_euclidean_paired": eu,
+                                 "xspace_over_cross_paired": float(vs) if vs else None,
+                                 "final_cost": s.final_cost, "num_cameras": base.num_cameras,
+                                 "num_observations": base.num_observations,
+                                 "runs": [_run_record(x) for x in runs[c]]})
                 sys.stdout.flush()
     finally:
         solver_mod.time = time
+    if args.json:
+        _write_json(args, rows, load0, env)
     return 0
+
+
+def _run_record(s) -> dict:
+    """One solve's counts and stage times, and its cost per LM step were every step accepted:
+    (evaluate + schur + solve + update) per step + the normal equations per build (a rejected
+    step reuses the build, so forms that reject different numbers of steps compare on this)."""
+    builds = s.accepted_iterations + (0 if str(s.termination) == "function_tolerance" else 1)
+    t = dict(s.time_in)
+    per_step = sum(t.get(k, 0.0) for k in ("evaluate", "schur", "solve", "update")) / max(s.iterations, 1)
+    return {"iterations": s.iterations, "accepted": s.accepted_iterations, "termination": str(s.termination),
+            "builds": builds, "time_in_cpu_s": t, "setup_cpu_s": s.setup_s,
+            "cpu_s_per_step_all_accepted": per_step + t.get("normal_equations", 0.0) / max(builds, 1)}
+
+
+def _write_json(args, rows: list, load0: float, env) -> None:
+    """The --paired figures with provenance (core.provenance) and the load before and after."""
+    import json
+    from pathlib import Path
+
+    from polarref.core.atomic import atomic_write
+    from polarref.core.records import to_dict
+
+    doc = {"command": "python scripts/profile_ba.py " + " ".join(sys.argv[1:]),
+           "clock": "process CPU time (time.process_time), 1 BLAS thread",
+           "figure": "(wall_s - setup_s) / accepted iterations per solve, in CPU seconds",
+           "load_1min": [load0, os.getloadavg()[0]], "repeat": args.repeat,
+           "max_iterations": args.max_iterations, "rows": rows,
+           "environment": to_dict(env)}
+    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(Path(args.json), json.dumps(doc, indent=1) + "\n")
 
 
 def bench_cpu(args) -> int:

@@ -49,36 +49,43 @@ some other line
 
 
 def test_tau_targets_and_trace_times():
-    from polarref.ba.bench import TAUS, _tau_rows, _trace_time
+    from polarref.bench.ba import TAUS, _tau_targets, _tau_times, _trace_time
+    from polarref.bench.ba_records import SolveRun, TracePoint
 
-    run = {"trace": [[1, True, 0.5, 60.0], [2, False, 0.7, 60.0], [3, True, 0.9, 10.2], [4, True, 1.1, 10.0009]]}
+    run = SolveRun(final_cost=10.0009, wall_s=1.2, iterations=4, trace=tuple(TracePoint(*p) for p in (
+        (1, True, 0.5, 60.0), (2, False, 0.7, 60.0), (3, True, 0.9, 10.2), (4, True, 1.1, 10.0009))))
     assert _trace_time(run, 60.0) == (0.5, 1) and _trace_time(run, 10.5) == (0.9, 3)
     assert _trace_time(run, 9.0) is None
-    rows = {"a": {"pixel_objective": True, "full_runs": [run, run]},
-            "p": {"pixel_objective": False, "full_runs": [run]}}
-    taus = _tau_rows(rows, initial=110.0, best=10.0)
-    assert [taus[k]["target_cost"] for k in taus] == pytest.approx([10.0 + t * 100.0 for t in TAUS])
-    a = rows["a"]["tau"]
-    assert a["1e-02"]["time_s"]["median"] == 0.9 and a["1e-02"]["iterations"] == 3      # 10.2 <= 11
-    assert a["1e-03"]["time_s"]["median"] == 1.1 and a["1e-04"]["time_s"]["median"] == 1.1   # 10.0009 <= 10.01
-    assert "tau" not in rows["p"]                         # not the pixel objective: no tau times
+    targets = _tau_targets(initial=110.0, best=10.0)
+    assert [t.target_cost for t in targets.values()] == pytest.approx([10.0 + t * 100.0 for t in TAUS])
+    a = _tau_times([run, run], targets)
+    assert a["1e-02"].time_s.median == 0.9 and a["1e-02"].iterations == 3      # 10.2 <= 11
+    assert a["1e-03"].time_s.median == 1.1 and a["1e-04"].time_s.median == 1.1   # 10.0009 <= 10.01
+    assert a["1e-03"].time_s.n == 2
+    short = SolveRun(final_cost=60.0, wall_s=0.6, iterations=1, trace=run.trace[:1])
+    mixed = _tau_times([run, short], targets)     # one run misses it: no time, the first hit's steps kept
+    assert mixed["1e-02"].time_s.median is None and mixed["1e-02"].iterations == 3
 
 
 def test_performance_profiles_by_hand(tmp_path):
-    from polarref.ba.bench_report import profiles, profiles_figure
+    from _ba_bench_docs import doc as make_doc
+    from polarref.bench.ba_report import profiles, profiles_figure
 
     def prob(ta, tb, tc):
         times = {"euclidean": ta, "ceres-x-1t": tb, "ceres-y-1t": tc}
-        return {"rows": [{"solver": n, "tau": {}} for n in times],
-                "tau_summary": {"1e-03": {"times_s": times}}}
+        return {"problem": f"p{ta}", "rows": [{"solver": n, "kind": "ours", "tau": {}} for n in times],
+                "tau_summary": {"1e-03": {"fastest_ceres": None, "fastest_ceres_s": None, "times_s": times,
+                                          "ratio_to_fastest_ceres": {}}}}
 
-    doc = {"problems": [prob(1.0, 2.0, 4.0), prob(3.0, 1.5, None)]}
-    prof = profiles(doc)["1e-03"]
+    doc = make_doc([prob(1.0, 2.0, 4.0), prob(3.0, 1.5, None)])
+    (p,) = profiles(doc)
+    prof = p.ratios
+    assert p.tau_key == "1e-03"
     assert prof["euclidean"] == [1.0, 2.0]
     assert prof["ceres-x-1t"] == [1.0, 2.0]
     assert prof["ceres-y-1t"][0] == 4.0 and math.isinf(prof["ceres-y-1t"][1])
     assert profiles_figure(doc, tmp_path / "p.png") and (tmp_path / "p.png").read_bytes()[:4] == b"\x89PNG"
-    assert not profiles_figure({"problems": []}, tmp_path / "q.png")
+    assert not profiles_figure(make_doc([]), tmp_path / "q.png")
 
 
 def test_flop_counts_by_hand_and_by_loop():
@@ -104,7 +111,7 @@ def test_flop_counts_by_hand_and_by_loop():
 
 
 def test_forked_peak_memory():
-    from polarref.ba.bench_measure import forked
+    from polarref.bench.ba_measure import forked
 
     big = np.ones(20_000_000)            # 160 MB held by the parent: not the child's
     value, peak = forked(lambda: float(np.ones(12_500_000).sum()))    # 100 MB in the child
@@ -204,27 +211,28 @@ def test_bench_cli_refuses_bad_caps_and_missing_problems_early(tmp_path):
 
 def test_report_sections_from_json_alone():
     """bench.md's tau, memory, roofline and cold tables are computed from bench.json's fields."""
-    from polarref.ba.bench_report import markdown
+    from _ba_bench_docs import doc as make_doc
+    from polarref.bench.ba_report import markdown
 
     st = lambda v: {"median": v, "min": v, "max": v, "n": 1}   # noqa: E731
     row = lambda n, kind, t, mem: {                            # noqa: E731
         "solver": n, "kind": kind, "settings": dict.fromkeys(
             ("function_tolerance", "gradient_tolerance", "parameter_tolerance"), 1e-6), "final_cost": 1.0, "wall_s": st(2.0), "iterations": 3,
-        "full_runs": [{"termination": "x", "linear_solver": ""}], "peak_rss_mib": mem,
-        "tau": {"1e-03": {"time_s": st(t), "iterations": 2}}}
+        "full_runs": [{"final_cost": 1.0, "wall_s": 2.0, "iterations": 3, "termination": "x", "linear_solver": ""}],
+        "peak_rss_mib": mem, "tau": {"1e-03": {"time_s": st(t), "iterations": 2}}}
+    summ = lambda r: {"fastest_ceres": None, "fastest_ceres_s": None, "times_s": {}, "ratio_to_fastest_ceres": r}  # noqa: E731
     res = {"problem": "p", "num_cameras": 2, "num_points": 3, "num_observations": 4, "target_cost": 1.0,
            "rows": [row("euclidean", "ours", 0.5, 50.0), row("ceres-a-1t", "ceres", 2.0, 100.0),
                     row("ceres-b-1t", "ceres", 4.0, 80.0)],
-           "tau_summary": {"1e-02": {"times_s": {}, "ratio_to_fastest_ceres": {}},
-                           "1e-03": {"times_s": {}, "ratio_to_fastest_ceres": {"euclidean": 0.25, "ceres-a-1t": 1.0,
-                                                                                 "ceres-b-1t": 2.0}},
-                           "1e-04": {"times_s": {}, "ratio_to_fastest_ceres": {}}},
-           "roofline": {"linear_solver": "Schur (x) + dense Cholesky; numba", "num_unknowns": 6,
+           "tau_summary": {"1e-02": summ({}),
+                           "1e-03": summ({"euclidean": 0.25, "ceres-a-1t": 1.0, "ceres-b-1t": 2.0}),
+                           "1e-04": summ({})},
+           "roofline": {"form": "euclidean", "linear_solver": "Schur (x) + dense Cholesky; numba", "num_unknowns": 6,
                         "flops_per_iteration": {"build": 2e9, "schur": 3e9, "factorisation": 1e9},
-                        "gflops": {"build": st(1.0), "schur": st(5.0), "factorisation": st(10.0)}},
-           "cold_process": {"process_wall_s": 1.5, "solve_wall_s": 0.9, "first_iteration_s": 0.6}}
+                        "gflops": {"build": st(1.0), "schur": st(5.0), "factorisation": st(10.0)}, "time_in_s": {}},
+           "cold_process": {"command": "c", "process_wall_s": 1.5, "solve_wall_s": 0.9, "first_iteration_s": 0.6}}
     res["rows"][0]["warm_first_step_s"] = 0.1
-    doc = {"machine": {"gemm_gflops": {"1": 20.0, "2": 38.0}}, "problems": [res]}
+    doc = make_doc([res], machine={"gemm_gflops": {"1": 20.0, "2": 38.0}, "gemm": "g"})
     md = markdown(doc)
     assert "| p | euclidean | - | 0.500 (0.25x) | - | -/2/- |" in md
     assert "| p | 50 | - | - | - | 80-100 | 0.62 |" in md                 # 50 / 80
@@ -233,14 +241,20 @@ def test_report_sections_from_json_alone():
 
 
 def test_merge_docs_keeps_each_runs_provenance():
-    from polarref.ba.bench_report import merge_docs
+    import dataclasses
 
-    a = {"environment": {"git_commit": "a"}, "machine": {"m": 1}, "settings": {"s": 1},
-         "problems": [{"problem": "p"}, {"problem": "q"}]}
-    b = {"environment": {"git_commit": "b"}, "machine": {"m": 2}, "settings": {"s": 2},
-         "problems": [{"problem": "q", "environment": {"git_commit": "b0"}}, {"problem": "r"}]}
+    from _ba_bench_docs import ENV, doc as make_doc
+    from polarref.bench.ba_report import merge_docs
+
+    env = lambda c: {**ENV, "git_commit": c}                       # noqa: E731
+    mach = lambda g: {"gemm_gflops": {"1": g}, "gemm": "g"}        # noqa: E731
+    a = make_doc([{"problem": "p"}, {"problem": "q"}], machine=mach(1.0))
+    a = dataclasses.replace(a, environment=dataclasses.replace(a.environment, git_commit="a"))
+    b = make_doc([{"problem": "q", "environment": env("b0")}, {"problem": "r"}], machine=mach(2.0))
+    b = dataclasses.replace(b, environment=dataclasses.replace(b.environment, git_commit="b"))
     m = merge_docs([a, b])
-    assert [r["problem"] for r in m["problems"]] == ["p", "q", "r"]
-    env = {r["problem"]: r["environment"]["git_commit"] for r in m["problems"]}
-    assert env == {"p": "a", "q": "b0", "r": "b"} and m["environment"]["git_commit"] == "b"
-    assert m["problems"][0]["machine"] == {"m": 1} and m["merged_from"] == 2
+    assert [r.problem for r in m.problems] == ["p", "q", "r"]
+    got = {r.problem: r.environment.git_commit for r in m.problems}
+    assert got == {"p": "a", "q": "b0", "r": "b"} and m.environment.git_commit == "b"
+    assert m.problems[0].machine.gemm_gflops == {"1": 1.0} and m.merged_from == 2
+    assert m.problems[2].settings == b.settings

@@ -44,6 +44,40 @@ def test_chunked_build_is_bit_identical_to_eager(monkeypatch, param, loss):
         assert np.array_equal(x, y)
 
 
+@pytest.mark.parametrize("param,loss", [("polar", "trivial"), ("polar", "huber"), ("parallax", "cauchy")])
+def test_chunked_xspace_build_is_bit_identical_to_eager(monkeypatch, param, loss):
+    """Issue 34: the three-slot forms' X-space elimination runs in the chunked build too, with
+    the eager X-space path's results bit for bit (no fixed points: those take the cross terms)."""
+    base = _problem(seed=4)
+    a, sa = _solve(base, monkeypatch, lazy=False, param=param, loss=loss, max_iterations=8)
+    b, sb = _solve(base, monkeypatch, lazy=True, param=param, loss=loss, max_iterations=8)
+    assert "anchors eliminated in X-space" in sa.linear_solver
+    assert sb.linear_solver == sa.linear_solver and "by cross terms" not in sb.linear_solver
+    assert sa.iterations == sb.iterations >= 2 and sa.final_cost < 0.5 * sa.initial_cost
+    assert [t.cost for t in sa.trace] == [t.cost for t in sb.trace]
+    for x, y in ((a.R, b.R), (a.C, b.C), (a.X, b.X)):
+        assert np.array_equal(x, y)
+    # and the step is the cross-term path's to rounding (an independent elimination)
+    c, sc = _solve(base, monkeypatch, lazy=True, param=param, loss=loss, max_iterations=8, anchor_schur="cross")
+    assert "X-space" not in sc.linear_solver and sc.iterations == sb.iterations
+    assert sc.final_cost == pytest.approx(sb.final_cost, rel=1e-9)
+    assert np.allclose(c.X, b.X, rtol=1e-6, atol=1e-9)
+
+
+def test_chunked_xspace_falls_back_to_cross_terms(monkeypatch):
+    """A build whose maps do not carry the anchors (an omega held at a bound with B != 0; forced
+    here) is built again by cross terms: the solve is the cross-term path's, bit for bit."""
+    from polarref.ba.xspace import AnchorElimination
+
+    base = _problem(seed=6)
+    a, sa = _solve(base, monkeypatch, lazy=True, param="polar", max_iterations=6, anchor_schur="cross")
+    monkeypatch.setattr(AnchorElimination, "carries_maps", lambda self, active: False)
+    b, sb = _solve(base, monkeypatch, lazy=True, param="polar", max_iterations=6)
+    assert sb.linear_solver == sa.linear_solver and "X-space" not in sb.linear_solver   # no build in X-space
+    assert [t.cost for t in sa.trace] == [t.cost for t in sb.trace]
+    assert np.array_equal(a.X, b.X) and np.array_equal(a.C, b.C)
+
+
 def test_chunked_build_with_rejected_steps_and_one_point_chunks(monkeypatch):
     # a tiny trust region start forces rejections/regrowth; chunk=1: every chunk one point
     base = _problem(cams=12, points=80, seed=5)

@@ -92,3 +92,65 @@ def test_sparse_lu_forced_equals_cholesky(problem, form):
                prepared=True)
     assert "sparse LU" in rb.linear_solver
     assert abs(ra.final_cost - rb.final_cost) <= 1e-9 * ra.final_cost
+
+
+@pytest.mark.parametrize("form", ["euclidean", "polar"])
+def test_block_sparse_schur_equals_numpy_sparse_system(problem, form):
+    """Issue 35: the kernel path's block-sparse S (entry-pair products into camera-pair blocks,
+    laid out as symmetric BSR) is the numpy path's sparse S (camera-pair GEMMs) to rounding,
+    and so is b."""
+    from polarref.ba import kernels
+    from polarref.ba.parameterization import make_param
+    from polarref.ba.schur import SchurStructure
+
+    if not kernels.available():
+        pytest.skip("numba kernels unavailable")
+    p = problem
+    prm = make_param(p, BAOptions(param=form))
+    r, Jp, Jc = prm.evaluate(p.R, p.C, prm.init_points(), True, factored=False)
+    out = []
+    for fast in (False, True):
+        st = SchurStructure(prm.slot_cams, prm.slot_cols, p.obs_pt, p.cam_mask.any(1), p.num_points,
+                            dense_max_cameras=1, fast=fast, anchored=False)
+        assert st.sparse_S and ("block-sparse" in st.linear_solver_name()) == fast
+        mask_v = p.cam_mask[st.var_cams].astype(float)
+        g_c, W, U = st.apply_mask(mask_v, *st.build(Jc, Jp, r))
+        V, g_p = st.point_terms(Jp, r)
+        Vd = V + 1e-2 * np.eye(3)
+        diag_c = np.where(mask_v > 0, 0.5 + np.arange(6), 1.0)
+        S, b, _ = st.reduced_system(U, W, Vd, g_c, g_p, diag_c)
+        out.append((S.toarray(), b))
+    (S0, b0), (S1, b1) = out
+    assert np.abs(S0).max() > 0 and np.abs(S1 - S1.T).max() == 0.0      # the BSR is symmetric exactly
+    np.testing.assert_allclose(S1, S0, rtol=0, atol=1e-12 * np.abs(S0).max())
+    np.testing.assert_allclose(b1, b0, rtol=0, atol=1e-12 * np.abs(b0).max())
+
+
+def test_dense_camera_pair_blocks_equal_the_dense_kernel(problem):
+    """The Euclidean dense path's products into camera-pair blocks, scattered into S, give the
+    upper triangle (what the Cholesky reads) and b of the kernel writing into S directly."""
+    from polarref.ba import kernels
+    from polarref.ba.parameterization import make_param
+    from polarref.ba.schur import SchurStructure
+
+    if not kernels.available():
+        pytest.skip("numba kernels unavailable")
+    p = problem
+    prm = make_param(p, BAOptions(param="euclidean"))
+    r, Jp, Jc = prm.evaluate(p.R, p.C, prm.init_points(), True, factored=False)
+    st = SchurStructure(prm.slot_cams, prm.slot_cols, p.obs_pt, p.cam_mask.any(1), p.num_points, fast=True)
+    st.use_gemm = False
+    st._build_blocks()
+    mask_v = p.cam_mask[st.var_cams].astype(float)
+    g_c, W, U = st.apply_mask(mask_v, *st.build(Jc, Jp, r))
+    V, g_p = st.point_terms(Jp, r)
+    out = []
+    for blocks in (False, True):
+        st.dense_blocks = blocks
+        S, b, _ = st.reduced_system(U, W, V + 1e-2 * np.eye(3), g_c, g_p, np.full((st.Nv, 6), 0.3))
+        out.append((np.triu(S), b))
+    (S0, b0), (S1, b1) = out
+    assert np.abs(S0).max() > 0
+    np.testing.assert_allclose(S1, S0, rtol=0, atol=1e-12 * np.abs(S0).max())
+    np.testing.assert_allclose(b1, b0, rtol=0, atol=1e-12 * np.abs(b0).max())
+    assert "camera-pair blocks" in st.linear_solver_name()

@@ -30,7 +30,7 @@ def test_outside_a_checkout_is_unknown_not_an_error(tmp_path):
 
 
 def test_library_does_not_import_the_cli():
-    code = ("import sys, polarref.core.provenance, polarref.compare.pipeline, polarref.ba.bench, polarref.sfm.pipeline;"
+    code = ("import sys, polarref.core.provenance, polarref.compare.pipeline, polarref.bench.ba, polarref.sfm.pipeline;"
             "polarref.core.provenance.collect(); assert 'polarref.cli' not in sys.modules, 'cli imported'")
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO_ROOT)
     assert proc.returncode == 0, proc.stderr

@@ -10,6 +10,11 @@ trial step (its cost decides acceptance) and, once a step is accepted, builds V,
 fused three-slot blocks (kernels.build_anchored) from runs of whole points of ``CHUNK_OBS``
 observations, so no (M, ...) Jacobian array exists.
 
+With the X-space elimination (xspace.py, ``xs``) the chunks feed the observer-only build
+(``xspace_jit.build_xspace``) instead, with the anchors' maps of every point computed once
+from the same per-point terms, so the three-slot forms keep the Euclidean-structured Schur
+pass at scale too.
+
 The results are bit-identical to the eager build: every per-observation value is computed by
 the same code on the same inputs (a slice of the observations), and the kernels accumulate in
 the same order (points ascending, observations ascending within a point); the residuals
@@ -46,15 +51,18 @@ def point_chunks(obs_bounds: np.ndarray, size: int) -> list[tuple[int, int]]:
     return out
 
 
-def build(st, param, R, C, pts, w, pt_free):
+def build(st, param, R, C, pts, w, pt_free, xs=None, mask_v=None):
     """(V (P, 3, 3), g_p (P, 3), (g_c (Nv, 6), W (E, 6, 3), U (Nv, 6, 6))) at (R, C, pts),
     and ``st.cross_blocks`` for the Schur kernel, as ``SchurStructure.point_terms`` and its
-    fused ``build`` give them from the whole arrays.
+    fused ``build`` give them from the whole arrays; with ``xs`` (xspace.AnchorElimination,
+    mask_v (Nv, 6) the gauge mask) the observer-only blocks of ``xs.build`` instead.
 
     w: robust weights (M, k) or None; pt_free: (P, 1) 1 = free point, or None (all free).
     """
     from polarref.ba import kernels
 
+    if xs is not None:
+        return _build_xspace(st, param, R, C, pts, w, xs, mask_v)
     V, g_p = np.zeros((st.P, 3, 3)), np.zeros((st.P, 3))
     g_c, W, U = np.zeros((st.Nv, 6)), np.zeros((st.E, 6, 3)), np.zeros((st.B, 6, 6))
     cross = getattr(st, "cross_blocks", None)
@@ -86,4 +94,30 @@ def build(st, param, R, C, pts, w, pt_free):
         h = anc.h  # per point, all P (the schur kernel forms the cross blocks with it)
     st.cross_blocks = cross
     st.cross_h = np.ascontiguousarray(h)
+    return V, g_p, (g_c, W, U)
+
+
+def _build_xspace(st, param, R, C, pts, w, xs, mask_v):
+    """:func:`build` for the X-space elimination (no fixed points: the solver keeps the
+    reference path for those, as the eager build does)."""
+    from polarref.ba import kernels, xspace_jit
+
+    V, g_p = np.zeros((st.P, 3, 3)), np.zeros((st.P, 3))
+    g_c, W, U = np.zeros((st.Nv, 6)), np.zeros((st.E, 6, 3)), np.zeros((st.Nv, 6, 6))
+    terms = param.point_terms_for_rows(R, C, pts)
+    maps = param.anchor_maps_for_rows(R, C, terms)
+    xs.start(maps)
+    bounds, c = st.obs_bounds, np.ascontiguousarray
+    for p0, p1 in point_chunks(bounds, CHUNK_OBS):
+        m0, m1 = int(bounds[p0]), int(bounds[p1])
+        r, Jp, (J_obs, _) = param.evaluate_rows(R, C, terms, m0, m1)
+        if w is not None:
+            wc = w[m0:m1]
+            r, Jp, J_obs = r * wc, Jp * wc[:, :, None], J_obs * wc[:, :, None]
+        r, Jp, op = c(r), c(Jp), st.obs_pt[m0:m1]
+        kernels.point_sums(Jp, r, op, V, g_p)
+        # whole points per chunk: V, g_p of p0:p1 are complete before their anchors' share
+        xspace_jit.build_xspace(c(J_obs), Jp, r, c(st.slot_vc[:, m0:m1]), c(st.slot_entry[:, m0:m1]),
+                                bounds[p0:p1 + 1] - m0, mask_v, xs.maps[0][p0:p1], xs.maps[1][p0:p1],
+                                V[p0:p1], g_p[p0:p1], W, g_c, U, xs.gx, xs.diag_f)
     return V, g_p, (g_c, W, U)

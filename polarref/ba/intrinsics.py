@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from polarref.ba.angular_obs import axis_chart_rows
+from polarref.ba.options import IntrinsicsResult  # noqa: F401 (re-exported: its record lives with BASummary)
 from polarref.ba.parameterization import BoundedPoints, Staged
 from polarref.ba.parameterization import make_param
 from polarref.ba.problem import BAProblem, prepare
@@ -88,22 +89,6 @@ def uv_D_params(cam: Camera, Xc: np.ndarray) -> np.ndarray:
     if cam.model in ("SIMPLE_PINHOLE", "PERSPECTIVE", "SIMPLE_RADIAL", "RADIAL"):
         J[:, :, 0] += J6[:, :, 1]  # one focal length drives fx and fy
     return J
-
-
-@dataclass
-class IntrinsicsResult:
-    """Refined intrinsics of one camera group (typed record for summaries and metrics)."""
-
-    group: int
-    model: str
-    names: tuple[str, ...]
-    initial: list[float]
-    refined: list[float]
-    refined_names: tuple[str, ...]  # the parameters that were free
-    num_images: int
-
-    def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
 
 
 def default_groups(cameras: list) -> np.ndarray:

@@ -391,3 +391,55 @@ def point_solve(rhs, Li):
     """Point steps in place: rhs (P, 3) <- V^-1 rhs per point (Li (P, 3, 3) lower)."""
     for p in range(len(rhs)):
         rhs[p, 0], rhs[p, 1], rhs[p, 2] = _tri_solve(Li, p, rhs[p, 0], rhs[p, 1], rhs[p, 2])
+
+
+@_njit
+def pair_keys(bounds, entry_cam, nv, out):
+    """The camera-pair key ``ca * nv + cb`` of every entry pair a <= b of each point, in the
+    order :func:`schur_blocks` visits them (points in entry order, a ascending, b from a);
+    bounds (G + 1,) the points' entry ranges; out (pairs,) int64."""
+    k = 0
+    for g in range(len(bounds) - 1):
+        e0, e1 = bounds[g], bounds[g + 1]
+        for a in range(e0, e1):
+            ka = entry_cam[a] * nv
+            for bb in range(a, e1):
+                out[k] = ka + entry_cam[bb]
+                k += 1
+
+
+@_njit
+def schur_blocks(W, Li, q, bounds, entry_pt, pair_blk, blocks, b, entry_cam):
+    """:func:`schur_dense` (no cross terms) into block storage: per point p with entries
+    a <= b, ``blocks[pair_blk[k]] -= Z_a Z_b^T`` (k: the pair's place in :func:`pair_keys`'
+    order) and ``b[ca] += Z_a q_p``. blocks (K, 6, 6) are the camera-pair blocks (ca <= cb)
+    of a block-sparse S; a pair's 36 products land in one contiguous 288-byte block instead of
+    six rows of a dense (6 Nv)^2 matrix."""
+    nmax = 0
+    for g in range(len(bounds) - 1):
+        nmax = max(nmax, bounds[g + 1] - bounds[g])
+    Z = np.empty((nmax, 6, 3))
+    k = 0
+    for g in range(len(bounds) - 1):
+        e0, e1 = bounds[g], bounds[g + 1]
+        p = entry_pt[e0]
+        for a in range(e0, e1):
+            za = Z[a - e0]
+            ca = entry_cam[a]
+            for i in range(6):
+                for j in range(3):  # (W Li^T)[i, j] = sum_l W[i, l] Li[j, l], Li lower
+                    s = 0.0
+                    for l in range(j + 1):
+                        s += W[a, i, l] * Li[p, j, l]
+                    za[i, j] = s
+                b[ca, i] += za[i, 0] * q[p, 0] + za[i, 1] * q[p, 1] + za[i, 2] * q[p, 2]
+        for a in range(e0, e1):
+            za = Z[a - e0]
+            for bb in range(a, e1):
+                zb = Z[bb - e0]
+                blk = blocks[pair_blk[k]]
+                k += 1
+                for i in range(6):
+                    z0, z1, z2 = za[i, 0], za[i, 1], za[i, 2]
+                    for j in range(6):
+                        blk[i, j] -= z0 * zb[j, 0] + z1 * zb[j, 1] + z2 * zb[j, 2]

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 from dataclasses import dataclass, field
-from typing import Any
+
+import numpy as np
 
 from polarref.ba.losses import LOSSES
 from polarref.ba.parameterization import PARAMS  # the one registry of form names (re-exported)
@@ -158,6 +160,22 @@ class Termination(enum.StrEnum):
 
 
 @dataclass
+class IntrinsicsResult:
+    """Refined intrinsics of one camera group (typed record for summaries and metrics)."""
+
+    group: int
+    model: str
+    names: tuple[str, ...]
+    initial: list[float]
+    refined: list[float]
+    refined_names: tuple[str, ...]  # the parameters that were free
+    num_images: int
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+@dataclass
 class BASummary:
     """Result of one bundle adjustment (the problem is updated in place)."""
 
@@ -191,12 +209,12 @@ class BASummary:
     # observations with depth <= 0 in their camera, initial/final, on the XYZ geometry (the
     # input and the written-back points), the same count for every parameterization
     behind_camera: dict[str, int] = field(default_factory=dict)
-    points_state: Any = field(default=None, repr=False)  # (P, 3) ndarray, internal landmark params
+    points_state: np.ndarray | None = field(default=None, repr=False)  # (P, 3) internal landmark params
     # parallax forms (omega kept in [0, pi - margin]): points ending at_lower (omega = 0, at
     # infinity along +d, written back FAR away) / at_upper, and accepted steps that were clipped
     point_bounds: dict[str, int] = field(default_factory=dict)
-    # self-calibration: one polarref.ba.intrinsics.IntrinsicsResult per camera group
-    intrinsics: list[Any] = field(default_factory=list)
+    # self-calibration: one record per camera group
+    intrinsics: list[IntrinsicsResult] = field(default_factory=list)
     # two-stage polar solve (theta-only, then joint): why the first stage stopped; None otherwise
     first_stage_termination: Termination | None = None
 

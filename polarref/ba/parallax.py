@@ -265,6 +265,13 @@ class Parallax:
             setattr(v, name, getattr(self, name)[m0:m1])
         return v
 
+    def anchor_maps_for_rows(self, R, C, terms):
+        """The anchors' maps (Bm (P, 3, 3), b (P, 3), xspace.py) from the per-point ``terms``
+        of :meth:`point_terms_for_rows`, as :meth:`evaluate` (kernels, factored) attaches them."""
+        from polarref.ba import xspace_jit
+        _, d, sw, _, _, _, dh_de, dv_dab = terms
+        return xspace_jit.anchor_maps(d, sw, dh_de, dv_dab, C, self.main, self.assoc)
+
     def evaluate_rows(self, R, C, terms, m0: int, m1: int):
         """:meth:`evaluate` (kernels, factored) of observations m0:m1 with the per-point
         ``terms`` of :meth:`point_terms_for_rows`: (res, res_D_point, [res_D_obs,

@@ -136,24 +136,23 @@ def prepare(problem: BAProblem, min_track: int = 2) -> BAProblem:
     p.point_ids = np.arange(P) if p.point_ids is None else np.asarray(p.point_ids)
     o = Observations.from_arrays(p.obs.image, p.obs.point, p.obs.uv)  # shapes; values are counted below
     cam, pt, uv = o.image, o.point, o.uv
-    ex = dict(p.exclusions)
     good = np.isfinite(uv).all(1)
-    ex["observations_nonfinite"] = ex.get("observations_nonfinite", 0) + int((~good).sum())
     inrange = (cam >= 0) & (cam < N) & (pt >= 0) & (pt < P)
-    ex["observations_bad_index"] = ex.get("observations_bad_index", 0) + int((good & ~inrange).sum())
     keep = good & inrange
     # Points seen fewer than min_track times are unconstrained (drop them with their observations).
     counts = np.bincount(pt[keep], minlength=P)
     short = counts < min_track
-    ex["points_short_track"] = ex.get("points_short_track", 0) + int((short & (counts > 0)).sum())
-    ex["points_unobserved"] = ex.get("points_unobserved", 0) + int((counts == 0).sum())
-    keep &= ~short[np.clip(pt, 0, P - 1)]
-    ex["observations_of_dropped_points"] = int(((counts[np.clip(pt, 0, P - 1)] < min_track)
-                                                & good & inrange).sum())
+    dropped = short[np.clip(pt, 0, P - 1)]
+    ex = _add_counts(p.exclusions, observations_nonfinite=int((~good).sum()),
+                     observations_bad_index=int((good & ~inrange).sum()),
+                     points_short_track=int((short & (counts > 0)).sum()),
+                     points_unobserved=int((counts == 0).sum()))
+    ex.update(observations_of_dropped_points=int((dropped & good & inrange).sum()))
+    keep &= ~dropped
     cam, pt, uv = cam[keep], pt[keep], uv[keep]
     if len(cam) == 0:
         raise PolarrefError("bundle adjustment: no usable observations left "
-                            f"(exclusions: {nonzero_counts(ex)})")
+                            f"(exclusions: {_nonzero(ex)})")
     # Re-index points densely, sort observations by point (the solver's reductions need it).
     pts_used = np.flatnonzero(counts >= min_track)
     remap = -np.ones(P, np.int64)
@@ -165,13 +164,11 @@ def prepare(problem: BAProblem, min_track: int = 2) -> BAProblem:
     p.pt_fixed = p.pt_fixed[pts_used]
     p.point_ids = p.point_ids[pts_used]
     cam_counts = np.bincount(p.obs_cam, minlength=N)
-    idle = (cam_counts == 0) & ~p.cam_fixed
-    ex["cameras_without_observations"] = int(idle.sum())
+    idle = int(((cam_counts == 0) & ~p.cam_fixed).sum())
     p.cam_fixed = p.cam_fixed | (cam_counts == 0)
-    p.exclusions = ex
-    if ex["cameras_without_observations"]:
-        log.warning("bundle adjustment: %d cameras without observations are held fixed",
-                    ex["cameras_without_observations"])
+    p.exclusions = {**ex, "cameras_without_observations": idle}
+    if idle:
+        log.warning("bundle adjustment: %d cameras without observations are held fixed", idle)
     p.R = np.asarray(p.R, np.float64).copy()
     p.C = np.asarray(p.C, np.float64).copy()
     if p.priors is not None:
@@ -260,6 +257,10 @@ def fix_gauge(p: BAProblem) -> None:
     p.gauge = gauge
 
 
-def nonzero_counts(d: dict[str, int]) -> dict[str, int]:
-    """The entries of a count dict that are non-zero (exclusions worth reporting)."""
-    return {k: v for k, v in d.items() if v}
+def _add_counts(counts: dict[str, int], **more: int) -> dict[str, int]:
+    """``counts`` with ``more`` added to its entries (a problem may come with counts of its own)."""
+    return {**counts, **{k: counts.get(k, 0) + v for k, v in more.items()}}
+
+
+def _nonzero(counts: dict[str, int]) -> dict[str, int]:
+    return {k: v for k, v in counts.items() if v}

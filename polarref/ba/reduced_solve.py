@@ -2,7 +2,9 @@
 definite once damped), chosen by size.
 
 * dense Cholesky (LAPACK via scipy) while the dense S fits: Nv <= ``dense_max_cameras``;
-* sparse LU (SuperLU, ``scipy.sparse.linalg.splu``) above that, on the block-sparse S;
+* sparse LU (SuperLU, ``scipy.sparse.linalg.splu``) above that, on the block-sparse S
+  (kernel path: the camera-pair 6x6 blocks of its fixed pattern, laid out as BSR once,
+  schur.py ``_build_blocks``);
 * preconditioned conjugate gradients with a 6x6 block-Jacobi preconditioner (our own, ~40
   lines) above ``pcg_min_cameras``: memory is S's nonzeros plus five vectors, with no fill-in.
   Our own rather than ``scipy.sparse.linalg.cg`` because a dense S holds only one valid

@@ -53,6 +53,9 @@ class ScaleSpec:
 # Named sizes: the bench runs scale-1e5 here; 1e6 and 1e7 are generator options (issue 35).
 SCALE_SPECS = {
     "scale-1e5": ScaleSpec(200, 100_000),
+    # the rosetta twin's final global BA (631 views, 1.22 M observations): the mapper's size
+    # where the three-slot forms run the chunked build (issue 34)
+    "scale-631": ScaleSpec(631, 1_220_000),
     "scale-1e6": ScaleSpec(1000, 1_000_000),
     "scale-1e7": ScaleSpec(5000, 10_000_000),
 }

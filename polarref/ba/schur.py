@@ -181,7 +181,13 @@ class SchurStructure:
             self.obs_bounds = np.r_[self.pt_starts, M].astype(np.int64)
         else:
             self._build_u_reducers(vc, slot_entry)
-        if not self.use_gemm and (self.sparse_S or not fast):
+        # Euclidean-structured entry-pair path: products into contiguous camera-pair blocks
+        # (scattered into the dense S once per step): 1.7x the rate of writing them into
+        # six rows of the dense S on scale-1e5 (reports/bench-ba-scale/schur-roofline.md)
+        self.dense_blocks = fast and not self.sparse_S and not self.use_gemm and not self.fused
+        if fast and (self.sparse_S or self.dense_blocks):
+            self._build_blocks()
+        elif not self.use_gemm and (self.sparse_S or not fast):
             self._build_pairs(counts)
 
     def _build_u_reducers(self, vc: np.ndarray, slot_entry: np.ndarray) -> None:
@@ -277,10 +283,37 @@ class SchurStructure:
         cut = np.unique(np.r_[np.maximum(cut, 0), len(self.seg_starts)])
         self.seg_chunks = list(zip(cut[:-1].tolist(), cut[1:].tolist()))
 
+    def _build_blocks(self) -> None:
+        """Kernel path, sparse S: its block pattern (the camera pairs ca <= cb of the entry
+        pairs, of U's blocks and the diagonal), each entry pair's block in the order
+        ``kernels.schur_blocks`` visits them, and the permutation that lays the blocks and
+        their transposes out as the full symmetric BSR matrix (rows sorted once, here)."""
+        from polarref.ba import kernels
+        nv = max(self.Nv, 1)
+        keys = np.empty(self.num_pairs, np.int64)
+        if self.E:
+            kernels.pair_keys(self.entry_bounds, self.entry_cam, nv, keys)
+        self.u_up = np.flatnonzero(self.u_ca <= self.u_cb)
+        u_keys = self.u_ca[self.u_up] * nv + self.u_cb[self.u_up]
+        allk, inv = np.unique(np.concatenate([keys, u_keys, np.arange(self.Nv) * (nv + 1)]),
+                              return_inverse=True)
+        n, nu = len(keys), len(u_keys)
+        self.pair_blk = np.ascontiguousarray(inv[:n], np.int64)
+        self.u_blk, self.diag_blk = inv[n:n + nu], inv[n + nu:]
+        self.K = len(allk)
+        self.blk_ca, self.blk_cb = ca, cb = allk // nv, allk % nv
+        self.blk_off = np.flatnonzero(ca != cb)
+        rows, cols = np.r_[ca, cb[self.blk_off]], np.r_[cb, ca[self.blk_off]]
+        self.bsr_order = np.lexsort((cols, rows))
+        self.bsr_indices = cols[self.bsr_order].astype(np.int32)
+        self.bsr_indptr = np.r_[0, np.cumsum(np.bincount(rows, minlength=self.Nv))].astype(np.int32)
+
     # ------------------------------------------------------------------------------------------
     def linear_solver_name(self) -> str:
         how = ("dense syrk" if self.use_gemm else
-               "entry-pair kernel" if self.fast and not self.sparse_S else "camera-pair GEMMs")
+               "entry-pair kernel" + (", block-sparse S" if self.sparse_S else ", camera-pair blocks"
+                                      if self.dense_blocks else "") if self.fast
+               else "camera-pair GEMMs")
         kern = "; numba kernels" if self.fast else "; numpy"
         solver = ("PCG block-Jacobi" + (f" ({sum(self.pcg_iterations)} CG iterations in "
                                         f"{len(self.pcg_iterations)} solves)"
@@ -422,6 +455,12 @@ class SchurStructure:
         q = np.matmul(Li, g_p[:, :, None])[:, :, 0]  # L^-1 g_p
         b = -g_c.copy()
         fused = self.fused and cross
+        if self.fast and self.sparse_S:
+            return self._bsr(self._blocks(U_blocks, W, Li, q, b, diag_c)), b.reshape(-1), Li
+        if self.dense_blocks:  # the upper block triangle (ca <= cb), what the Cholesky reads
+            S = np.zeros((Nv, 6, Nv, 6))
+            S[self.blk_ca, :, self.blk_cb, :] = self._blocks(U_blocks, W, Li, q, b, diag_c)
+            return S.reshape(6 * Nv, 6 * Nv), b.reshape(-1), Li
         if self.fast and not self.sparse_S and not self.use_gemm:
             from polarref.ba import kernels
             S = np.zeros((Nv, 6, Nv, 6))
@@ -465,6 +504,25 @@ class SchurStructure:
             S4[self.seg_cb[off], :, self.seg_ca[off], :] -= blocks[off].transpose(0, 2, 1)
         S[np.diag_indices_from(S)] += diag_c.reshape(-1)
         return S, b.reshape(-1), Li
+
+    def _blocks(self, U_blocks, W, Li, q, b, diag_c) -> np.ndarray:
+        """(K, 6, 6): U, the entry-pair Schur products and the damping in the blocks of the
+        pattern (:meth:`_build_blocks`); b (Nv, 6) gets the points' share in place."""
+        from polarref.ba import kernels
+        blocks = np.zeros((self.K, 6, 6))
+        blocks[self.u_blk] = U_blocks[self.u_up]
+        if self.E:
+            kernels.schur_blocks(_c(W), Li, q, self.entry_bounds, self.entry_pt, self.pair_blk,
+                                 blocks, b, self.entry_cam)
+        i6 = np.arange(6)
+        blocks[self.diag_blk[:, None], i6, i6] += diag_c
+        return blocks
+
+    def _bsr(self, blocks: np.ndarray):
+        """The symmetric BSR matrix of the upper blocks (their transposes below)."""
+        data = np.concatenate([blocks, blocks[self.blk_off].transpose(0, 2, 1)])[self.bsr_order]
+        return scipy.sparse.bsr_matrix((data, self.bsr_indices, self.bsr_indptr),
+                                       shape=(6 * self.Nv, 6 * self.Nv))
 
     def _cross(self):
         """The fused build's compact cross terms (X [N | t], h, Xma) as schur_dense takes them."""
@@ -518,7 +576,7 @@ class SchurStructure:
             return res.x if res.x is not None and np.isfinite(res.x).all() else None
         if self.sparse_S:
             try:
-                x = scipy.sparse.linalg.splu(S).solve(b)
+                x = scipy.sparse.linalg.splu(S.tocsc()).solve(b)
             except RuntimeError:
                 return None
             return x if np.isfinite(x).all() else None

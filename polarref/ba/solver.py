@@ -51,7 +51,7 @@ from polarref.ba.options import (DEFAULT_DAMPING, DEFAULT_LM_GAUGE, BAOptions, B
 from polarref.ba.parameterization import (AnchoredJacobians, BoundedPoints, Parameterization,
                                           Staged, make_param)
 from polarref.ba.priors import PriorTerms
-from polarref.ba.problem import BAProblem, nonzero_counts, prepare
+from polarref.ba.problem import BAProblem, prepare
 from polarref.ba import chunked
 from polarref.ba.kernels import use_kernels
 from polarref.ba.reduced_solve import ReducedSolver, choose
@@ -191,10 +191,19 @@ def _stages(problem: BAProblem, options: BAOptions, param, t0: float) -> BASumma
     return _lm(problem, options, param, t0)
 
 
+class _StageClock:
+    """Seconds per solver stage over the whole solve (``BASummary.time_in``)."""
+
+    def __init__(self) -> None:
+        self.seconds = dict.fromkeys(("evaluate", "normal_equations", "schur", "solve", "structure", "update"), 0.0)
+
+    def add(self, stage: str, tic: float) -> None:
+        self.seconds[stage] += time.perf_counter() - tic
+
+
 def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         pts0: np.ndarray | None = None) -> BASummary:
-    times = {"evaluate": 0.0, "normal_equations": 0.0, "schur": 0.0, "solve": 0.0,
-             "structure": 0.0, "update": 0.0}
+    times = _StageClock()
     tic = time.perf_counter()
     cam_var = problem.cam_mask.any(1)
     # anchors' Jacobians factored (anchor_terms.py): numpy path, and the kernels' fused
@@ -218,7 +227,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         bcols = np.flatnonzero(np.isfinite(bounds[0]) | np.isfinite(bounds[1]))
         lo_b, hi_b = bounds[0][bcols], bounds[1][bcols]
     clipped_steps = 0
-    times["structure"] = time.perf_counter() - tic
+    times.add("structure", tic)
     R, C = problem.R.copy(), problem.C.copy()
     pts = param.init_points() if pts0 is None else pts0.copy()
     # pose priors and control points: their blocks enter at the marked "priors" places below
@@ -237,13 +246,13 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     # three-slot forms: points eliminated in the variable y = dq + B dc (xspace.py), where
     # the maps B carry the anchors' Jacobians; else (per build) the reference cross terms
     xs = None
-    if (options.anchor_schur == "xspace" and anchored and st.fused and not lazy
-            and not any_pt_fixed):
+    if (options.anchor_schur == "xspace" and anchored and st.fused and not any_pt_fixed
+            and (not lazy or hasattr(param, "anchor_maps_for_rows"))):
         xs = AnchorElimination(st, *param.anchor_cams)
     builds_x = builds_ref = 0
     use_x = False
     r, Jp, Jc = param.evaluate(R, C, pts, jac=not lazy, factored=factored)
-    times["evaluate"] += time.perf_counter() - tic
+    times.add("evaluate", tic)
     if not np.isfinite(r).all():
         from polarref.core.errors import PolarrefError
         raise PolarrefError(f"bundle adjustment ({options.param}): non-finite residuals at the "
@@ -282,8 +291,9 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         if need_build:
             tic = time.perf_counter()
             if lazy:
+                use_x = xs is not None
                 V, g_p, blocks = chunked.build(st, param, R, C, pts, w,
-                                               pt_free if any_pt_fixed else None)
+                                               pt_free if any_pt_fixed else None, xs, mask_v)
             else:
                 if w is not None:
                     r_w, Jp_w = r * w, Jp * w[:, :, None]
@@ -309,6 +319,18 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
                     V[ai, ac, :] *= 0.0
                     V[ai, :, ac] *= 0.0
                     g_p[ai, ac] = 0.0
+            if lazy and use_x and not xs.carries_maps(active):
+                # an omega held at its bound with B != 0: this build by cross terms (xspace.py)
+                use_x = False
+                V, g_p, blocks = chunked.build(st, param, R, C, pts, w, None)
+                if active is not None:
+                    ai, ac = np.nonzero(active)
+                    V[ai, ac, :] *= 0.0
+                    V[ai, :, ac] *= 0.0
+                    g_p[ai, ac] = 0.0
+            if lazy:
+                builds_x += use_x
+                builds_ref += xs is not None and not use_x
             # gauge-fixed columns and fixed cameras are masked on the assembled blocks
             if not lazy:
                 use_x = xs is not None and xs.carries(Jc_w[1], active)
@@ -348,7 +370,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             if ps is not None:  # priors: control point damping and gradient
                 ps.damping_diag(_MIN_DIAG, _MAX_DIAG, identity_damping)
                 gmax = max(gmax, float(np.abs(ps.g_x).max(initial=0.0)))
-            times["normal_equations"] += time.perf_counter() - tic
+            times.add("normal_equations", tic)
             need_build = False
             if gmax <= options.gradient_tolerance:
                 termination = "gradient_tolerance"
@@ -372,14 +394,14 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         if system is not None and ps is not None:  # priors: control points eliminated
             S_g = ps.schur_into(system[0], system[1], mu, st.var_index, mask_v)
             system = None if S_g is None else (S_g, system[1], system[2])
-        times["schur"] += time.perf_counter() - tic
+        times.add("schur", tic)
         tic = time.perf_counter()
         x = None
         if system is not None:
             S, b, Li = system
             x = st.solve(S, b)
             system = S = b = None  # factored and solved: not held through the trial evaluation
-        times["solve"] += time.perf_counter() - tic
+        times.add("solve", tic)
         if x is None:
             trace.append(IterationRecord(it, cost, False, rec_radius(), 0.0, gmax,
                                          time.perf_counter() - t0, mu))
@@ -431,11 +453,11 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         pts_new = param.retract_points(pts, dp)
         if delta is not None:  # exactly on the bound, not a rounding error outside it
             pts_new = np.clip(pts_new, bounds[0], bounds[1])
-        times["update"] += time.perf_counter() - tic
+        times.add("update", tic)
         tic = time.perf_counter()
         r_new, Jp_new, Jc_new = param.evaluate(R_new, C_new, pts_new, jac=not lazy,
                                                factored=factored)
-        times["evaluate"] += time.perf_counter() - tic
+        times.add("evaluate", tic)
         new_cost, w_new = _robust(r_new, param.groups, loss, scale)
         Xg_new = None
         if prior is not None:
@@ -490,9 +512,9 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
         termination=termination, num_cameras=problem.num_cameras,
         num_points=problem.num_points, num_observations=problem.num_observations,
         num_variable_cameras=st.Nv, gauge=problem.gauge,
-        exclusions=nonzero_counts(problem.exclusions),
+        exclusions={k: v for k, v in problem.exclusions.items() if v},
         linear_solver=st.linear_solver_name() + xspace_note(builds_x, builds_ref),
-        trace=trace, time_in=times, setup_s=setup_s,
+        trace=trace, time_in=times.seconds, setup_s=setup_s,
         behind_camera={"initial": behind0, "final": behind_camera_xyz(
             problem.R, problem.C, problem.X, problem.obs_cam, problem.obs_pt)})
     summary.points_state = pts

@@ -41,7 +41,8 @@ synth-200-sparse).
 Where ``B`` does not carry the anchors' Jacobians, the solver keeps the reference path
 (anchor_terms / the fused kernels' cross terms) for that build: fixed points (their Jp is
 zeroed), a box-constrained omega held at a bound with ``B != 0`` (its Jp column is zeroed;
-at w = 0, B = 0 and the identity holds), and the chunked build. Kernel path only, dense S
+at w = 0, B = 0 and the identity holds; the chunked build, which learns that only after its
+X-space build, then builds again by cross terms). Kernel path only, dense S
 (``SchurStructure.fused``); ``BAOptions.anchor_schur = "cross"`` keeps the reference always.
 """
 
@@ -112,13 +113,27 @@ class AnchorElimination:
         st = self.st
         c = np.ascontiguousarray
         g, W, U = np.zeros((st.Nv, 6)), np.zeros((st.E, 6, 3)), np.zeros((st.Nv, 6, 6))
-        self.gx, self.diag_f = np.zeros((st.Nv, 6)), np.zeros((st.Nv, 6))
-        Bm, b = anchors.maps
-        self.maps = (Bm.copy(), b.copy())  # masked in place
+        self.start(anchors.maps)
         xspace_jit.build_xspace(c(J_obs), c(Jp), c(r), st.slot_vc, st.slot_entry, st.obs_bounds,
                                 c(mask_v), *self.maps, c(V), c(g_p), W, g, U, self.gx,
                                 self.diag_f)
         return g, W, U
+
+    def start(self, maps) -> None:
+        """A new build: the anchors' maps (Bm (P, 3, 3), b (P, 3)), copied (the build masks
+        their held columns in place), and zeroed sums of the anchors' share."""
+        Bm, b = maps
+        self.maps = (np.array(Bm, order="C"), np.array(b, order="C"))
+        self.gx, self.diag_f = np.zeros((self.st.Nv, 6)), np.zeros((self.st.Nv, 6))
+
+    def carries_maps(self, active) -> bool:
+        """:meth:`carries` for a build that made its own maps (chunked.py): checked on the
+        masked maps, whose zeroed columns are held cameras' (their steps are zero)."""
+        if active is None:
+            return True
+        ai = np.flatnonzero(active.any(1))
+        Bm, b = self.maps
+        return not (Bm[ai].any() or b[ai].any())
 
     def forms_terms(self, g_E) -> tuple[np.ndarray, np.ndarray]:
         """(g_f (Nv, 6), diag(U_f) - diag(U_E) (Nv, 6)) from the masked g_E of the build."""

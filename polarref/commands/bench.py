@@ -57,7 +57,7 @@ def run(args) -> int:
     if args.what == "sfm":
         return _run_sfm(args)
     from polarref.ba import BAOptions
-    from polarref.ba.bench import FULL, QUICK, run_bench
+    from polarref.bench.ba import FULL, QUICK, run_bench
 
     out = Path(args.out)
     if (out / "bench.json").exists() and not (args.overwrite or args.merge):
@@ -69,18 +69,18 @@ def run(args) -> int:
     problems = args.problem or (QUICK if args.quick else FULL)
     refuse_inside_inputs(out, [p for p in problems if Path(p).exists()])
     if args.solvers:
-        from polarref.ba.bench import solver_names
+        from polarref.bench.ba import solver_names
         unknown = sorted(set(args.solvers) - set(solver_names()))
         if unknown or "euclidean" not in args.solvers:
             raise UsageError(f"--solvers: {'unknown ' + ', '.join(unknown) if unknown else 'euclidean is needed'}"
                              f" (known: {', '.join(solver_names())})")
-    results = run_bench(problems, out, BAOptions(loss=args.loss,
+    doc = run_bench(problems, out, BAOptions(loss=args.loss,
                                                  max_iterations=args.max_iterations),
                         args.scipy_max_obs, repeat=args.repeat, merge=args.merge,
                         bisect_max_obs=args.bisect_max_obs, ceres_max_s=float(args.ceres_max_s),
                         cold=not args.no_cold, only=tuple(args.solvers or ()))
     print((out / "bench.md").read_text())
-    return 0 if results else 1
+    return 0 if doc.problems else 1
 
 
 def _run_sfm(args) -> int:

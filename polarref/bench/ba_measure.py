@@ -21,6 +21,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from polarref.bench.ba_records import ColdProcess
+
 
 def _status_kib(field: str) -> int:
     for line in Path("/proc/self/status").read_text().splitlines():
@@ -64,7 +66,7 @@ def forked(fn) -> tuple[object, float]:
     return value, peak
 
 
-def cold_process(problem: str, param: str = "euclidean") -> dict:
+def cold_process(problem: str, param: str = "euclidean") -> ColdProcess:
     """Time ``polarref ba PROBLEM`` in a fresh interpreter: process wall, the solve's wall and
     its first iteration's latency (from the solve's start), as that process measured them."""
     with tempfile.TemporaryDirectory(prefix="polarref-cold-") as tmp:
@@ -75,14 +77,15 @@ def cold_process(problem: str, param: str = "euclidean") -> dict:
         proc = subprocess.run(cmd, capture_output=True, text=True, env=os.environ.copy())
         wall = time.perf_counter() - t
         if proc.returncode != 0:
-            return {"error": (proc.stderr.strip().splitlines() or ["no message"])[-1],
-                    "command": " ".join(cmd[1:])}
-        doc = json.loads(out.read_text())
+            return ColdProcess(" ".join(cmd[1:]), error=(proc.stderr.strip().splitlines() or ["no message"])[-1])
+        return _cold_from_json(json.loads(out.read_text()), "python " + " ".join(cmd[1:-2]), wall)
+
+
+def _cold_from_json(doc, command: str, wall: float) -> ColdProcess:
+    """The cold-process record from ``polarref ba``'s output JSON (its summary's fields)."""
     trace = doc.get("trace") or []
-    return {"command": "python " + " ".join(cmd[1:-2]), "process_wall_s": wall,
-            "solve_wall_s": doc["wall_s"], "setup_s": doc.get("setup_s"),
-            "first_iteration_s": trace[0]["wall_s"] if trace else None,
-            "iterations": doc["iterations"]}
+    return ColdProcess(command, process_wall_s=wall, solve_wall_s=doc["wall_s"], setup_s=doc.get("setup_s"),
+                       first_iteration_s=trace[0]["wall_s"] if trace else None, iterations=doc["iterations"])
 
 
 def kernel_load_s() -> float | None:
