@@ -36,13 +36,13 @@ def compute_matches(image_dir: str | Path, config: SfMConfig = SfMConfig(), came
 
 def write_colmap_database(db_path: str | Path, matches: Matches, cameras: list,
                           camera_of_image: np.ndarray, descriptors: bool = False,
-                          overwrite: bool = False) -> dict[str, int]:
+                          overwrite: bool = False) -> tuple[int, ...]:
     """Write cameras (with ``has_prior_focal_length``), images, keypoints (COLMAP convention),
     putative matches and the verified two-view geometries (CALIBRATED, with E and the relative
     pose) into a new database, via :func:`polarref.peers.colmap_sfm.import_features`.
 
     Returns:
-        {image name: COLMAP image_id}.
+        the COLMAP image_id of each image, in ``matches.names`` order.
     Raises:
         PolarrefError: the database file already exists and ``overwrite`` is False.
     """
@@ -55,4 +55,4 @@ def write_colmap_database(db_path: str | Path, matches: Matches, cameras: list,
                              matches.putative, camera_of_image=camera_of_image, verified=matches.geometries,
                              descriptors=[f.descriptors for f in matches.features] if descriptors else None,
                              overwrite=overwrite)
-    return ids
+    return tuple(int(ids[n]) for n in matches.names)
