@@ -97,7 +97,7 @@ def test_repeats_are_interleaved_and_summarised_with_their_spread(tmp_path, fake
     assert [r for _, _, r in fake_spawn] == [1] * 8 + [2] * 8 + [3] * 8
     assert fake_spawn[:4] == [("ours-1w", 28, 1), ("pycolmap-1t", 28, 1), ("ours-2w", 28, 1), ("pycolmap-2t", 28, 1)]
     row = next(r for r in bench.rows if r.label == "ours-2w" and r.views == 168)
-    t1 = 6 * 0.01 * 168 ** 1.1 / 2  # repeat 1; repeats 2, 3 take 1.5x and 2x
+    t1 = 5 * 0.01 * 168 ** 1.1 / 2  # repeat 1; repeats 2, 3 take 1.5x and 2x
     assert (row.total_s.low, row.total_s.median, row.total_s.high, row.total_s.n) == pytest.approx(
         (t1, 1.5 * t1, 2.0 * t1, 3))
     assert row.load_average_1min.median == pytest.approx(3.0)
@@ -109,8 +109,8 @@ def test_repeats_are_interleaved_and_summarised_with_their_spread(tmp_path, fake
 def test_summary_checks_and_outputs(tmp_path, fake_spawn):
     bench = B.run_bench([84, 168, 336], tmp_path, B.BenchSfMSettings())
     c = bench.checks
-    # fake times: ours 6 stages at 0.01 n^1.1, pycolmap 3 at 0.01 n^1.2, both halved on 2 cores
-    expect = 6 * 168 ** 1.1 / (3 * 168 ** 1.2)
+    # fake times: ours 5 stages at 0.01 n^1.1, pycolmap 3 at 0.01 n^1.2, both halved on 2 cores
+    expect = 5 * 168 ** 1.1 / (3 * 168 ** 1.2)
     assert c.time_ratio_168 == pytest.approx(expect, rel=1e-12)
     assert c.time_ratio_168_1core == pytest.approx(expect, rel=1e-12)
     assert c.time_ratio_168_ok == (expect <= 1.0)
@@ -179,7 +179,6 @@ def test_real_cells_on_small_comet(tmp_path):
     # ours on 2 workers: the very same model as in process (per-pair seeds)
     assert by["ours-2w"].tie_points == by["ours-1w"].tie_points
     assert by["ours-2w"].rotation_error_deg_mean == pytest.approx(by["ours-1w"].rotation_error_deg_mean, abs=1e-12)
-    assert by["ours-2w"].stages_s["executor"] > 0.1 > by["ours-1w"].stages_s["executor"]
     assert by["pycolmap-2t"].method_settings.ignore_two_view_tracks is True
     assert by["ours-1w"].method_settings.ignore_two_view_tracks is False
 

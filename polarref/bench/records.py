@@ -53,7 +53,7 @@ class MethodSettings:
     """How one method ran in one cell: what makes the comparison level, then every option."""
 
     method: str                   # ours | pycolmap
-    parallel: int                 # ours: worker processes (1 = in process); pycolmap: num_threads
+    parallel: int                 # ours: front-end worker threads (SfMConfig.threads); pycolmap: num_threads
     threads_per_process: int      # BLAS / OpenMP / OpenCV threads of the cell's main process
     max_num_features: int         # SIFT keypoints kept per image
     max_image_size: int           # SIFT detection side cap (0: full resolution)
@@ -100,7 +100,7 @@ class SfMCell:
 
 
 def variant_label(method: str, parallel: int) -> str:
-    """``ours-2w`` (2 worker processes), ``pycolmap-2t`` (2 threads)."""
+    """``ours-2w`` (2 front-end worker threads), ``pycolmap-2t`` (2 threads)."""
     return f"{method}-{parallel}{'w' if method == 'ours' else 't'}"
 
 

@@ -3,8 +3,9 @@
 Level by construction (issue 34): the same images, the fixed GT intrinsics, the same image pairs
 (our pairing, imported by pycolmap as its pair list; the SHA-256 of the list is in every cell)
 and the same SIFT budget (``--max-features``, default 4096) for both. Each method runs in columns
-of 1 and 2 cores: ours with 1 (in process) and 2 worker processes (a Dask LocalCluster, whose start
-is a counted stage), pycolmap with 1 and 2 threads. Tie points are counted by one rule for both
+of 1 and 2 cores: ours with its front end (features, matching, verification) on 1 and 2 worker
+threads (:mod:`polarref.sfm.frontend`, the pipeline's default way to use every core; the mapper's BLAS
+on as many threads), pycolmap with 1 and 2 threads. Tie points are counted by one rule for both
 from the finished models: 3D points seen by >= 2 registered images, and a second column >= 3
 (pycolmap's mapper drops two-view tracks by default, ours keeps them: both counts show it).
 
@@ -50,7 +51,7 @@ from polarref.sfm.stages import StageClock, StageCost
 log = logging.getLogger(__name__)
 
 METHODS = ("ours", "pycolmap")
-PARALLEL = (1, 2)   # ours: worker processes; pycolmap: threads (the four columns of issue 34)
+PARALLEL = (1, 2)   # ours: front-end worker threads; pycolmap: threads (the four columns of issue 34)
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
@@ -135,34 +136,28 @@ def _scene(root: Path):
     return names, loaded.polarref_camera(), read_model(loaded.gt_dir)
 
 
-def _ours_config(settings: BenchSfMSettings):
+def _ours_config(settings: BenchSfMSettings, parallel: int = 1):
     from polarref.sfm.pipeline import PRESETS
 
     base = PRESETS["default"]
     return dataclasses.replace(
-        base, use_cache=False,
+        base, use_cache=False, threads=parallel,
         features=dataclasses.replace(base.features, max_num_features=settings.max_num_features),
         matching=dataclasses.replace(base.matching, pairing=settings.pairing, sequential_overlap=settings.overlap))
 
 
 def _run_ours(root: Path, settings: BenchSfMSettings, parallel: int) -> _MethodOutput:
-    from polarref.core import execution
+    """Our pipeline in this process, its front end on ``parallel`` threads (polarref.sfm.frontend)."""
     from polarref.sfm.pipeline import run_sfm
 
     names, camera, gt = _scene(root)
-    config = _ours_config(settings)
-    clock = StageClock()
-    # 1 worker: in this process (no Dask); more: a LocalCluster whose start is a counted stage
-    clock.start("executor")
-    with execution.using(workers=parallel if parallel > 1 else None):  # starts the cluster
-        clock.stop()
-        res = run_sfm(root / "images", None, config, camera=camera, gt=gt)
+    config = _ours_config(settings, parallel)
+    res = run_sfm(root / "images", None, config, camera=camera, gt=gt)
     pairs = pairs_for(len(names), settings)
     ms = MethodSettings("ours", parallel, parallel, config.features.max_num_features, config.features.max_image_size,
                         False, f"{settings.pairing}, overlap {settings.overlap}",
                         flatten_settings(dataclasses.asdict(config)))
-    return _MethodOutput((*clock.stages, *res.stages), res.reconstruction, gt, len(names), len(pairs),
-                         _pairs_digest(names, pairs), ms)
+    return _MethodOutput(res.stages, res.reconstruction, gt, len(names), len(pairs), _pairs_digest(names, pairs), ms)
 
 
 def _run_pycolmap(root: Path, settings: BenchSfMSettings, parallel: int, work: Path) -> _MethodOutput:

@@ -19,9 +19,8 @@ from polarref.core.atomic import atomic_open, atomic_write
 from polarref.core.provenance import collect_record
 from polarref.core.status import RunStatus
 
-# the stages each method's wall time is split into (bench.json and the tables); "executor" is the
-# start of ours' worker processes (0 in process)
-STAGES = {"ours": ("executor", "features", "matching", "verification", "tracks", "mapping"),
+# the stages each method's wall time is split into (bench.json and the tables)
+STAGES = {"ours": ("features", "matching", "verification", "tracks", "mapping"),
           "pycolmap": ("features", "matching", "mapping")}
 
 
@@ -189,8 +188,8 @@ def markdown(bench: SfMBench) -> str:
     env, st = bench.environment, bench.settings
     lines = ["# `polarref bench sfm`", "",
              f"Scene {st.scene} ({st.preset} preset), pairs: {st.pairing} overlap {st.overlap} (pycolmap imports "
-             f"our pair list), SIFT budget {st.max_num_features} per image for both; ours on 1 (in process) and 2 "
-             "worker processes (`-1w`, `-2w`), pycolmap on 1 and 2 threads (`-1t`, `-2t`); each cell in its own "
+             f"our pair list), SIFT budget {st.max_num_features} per image for both; ours with 1 and 2 "
+             "front-end worker threads (`-1w`, `-2w`), pycolmap on 1 and 2 threads (`-1t`, `-2t`); each cell in its own "
              f"process. Commit {env.git_commit[:10]}{' (dirty)' if env.git_dirty else ''}, "
              f"{env.cpu_count} CPUs ({env.cpu_model}).", "",
              "Times are medians over the repeats with [min-max]; the machine is shared, so wall times and "

@@ -50,7 +50,7 @@ def add_arguments(parser) -> None:
     sfm.add_argument("--seed", type=nonneg_int, default=0)
     sfm.add_argument("--cell-timeout", type=positive_int, default=None, help="seconds per (method, views) cell")
     sfm.add_argument("--parallel", type=int_range(1, 64), nargs="+", default=[1, 2],
-                     help="core counts per method: ours' worker processes, pycolmap's threads (default: 1 2)")
+                     help="core counts per method: ours' front-end worker threads, pycolmap's threads (default: 1 2)")
     sfm.add_argument("--max-features", type=positive_int, default=4096,
                      help="SIFT keypoints per image, the same budget for both methods")
     parser.add_argument("--out", required=True, help="output folder (bench.json, bench.md; sfm: also bench.png, "

@@ -28,6 +28,7 @@ from polarref.sfm import features as F
 from polarref.sfm.cache import cache_dir_for, cache_valid, code_digest, hash_parts, load_matches, save_matches, seal
 from polarref.sfm.config import PRESETS, SfMConfig, with_ba  # noqa: F401 (re-exported)
 from polarref.sfm import feature_cache as FC
+from polarref.sfm import frontend as FE
 from polarref.sfm import rays as R_
 from polarref.sfm.bundle import to_reconstruction
 from polarref.sfm.mapper import run_mapper
@@ -201,11 +202,14 @@ def match_and_verify(feats: list[F.Features], cameras: list, camera_of_image: np
         pairs = select_pairs(len(feats), config.matching, centers, names=[f.name for f in feats])
         focal = float(np.mean([R_.mean_focal(c) for c in cameras]))
         executor = execution.current()
-        if executor.in_process:
+        threads = FE.thread_count(config.threads)
+        if executor.in_process and threads > 1:
+            putative, geoms = _match_in_threads(feats, pairs, cameras, camera_of_image, focal, config, threads, clock)
+        elif executor.in_process:
             putative = match_pairs([f.descriptors for f in feats], pairs, config.matching)
             clock.stop()
             clock.start("verification")
-            xy = [R_.normalized(R_.bearings(cameras[camera_of_image[i]], f.keypoints)) for i, f in enumerate(feats)]
+            xy = _normalized(feats, cameras, camera_of_image)
             geoms = verify_pairs(xy, putative, focal, config.verification)
             clock.stop()
         else:
@@ -218,8 +222,28 @@ def match_and_verify(feats: list[F.Features], cameras: list, camera_of_image: np
     return Matches([f.name for f in feats], feats, putative, geoms)
 
 
+def _normalized(feats: list[F.Features], cameras: list, camera_of_image: np.ndarray) -> list[np.ndarray]:
+    return [R_.normalized(R_.bearings(cameras[camera_of_image[i]], f.keypoints)) for i, f in enumerate(feats)]
+
+
+def _match_in_threads(feats: list[F.Features], pairs: list[tuple[int, int]], cameras: list,
+                      camera_of_image: np.ndarray, focal: float, config: SfMConfig, threads: int, clock: StageClock):
+    """Matching + verification of chunks of pairs on ``threads`` threads, merged in pair order."""
+    data = FE.FrontEndInput([f.descriptors for f in feats], _normalized(feats, cameras, camera_of_image), focal,
+                            config.matching, config.verification)
+    done = FE.match_and_verify_threaded(data, pairs, threads)
+    putative = {p: m for d in done for p, m in d.putative.items()}
+    geoms = {p: g for d in done for p, g in d.geometries.items()}
+    # both steps ran inside the same tasks: split the stage by their CPU shares
+    clock.stop()
+    m_s, v_s = sum(d.matching_s for d in done), sum(d.verification_s for d in done)
+    clock.split("matching", ("matching", "verification"), m_s / (m_s + v_s) if m_s + v_s > 0 else 1.0)
+    return putative, geoms
+
+
 def _extract_all(paths: list[Path], config: SfMConfig, key: str) -> tuple[list[F.Features], list[SkippedImage]]:
-    """One task per image; on a cluster each writes its features to a file in the cache folder."""
+    """One task per image: in this process on the front end's threads, or on a cluster where each
+    task writes its features to a file in the cache folder."""
     from polarref.sfm.tasks import ExtractTask, extract_image
 
     executor = execution.current()
@@ -227,7 +251,9 @@ def _extract_all(paths: list[Path], config: SfMConfig, key: str) -> tuple[list[F
     tasks = [ExtractTask(str(p), config.features, None if parts is None else str(parts / f"features-{key}-{os.getpid()}-{i:05d}.npz"))
              for i, p in enumerate(paths)]
     feats, skipped = [], []
-    for done in executor.map(extract_image, tasks, desc="features"):
+    run = (executor.map(extract_image, tasks, desc="features") if not executor.in_process
+           else FE.thread_map(extract_image, tasks, FE.thread_count(config.threads), "features"))
+    for done in run:
         if done.skipped:  # warned once, by the caller, with the cached case
             skipped.append(SkippedImage(done.name, done.skipped))
         elif done.features is not None:
