@@ -182,6 +182,15 @@ def extract_and_match_sift(image_dir: Path, camera, db_path: Path, opts: ColmapS
     return SiftTimes(t1 - t0, time.perf_counter() - t1)
 
 
+@dataclass(frozen=True)
+class ImportedFeatures:
+    """What :func:`import_features` wrote: image ids in input order, seconds per step."""
+
+    image_ids: tuple[int, ...]
+    import_s: float
+    verification_s: float | None = None   # pycolmap's own verification (only without ``verified``)
+
+
 def _match_array(m, i: int, j: int) -> tuple[int, int, np.ndarray]:
     m = np.asarray(m).reshape(-1, 2)
     if m.size and m.min() < 0:
@@ -194,7 +203,7 @@ def _match_array(m, i: int, j: int) -> tuple[int, int, np.ndarray]:
 def import_features(db_path: Path, cameras, image_names: Sequence[str], keypoints: Sequence[np.ndarray],
                     matches: Mapping[Pair, np.ndarray], *, camera_of_image: Sequence[int] | None = None,
                     verified: Mapping[Pair, object] | None = None, descriptors: Sequence[np.ndarray] | None = None,
-                    overwrite: bool = False) -> tuple[dict[str, int], dict[str, float]]:
+                    overwrite: bool = False) -> ImportedFeatures:
     """Write our features into a new pycolmap database.
 
     Image ``i`` is written in list order (COLMAP assigns the ids); every camera gets
@@ -216,7 +225,7 @@ def import_features(db_path: Path, cameras, image_names: Sequence[str], keypoint
         overwrite: replace an existing ``db_path`` (otherwise PolarrefError).
 
     Returns:
-        ({image name: COLMAP image_id}, {"import": s[, "verification": s]}).
+        the COLMAP image ids (in ``image_names`` order) and the seconds of each step.
     """
     pycolmap = _pycolmap()
     cams = list(cameras) if isinstance(cameras, (list, tuple)) else [cameras]
@@ -258,14 +267,14 @@ def import_features(db_path: Path, cameras, image_names: Sequence[str], keypoint
     finally:
         db.close()
     t1 = time.perf_counter()
-    timings = {"import": t1 - t0}
+    verification_s = None
     if verified is None:
         pairs_txt = db_path.with_suffix(".pairs.txt")
         pairs = sorted({(min(i, j), max(i, j)) for i, j in matches})
         pairs_txt.write_text("".join(f"{image_names[i]} {image_names[j]}\n" for i, j in pairs))
         pycolmap.verify_matches(str(db_path), str(pairs_txt), pycolmap.TwoViewGeometryOptions())
-        timings["verification"] = time.perf_counter() - t1
-    return dict(zip(image_names, ids)), timings
+        verification_s = time.perf_counter() - t1
+    return ImportedFeatures(tuple(int(i) for i in ids), t1 - t0, verification_s)
 
 
 def copy_database(src: Path, dst: Path) -> Path:

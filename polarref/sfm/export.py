@@ -51,8 +51,8 @@ def write_colmap_database(db_path: str | Path, matches: Matches, cameras: list,
     if descriptors and any(f.descriptors is None for f in matches.features):
         raise PolarrefError("the descriptors of these matches were not loaded: call "
                             "polarref.sfm.pipeline.ensure_descriptors first")
-    ids, _ = import_features(Path(db_path), list(cameras), matches.names, [f.keypoints for f in matches.features],
-                             matches.putative, camera_of_image=camera_of_image, verified=matches.geometries,
-                             descriptors=[f.descriptors for f in matches.features] if descriptors else None,
-                             overwrite=overwrite)
-    return tuple(int(ids[n]) for n in matches.names)
+    done = import_features(Path(db_path), list(cameras), matches.names, [f.keypoints for f in matches.features],
+                           matches.putative, camera_of_image=camera_of_image, verified=matches.geometries,
+                           descriptors=[f.descriptors for f in matches.features] if descriptors else None,
+                           overwrite=overwrite)
+    return done.image_ids
