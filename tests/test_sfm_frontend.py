@@ -59,8 +59,13 @@ def test_same_model_for_the_same_seed_on_one_and_two_threads(comet_small_scene):
         assert "total" in names and all(s.cpu_s is None or s.cpu_s >= 0 for s in r.stages)
 
 
-def test_thread_count_and_chunks():
-    assert thread_count(3) == 3 and thread_count(0) >= 1
+def test_thread_count_and_chunks(monkeypatch):
+    from polarref.core.execution import available_cores
+
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    assert thread_count(3) == 3 and thread_count(0) == available_cores()
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")  # a Dask worker's job: one core
+    assert thread_count(0) == 1 and thread_count(2) == 2
     pairs = [(i, i + 1) for i in range(100)]
     parts = chunked(pairs, 2)
     assert [p for c in parts for p in c] == pairs and len(parts) == 15  # ~8 per thread: 7 pairs each (100 / 16)

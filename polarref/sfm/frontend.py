@@ -15,6 +15,7 @@ own parallel loops run on one thread each, so N threads use N cores, not N x N.
 
 from __future__ import annotations
 
+import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
@@ -34,12 +35,14 @@ Pair = tuple[int, int]
 
 
 def thread_count(requested: int) -> int:
-    """``requested`` threads, 0 = every core this process may use."""
+    """``requested`` threads; 0 = every core this process may use, but no more than
+    ``OMP_NUM_THREADS`` when set (a Dask worker's jobs run with 1, so N workers stay N cores)."""
     if requested > 0:
         return int(requested)
     from polarref.core.execution import available_cores
 
-    return available_cores()
+    cap = os.environ.get("OMP_NUM_THREADS", "").strip()
+    return min(available_cores(), int(cap)) if cap.isdigit() and int(cap) > 0 else available_cores()
 
 
 @contextmanager
