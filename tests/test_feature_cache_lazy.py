@@ -97,4 +97,12 @@ def test_twin_features_stage_names_a_cached_load(tmp_path):
     again = ours_features(str(images), cam, "default", str(tmp_path / "cache"), str(pairs))
     assert "features" in first.stage_runtime_s and FEATURES_CACHED not in first.stage_runtime_s
     assert FEATURES_CACHED in again.stage_runtime_s and "features" not in again.stage_runtime_s
+    # never silently dropped: the extraction time measured when the cache was made stands beside
+    # the load time, and so does the matching's (matches cached too)
+    extracted = again.stage_runtime_s["features (measured when the cache was made)"]
+    assert 0.3 * first.stage_runtime_s["features"] < extracted <= first.stage_runtime_s["features"]
+    matched = again.stage_runtime_s["matching (measured when the cache was made)"]
+    assert matched == pytest.approx(first.stage_runtime_s["matching"] + first.stage_runtime_s["verification"],
+                                    rel=1e-9)
+    assert "matching (loaded from an earlier run's cache)" in again.stage_runtime_s
     assert first.verified_pairs == again.verified_pairs == 3

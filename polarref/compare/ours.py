@@ -26,8 +26,9 @@ from polarref.sfm.config import PRESETS, SfMConfig
 _NOT_STAGES = {"total", "metrics", "export", "features_cached", "matches_cached"}
 # features/matching/verification of a method come from the shared cache: their real cost is the shared stage's
 _SHARED_STAGES = ("features", "matching", "verification")
-FEATURES_CACHED = "features (loaded from an earlier run's cache)"
-FEATURES_EXTRACTED = "features (extraction, measured when the cache was made)"
+CACHED = "{} (loaded from an earlier run's cache)"
+MEASURED = "{} (measured when the cache was made)"
+FEATURES_CACHED = CACHED.format("features")
 
 
 def peak_rss_mb() -> float:
@@ -61,12 +62,17 @@ def _features_and_matches(image_dir: Path, cam: Camera, config: SfMConfig):
 def prepare_features(image_dir: Path, cam: Camera, config: SfMConfig) -> MethodRun:
     """Compute (and cache) features and verified matches; returns the timed stages."""
     matches, skipped, clock, key = _features_and_matches(image_dir, cam, config)
-    stages = {s.stage: s.wall_s for s in clock.stages if s.stage in _SHARED_STAGES}
-    feat = clock.get("features")
-    if feat is not None and feat.cached:  # the time to load them, not to extract them: say so
-        stages[FEATURES_CACHED] = stages.pop("features")
-        if feat.measured_s is not None:  # and what extracting them took, counted beside it
-            stages[FEATURES_EXTRACTED] = feat.measured_s
+    stages: dict[str, float] = {}
+    for s in clock.stages:
+        if s.stage not in _SHARED_STAGES:
+            continue
+        if not s.cached:
+            stages[s.stage] = s.wall_s
+            continue
+        # the time to load them, not to compute them: say so, and count what computing them took
+        stages[CACHED.format(s.stage)] = s.wall_s
+        if s.measured_s is not None:
+            stages[MEASURED.format(s.stage)] = s.measured_s
     return MethodRun("ours-features", stage_runtime_s=stages, verified_pairs=len(matches.geometries),
                      skipped_images=list(skipped),
                      feature_file=str(Path(config.cache_dir) / f"features-{key}.npz"), peak_rss_mb=peak_rss_mb())
