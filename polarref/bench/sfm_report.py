@@ -67,6 +67,12 @@ def _stage_peak(c: SfMCell) -> dict[str, float]:
             if s.peak_rss_mb is not None or s.workers_peak_rss_mb is not None}
 
 
+def _cell_peak(c: SfMCell) -> float:
+    """The cell process's peak: its ru_maxrss, or its largest stage peak where that is higher (cells
+    of commit 836fa6a reset the kernel's peak mark, and with it ru_maxrss, at each stage)."""
+    return max([c.peak_memory_mb.ru_maxrss_mb] + [s.peak_rss_mb for s in c.stages if s.peak_rss_mb is not None])
+
+
 def _row(group: list[SfMCell]) -> SfMRow:
     c0 = group[0]
     stages = [s for s in (*STAGES[c0.method], "ba") if any(s in c.stages_s for c in group)]
@@ -77,7 +83,7 @@ def _row(group: list[SfMCell]) -> SfMRow:
     rot = spread(c.rotation_error_deg_mean for c in group)
     return SfMRow(c0.label, c0.method, c0.parallel, c0.views, spread(c.total_s for c in group),
                   spread(c.cpu_s for c in group), {s: spread(c.stages_s.get(s, 0.0) for c in group) for s in stages},
-                  peaks, max(c.peak_memory_mb.ru_maxrss_mb for c in group), c0.registered_images,
+                  peaks, max(_cell_peak(c) for c in group), c0.registered_images,
                   c0.tie_points_2v, c0.tie_points_3v, None if rot is None else rot.median,
                   spread(c.load_average[0] for c in group if c.load_average))
 

@@ -450,6 +450,7 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         rec = to_reconstruction(state, colors=[f.colors for f in feats])
         extra = [to_reconstruction(st, colors=[f.colors for f in feats]) for st, _ in models[1:]]
     except PolarrefError as exc:
+        clock.close()
         report.status = RunStatus.FAILED
         report.error = str(exc)
         clock.add("total", time.perf_counter() - t_start)

@@ -1,19 +1,22 @@
 """Cost of each pipeline stage: wall and CPU seconds, peak memory, whether it came from a cache.
 
-:class:`StageClock` brackets each stage of :func:`polarref.sfm.pipeline.run_sfm`. At a stage's
-start it resets the peak-RSS marks (``VmHWM``, Linux ``/proc/<pid>/clear_refs``) of this process
-and of its child processes (the local Dask workers, which extract and match when ``--workers``
-is given); at its end it reads them back, so each stage's peak is its own, not the run's.
-CPU seconds are this process's (all threads) plus its children's. Without ``/proc`` (other
-systems) the peaks are None and the run's ``ru_maxrss`` is the only figure.
+:class:`StageClock` brackets each stage of :func:`polarref.sfm.pipeline.run_sfm`. While a stage
+runs, a sampler thread reads the resident memory of this process and of its child processes
+(the local Dask workers, which extract and match with ``--workers``) every ``SAMPLE_S``, so each
+stage's peak is its own, not the run's. (Resetting the kernel's peak mark instead, through
+``/proc/self/clear_refs``, would also reset ``ru_maxrss``, which the callers report as the
+run's peak.) CPU seconds are this process's (all threads) plus its children's. Without ``/proc``
+(other systems) the peaks are None.
 
-A stage loaded from a cache keeps ``cached`` True and, beside its load time, the extraction
-time measured when the cache entry was made (stored next to the entry), so a table can count
-what the stage really cost instead of dropping it.
+A stage loaded from a cache keeps ``cached`` True and, beside its load time, the time measured
+when the cache entry was made (stored next to the entry), so a table can count what the stage
+really cost instead of dropping it.
 """
 
 from __future__ import annotations
 
+import os
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,29 +31,60 @@ class StageCost:
     stage: str
     wall_s: float
     cpu_s: float | None = None             # this process (all threads) + child processes
-    peak_rss_mb: float | None = None       # this process's peak during the stage (MiB)
-    workers_peak_rss_mb: float | None = None  # summed peaks of the child processes during the stage
+    peak_rss_mb: float | None = None       # this process's peak during the stage (MiB, sampled)
+    workers_peak_rss_mb: float | None = None  # peak of the child processes' summed memory during the stage
     cached: bool = False                   # loaded from the cache instead of computed
     measured_s: float | None = None        # cached: the wall time measured when the entry was made
 
 
-def _read_hwm_mb(pid: int | str) -> float | None:
+SAMPLE_S = 0.01   # memory sampling period while a stage runs
+
+
+def _rss_mb(pid: int | str = "self") -> float | None:
     try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1]) / 1024.0
+        pages = int(Path(f"/proc/{pid}/statm").read_text().split()[1])
     except (OSError, ValueError, IndexError):
         return None
-    return None
+    return pages * _PAGE / 2**20
 
 
-def _reset_hwm(pid: int | str) -> bool:
-    """Reset the peak-RSS mark of ``pid`` (True when the kernel allowed it)."""
-    try:
-        Path(f"/proc/{pid}/clear_refs").write_text("5")
-        return True
-    except OSError:
-        return False
+try:
+    _PAGE = os.sysconf("SC_PAGE_SIZE")
+except (AttributeError, ValueError, OSError):  # not a POSIX system: no /proc either
+    _PAGE = 4096
+
+
+class _Sampler:
+    """Largest resident memory of this process and of its children (summed) while running."""
+
+    def __init__(self, children: list):
+        self.pids = [c.pid for c in children]
+        self.self_mb = _rss_mb()
+        self.children_mb = self._children_now()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="polarref-stage-memory", daemon=True)
+        self._thread.start()
+
+    def _children_now(self) -> float | None:
+        got = [m for m in (_rss_mb(p) for p in self.pids) if m is not None]
+        return float(sum(got)) if got else None
+
+    def _sample(self) -> None:
+        mine, theirs = _rss_mb(), self._children_now()
+        if mine is not None:
+            self.self_mb = max(self.self_mb or 0.0, mine)
+        if theirs is not None:
+            self.children_mb = max(self.children_mb or 0.0, theirs)
+
+    def _run(self) -> None:
+        while not self._stop.wait(SAMPLE_S):
+            self._sample()
+
+    def finish(self) -> tuple[float | None, float | None]:
+        self._stop.set()
+        self._thread.join()
+        self._sample()
+        return self.self_mb, self.children_mb
 
 
 def _children() -> list:
@@ -79,7 +113,7 @@ class _Open:
     t0: float
     cpu0: float
     child_cpu0: float
-    reset: bool
+    sampler: _Sampler
 
 
 @dataclass
@@ -90,11 +124,10 @@ class StageClock:
     _open: _Open | None = None
 
     def start(self, name: str) -> None:
+        self.close()
         children = _children()
-        reset = _reset_hwm("self")
-        for c in children:
-            _reset_hwm(c.pid)
-        self._open = _Open(name, time.perf_counter(), time.process_time(), _children_cpu_s(children), reset)
+        self._open = _Open(name, time.perf_counter(), time.process_time(), _children_cpu_s(children),
+                           _Sampler(children))
 
     def stop(self, cached: bool = False, measured_s: float | None = None) -> StageCost:
         o = self._open
@@ -103,12 +136,17 @@ class StageClock:
         children = _children()
         wall = time.perf_counter() - o.t0
         cpu = time.process_time() - o.cpu0 + max(0.0, _children_cpu_s(children) - o.child_cpu0)
-        peaks = [p for p in (_read_hwm_mb(c.pid) for c in children) if p is not None]
-        cost = StageCost(o.name, wall, cpu, _read_hwm_mb("self") if o.reset else None,
-                         float(sum(peaks)) if peaks else None, cached, measured_s)
+        mine, theirs = o.sampler.finish()
+        cost = StageCost(o.name, wall, cpu, mine, theirs, cached, measured_s)
         self.stages.append(cost)
         self._open = None
         return cost
+
+    def close(self) -> None:
+        """Drop a stage left open (its stage failed): stops its memory sampler, records nothing."""
+        if self._open is not None:
+            self._open.sampler.finish()
+            self._open = None
 
     def add(self, name: str, wall_s: float) -> StageCost:
         """A stage timed elsewhere (the BA inside mapping; the total)."""
