@@ -45,7 +45,7 @@ def _fake_cell(method: str, views: int, settings, k: float = 1.1, mem_k: float =
             "pairs": 10 * views, "pairs_sha256": f"p{views}", "bench_settings": dataclasses.asdict(settings),
             "method_settings": records.to_dict(ms), "scene_root": "/x", "environment": ENV,
             "parallel": parallel, "repeat": repeat, "load_average": [1.0 + repeat, 1.0, 1.0],
-            "stages": [{"stage": s, "wall_s": t, "peak_rss_mb": 50.0 + views, "workers_peak_rss_mb":
+            "stages": [{"stage": s, "wall_s": t, "peak_rss_mb": 20.0 + views / 10, "workers_peak_rss_mb":
                         (20.0 if parallel > 1 else None)} for s, t in stages.items()]}
 
 
@@ -101,7 +101,7 @@ def test_repeats_are_interleaved_and_summarised_with_their_spread(tmp_path, fake
     assert (row.total_s.low, row.total_s.median, row.total_s.high, row.total_s.n) == pytest.approx(
         (t1, 1.5 * t1, 2.0 * t1, 3))
     assert row.load_average_1min.median == pytest.approx(3.0)
-    assert row.stage_peak_mb["features"] == pytest.approx(50 + 168 + 20)  # main process + workers
+    assert row.stage_peak_mb["features"] == pytest.approx(20 + 16.8 + 20)  # main process + workers
     md = (tmp_path / "bench.md").read_text()
     assert f"{1.5 * t1:.1f} [{t1:.1f}-{2 * t1:.1f}]" in md
 
@@ -229,3 +229,17 @@ def test_committed_cells_read_strictly_in_todays_layout(tmp_path):
     (tmp_path / "bad.json").write_text(json.dumps({**old, "extra": 1}))
     with pytest.raises(records.RecordError, match="extra"):
         read_cell(tmp_path / "bad.json")
+
+
+def test_cell_peak_is_the_larger_of_maxrss_and_its_stage_peaks():
+    """Cells whose ru_maxrss was reset per stage (commit 836fa6a) keep their true peak: the largest stage's."""
+    from polarref.bench.sfm_report import rows_of
+
+    c = _fake_cell("ours", 168, B.BenchSfMSettings())
+    c["peak_memory_mb"]["ru_maxrss_mb"] = 50.0
+    c["stages"][2]["peak_rss_mb"] = 700.0
+    (row,) = rows_of([records.coerce(SfMCell, c)])
+    assert row.peak_mb == 700.0
+    c["peak_memory_mb"]["ru_maxrss_mb"] = 900.0
+    (row,) = rows_of([records.coerce(SfMCell, c)])
+    assert row.peak_mb == 900.0
