@@ -243,3 +243,13 @@ def test_cell_peak_is_the_larger_of_maxrss_and_its_stage_peaks():
     c["peak_memory_mb"]["ru_maxrss_mb"] = 900.0
     (row,) = rows_of([records.coerce(SfMCell, c)])
     assert row.peak_mb == 900.0
+
+
+def test_report_only_rebuilds_from_the_finished_cells(tmp_path, fake_spawn):
+    B.run_bench([28], tmp_path, B.BenchSfMSettings(), repeats=1)
+    assert len(fake_spawn) == 4
+    (tmp_path / "bench.json").unlink()
+    bench = B.run_bench([28, 168], tmp_path, B.BenchSfMSettings(), repeats=2, report_only=True)
+    assert len(fake_spawn) == 4  # nothing run
+    assert len(bench.cells) == 4 and not bench.failed and (tmp_path / "bench.json").is_file()
+    assert "not run (--report-only)" in (tmp_path / "bench.log").read_text()

@@ -294,13 +294,16 @@ def variants(methods: tuple[str, ...] = METHODS, parallel: tuple[int, ...] = PAR
 
 
 def _one(out: Path, variant: Variant, n: int, repeat: int, settings: BenchSfMSettings, overwrite: bool,
-         timeout_s: float | None, roots: list[Path]) -> SfMCell | FailedCell:
+         timeout_s: float | None, roots: list[Path], report_only: bool = False) -> SfMCell | FailedCell | None:
     path = cell_path(out, variant, n, repeat)
     name = f"{variant.label} v{n} r{repeat}"
     cell = None if overwrite else load_cell(path, settings)
     if cell is not None:
         _log_line(out, f"{name}: finished cell reused ({cell.total_s:.1f} s)")
         return cell
+    if report_only:
+        _log_line(out, f"{name}: not run (--report-only)")
+        return None
     root = roots[0] if roots else scene_root(settings, n)
     roots[:] = [root]
     _log_line(out, f"{name}: running (load average {os.getloadavg()[0]:.2f})")
@@ -318,11 +321,12 @@ def _one(out: Path, variant: Variant, n: int, repeat: int, settings: BenchSfMSet
 def run_bench(views: list[int], out: Path, settings: BenchSfMSettings = BenchSfMSettings(),
               methods: tuple[str, ...] = METHODS, overwrite: bool = False,
               cell_timeout_s: float | None = None, parallel: tuple[int, ...] = PARALLEL,
-              repeats: int = 1) -> SfMBench:
+              repeats: int = 1, report_only: bool = False) -> SfMBench:
     """Run every (variant, views, repeat) cell not finished yet, then write bench.json/md/png from all cells.
 
     Repeats are interleaved: every variant and view count once, then all again, so a change of the
-    machine's load spreads over all columns instead of falling on one."""
+    machine's load spreads over all columns instead of falling on one. ``report_only``: run no
+    cell, rebuild the outputs from the finished ones (a sweep stopped part-way)."""
     out.mkdir(parents=True, exist_ok=True)
     (out / "cells").mkdir(exist_ok=True)
     cells, failed = [], []
@@ -330,8 +334,9 @@ def run_bench(views: list[int], out: Path, settings: BenchSfMSettings = BenchSfM
     for repeat in range(1, repeats + 1):
         for n in views:
             for variant in variants(methods, parallel):
-                got = _one(out, variant, n, repeat, settings, overwrite, cell_timeout_s, roots[n])
-                (failed if isinstance(got, FailedCell) else cells).append(got)
+                got = _one(out, variant, n, repeat, settings, overwrite, cell_timeout_s, roots[n], report_only)
+                if got is not None:
+                    (failed if isinstance(got, FailedCell) else cells).append(got)
     return write_outputs(out, cells, failed, settings)
 
 

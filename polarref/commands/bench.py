@@ -53,6 +53,8 @@ def add_arguments(parser) -> None:
                      help="core counts per method: ours' front-end worker threads, pycolmap's threads (default: 1 2)")
     sfm.add_argument("--max-features", type=positive_int, default=4096,
                      help="SIFT keypoints per image, the same budget for both methods")
+    sfm.add_argument("--report-only", action="store_true",
+                     help="run no cell: rebuild bench.json/md/png from the finished cells (a sweep stopped part-way)")
     parser.add_argument("--out", required=True, help="output folder (bench.json, bench.md; sfm: also bench.png, "
                         "cells/, bench.log)")
     parser.add_argument("--overwrite", action="store_true")
@@ -100,6 +102,6 @@ def _run_sfm(args) -> int:
                                 max_num_features=args.max_features)
     bench = run_bench(sorted(set(args.views)), out, settings, tuple(args.methods), overwrite=args.overwrite,
                       cell_timeout_s=args.cell_timeout, parallel=tuple(sorted(set(args.parallel))),
-                      repeats=args.repeat)
+                      repeats=args.repeat, report_only=args.report_only)
     print((out / "bench.md").read_text())
     return 0 if bench.cells and not bench.failed else 1
