@@ -60,7 +60,7 @@ def main() -> None:
     if prof:
         prof.disable()
     cpu = _cpu() - cpu0
-    m = res.metrics  # the metrics.json form: BA runs as flat dicts
+    m = res.report.to_json()  # the metrics.json form: BA runs as flat dicts
     t = res.report.runtime_s
     print(over, f"cpu {cpu:.1f} s", {k: round(v, 2) for k, v in t.items() if isinstance(v, float)})
     for kind in ("local", "global"):

@@ -4,6 +4,9 @@
 # background:  nohup bash scripts/run-twins.sh > twins.log 2>&1 &
 # OUT (default ./polarref-out/twins) holds the run folders (models, databases, caches: not for
 # git); the small tables go to reports/paper-tables/ (commit those and its README).
+# Our front end (features, matching, verification) uses every core by default (threads,
+# polarref/sfm/frontend.py; OMP_NUM_THREADS caps it); a stage loaded from an earlier run's cache
+# is named so in stages/*.json, with the time measured when the cache was made counted beside it.
 set -u
 cd "$(dirname "$0")/.."
 P=.venv/bin/polarref

@@ -15,6 +15,7 @@ from polarref.core.errors import PolarrefError
 from polarref.sfm import feature_cache as FC
 from polarref.sfm import features as F
 from polarref.sfm.pipeline import SfMConfig, ensure_descriptors, load_images_and_features, match_and_verify
+from polarref.sfm.stages import StageClock
 
 
 def _images(folder, n=3, seed=0):
@@ -32,17 +33,17 @@ def cached(tmp_path):
     images = _images(tmp_path / "images")
     cfg = SfMConfig(features=F.FeatureConfig(max_num_features=300, contrast_threshold=0.01),
                     cache_dir=str(tmp_path / "cache"))
-    timings: dict = {}
-    eager, _, key = load_images_and_features(images, cfg, timings)
-    assert timings["features_cached"] is False
+    clock = StageClock()
+    eager, _, key = load_images_and_features(images, cfg, clock)
+    assert clock.get("features").cached is False
     return images, cfg, key, eager
 
 
 def test_cached_features_load_without_descriptors_and_fill_in_exactly(cached):
     images, cfg, key, eager = cached
-    timings: dict = {}
-    lazy, _, key2 = load_images_and_features(images, cfg, timings)
-    assert timings["features_cached"] is True and key2 == key
+    clock = StageClock()
+    lazy, _, key2 = load_images_and_features(images, cfg, clock)
+    assert clock.get("features").cached is True and key2 == key
     assert all(f.descriptors is None for f in lazy)
     for a, b in zip(eager, lazy):
         np.testing.assert_array_equal(a.keypoints, b.keypoints)
@@ -56,23 +57,23 @@ def test_matching_from_lazy_features_equals_eager(cached):
     images, cfg, key, eager = cached
     cam = Camera("PINHOLE", eager[0].width, eager[0].height, [300.0, 300.0, eager[0].width / 2, eager[0].height / 2])
     idx = np.zeros(len(eager), np.int64)
-    ref = match_and_verify(eager, [cam], idx, dataclasses.replace(cfg, use_cache=False), key, {})
-    lazy, _, _ = load_images_and_features(images, cfg, {})
-    got = match_and_verify(lazy, [cam], idx, cfg, key, {})  # no matches cache yet: loads descriptors
+    ref = match_and_verify(eager, [cam], idx, dataclasses.replace(cfg, use_cache=False), key, StageClock())
+    lazy, _, _ = load_images_and_features(images, cfg, StageClock())
+    got = match_and_verify(lazy, [cam], idx, cfg, key, StageClock())  # no matches cache yet: loads descriptors
     assert all(f.descriptors is not None for f in lazy)
     assert set(ref.putative) == set(got.putative) and len(ref.putative) == 3
     assert sum(len(m) for m in ref.putative.values()) > 50
     for p in ref.putative:
         np.testing.assert_array_equal(ref.putative[p], got.putative[p])
-    again, _, _ = load_images_and_features(images, cfg, {})
-    timings: dict = {}
-    match_and_verify(again, [cam], idx, cfg, key, timings)  # matches cached: descriptors never read
-    assert timings["matches_cached"] is True and all(f.descriptors is None for f in again)
+    again, _, _ = load_images_and_features(images, cfg, StageClock())
+    clock = StageClock()
+    match_and_verify(again, [cam], idx, cfg, key, clock)  # matches cached: descriptors never read
+    assert clock.get("matching").cached is True and all(f.descriptors is None for f in again)
 
 
 def test_descriptors_of_other_images_or_a_vanished_cache_are_refused(cached, tmp_path):
     images, cfg, key, eager = cached
-    lazy, _, _ = load_images_and_features(images, cfg, {})
+    lazy, _, _ = load_images_and_features(images, cfg, StageClock())
     with pytest.raises(ValueError, match="other images"):
         FC.load_descriptors(next((tmp_path / "cache").glob("features-*.npz")), lazy[:2])
     for f in (tmp_path / "cache").glob("features-*.npz"):
@@ -96,4 +97,12 @@ def test_twin_features_stage_names_a_cached_load(tmp_path):
     again = ours_features(str(images), cam, "default", str(tmp_path / "cache"), str(pairs))
     assert "features" in first.stage_runtime_s and FEATURES_CACHED not in first.stage_runtime_s
     assert FEATURES_CACHED in again.stage_runtime_s and "features" not in again.stage_runtime_s
+    # never silently dropped: the extraction time measured when the cache was made stands beside
+    # the load time, and so does the matching's (matches cached too)
+    extracted = again.stage_runtime_s["features (measured when the cache was made)"]
+    assert 0.3 * first.stage_runtime_s["features"] < extracted <= first.stage_runtime_s["features"]
+    matched = again.stage_runtime_s["matching (measured when the cache was made)"]
+    assert matched == pytest.approx(first.stage_runtime_s["matching"] + first.stage_runtime_s["verification"],
+                                    rel=1e-9)
+    assert "matching (loaded from an earlier run's cache)" in again.stage_runtime_s
     assert first.verified_pairs == again.verified_pairs == 3

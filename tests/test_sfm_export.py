@@ -24,12 +24,13 @@ def test_pycolmap_maps_our_matches_with_fixed_intrinsics(request, tmp_path, monk
     cfg = dataclasses.replace(PRESETS["small"], cache_dir=str(tmp_path / "cache"))
     matches, cams, idx, _ = compute_matches(scene / "images", cfg, gt=gt)
     ids = write_colmap_database(tmp_path / "db.db", matches, cams, idx)
-    assert sorted(ids) == sorted(matches.names)
+    assert len(ids) == len(set(ids)) == len(matches.names)
     with pytest.raises(PolarrefError, match="already exists"):
         write_colmap_database(tmp_path / "db.db", matches, cams, idx)
     pdb = pycolmap.Database.open(str(tmp_path / "db.db"))
     try:  # without the prior flag the incremental mapper re-estimates the focal length
         assert all(c.has_prior_focal_length for c in pdb.read_all_cameras())
+        assert {im.image_id: im.name for im in pdb.read_all_images()} == dict(zip(ids, matches.names))
     finally:
         pdb.close()
     run = run_mapper(tmp_path / "db.db", scene / "images", tmp_path / "sparse", "incremental")

@@ -39,7 +39,7 @@ def _run_both(scene_dir, tmp_path):
 
 
 def _check_against_pycolmap(ours, ref, n_views, rot_max):
-    m = ours.metrics
+    m = ours.report.to_json()
     print({k: m["metrics"][k] for k in ("registered_images", "tie_points", "reprojected_px", "mean_reprojection_error_px")},
           m["metrics"]["gt"]["rotation_error_deg_mean"], "pycolmap:", ref.registered_images, ref.tie_points,
           ref.mean_reprojection_error_px, ref.gt.rotation_error_deg_mean,
@@ -59,17 +59,17 @@ def _check_model_files(ours):
     import pycolmap
 
     rec = pycolmap.Reconstruction(str(ours.out_dir / "model"))
-    assert rec.num_reg_images() == ours.metrics["metrics"]["registered_images"]
-    assert rec.num_points3D() == ours.metrics["metrics"]["tie_points"]
-    assert sum(p.track.length() for p in rec.points3D.values()) == ours.metrics["metrics"]["reprojected_px"]
+    assert rec.num_reg_images() == ours.report.to_json()["metrics"]["registered_images"]
+    assert rec.num_points3D() == ours.report.to_json()["metrics"]["tie_points"]
+    assert sum(p.track.length() for p in rec.points3D.values()) == ours.report.to_json()["metrics"]["reprojected_px"]
     rec.update_point_3d_errors()
     # COLMAP averages per point; our per-point figure must agree with its own computation
-    assert abs(rec.compute_mean_reprojection_error() - ours.metrics["metrics"]["mean_reprojection_error_px_per_point"]) < 1e-6
-    timings = ours.metrics["runtime_s"]
+    assert abs(rec.compute_mean_reprojection_error() - ours.report.to_json()["metrics"]["mean_reprojection_error_px_per_point"]) < 1e-6
+    timings = ours.report.to_json()["runtime_s"]
     for stage in ("features", "matching", "verification", "tracks", "mapping", "ba", "total"):
         assert timings[stage] >= 0.0
     assert timings["total"] >= timings["mapping"]
-    assert ours.metrics["ba"] and all("kind" in b for b in ours.metrics["ba"])
+    assert ours.report.to_json()["ba"] and all("kind" in b for b in ours.report.to_json()["ba"])
 
 
 def test_small_comet_vs_pycolmap(request, tmp_path):
@@ -94,8 +94,19 @@ def test_cache_reused_and_results_identical(request, tmp_path):
     cfg = dataclasses.replace(with_ba(PRESETS["small"], "colmap"), cache_dir=str(tmp_path / "cache"))
     a = run_sfm(scene_dir / "images", None, cfg, gt=gt)
     b = run_sfm(scene_dir / "images", None, cfg, gt=gt)
-    assert a.metrics["runtime_s"]["features_cached"] is False and a.metrics["runtime_s"]["matches_cached"] is False
-    assert b.metrics["runtime_s"]["features_cached"] is True and b.metrics["runtime_s"]["matches_cached"] is True
+    assert a.report.to_json()["runtime_s"]["features_cached"] is False and a.report.to_json()["runtime_s"]["matches_cached"] is False
+    assert b.report.to_json()["runtime_s"]["features_cached"] is True and b.report.to_json()["runtime_s"]["matches_cached"] is True
+    # the cached stages are marked and carry the time their extraction really took (never dropped)
+    fa, fb = (next(s for s in r.stages if s.stage == "features") for r in (a, b))
+    assert not fa.cached and fb.cached and fa.measured_s is None
+    assert 0.3 * fa.wall_s < fb.measured_s <= fa.wall_s
+    ma, mb = (next(s for s in r.stages if s.stage == "matching") for r in (a, b))
+    va = next(s for s in a.stages if s.stage == "verification")
+    assert mb.cached and mb.measured_s == pytest.approx(ma.wall_s + va.wall_s, rel=1e-9)
+    assert b.report.to_json()["runtime_s"]["features_measured_s"] == fb.measured_s
+    for r in (a, b):  # every stage of the run is in the record, with CPU time and its own peak memory
+        assert [s.stage for s in r.stages][:5] == ["features", "matching", "verification", "tracks", "mapping"]
+        assert all(s.peak_rss_mb is None or 30 < s.peak_rss_mb < 8000 for s in r.stages)
     for key in ("registered_images", "tie_points", "reprojected_px"):
         assert getattr(a.report.metrics, key) == getattr(b.report.metrics, key)
     assert a.report.metrics.gt.rotation_error_deg_mean == pytest.approx(b.report.metrics.gt.rotation_error_deg_mean,

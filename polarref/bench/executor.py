@@ -27,6 +27,7 @@ from polarref.core.atomic import atomic_write
 from polarref.core import execution
 from polarref.core.data import REPO_ROOT
 from polarref.core.provenance import collect
+from polarref.sfm.stages import StageClock
 
 
 def _noop(x: int) -> int:
@@ -57,11 +58,10 @@ def run_mode(mode: str, views: int, noop_tasks: int, work: Path) -> ExecutorMode
         t1 = time.perf_counter()
         render_scene("comet", out, cfg)
         render_s = time.perf_counter() - t1
-        timings: dict = {}
         t2 = time.perf_counter()
         feats, _, _ = load_images_and_features(out / "images", SfMConfig(use_cache=False,
                                                                          cache_dir=str(work / f"cache-{mode}")),
-                                               timings)
+                                               StageClock())
         features_s = time.perf_counter() - t2
         overhead = overhead_per_task(ex, noop_tasks)
         desc = ex.describe()

@@ -16,6 +16,7 @@ from polarref.core import records
 from polarref.core.atomic import atomic_write
 from polarref.core.provenance import Provenance
 from polarref.core.status import RunStatus
+from polarref.sfm.stages import StageCost
 from synth.config import SceneConfig
 
 
@@ -28,7 +29,7 @@ class BenchSfMSettings:
     seed: int = 0                 # render seed and both mappers' seeds
     pairing: str = "sequential"   # our pair selection, imported by pycolmap
     overlap: int = 10             # sequential overlap
-    threads: int = 1              # every stage of both methods
+    max_num_features: int = 4096  # SIFT keypoints per image, the same budget for both methods
 
 
 @dataclass(frozen=True)
@@ -40,8 +41,30 @@ class PeakMemory:
 
 
 @dataclass(frozen=True)
+class Setting:
+    """One option of a method, by dotted name, as it prints (JSON text of its value)."""
+
+    name: str
+    value: str
+
+
+@dataclass(frozen=True)
+class MethodSettings:
+    """How one method ran in one cell: what makes the comparison level, then every option."""
+
+    method: str                   # ours | pycolmap
+    parallel: int                 # ours: front-end worker threads (SfMConfig.threads); pycolmap: num_threads
+    threads_per_process: int      # BLAS / OpenMP / OpenCV threads of the cell's main process
+    max_num_features: int         # SIFT keypoints kept per image
+    max_image_size: int           # SIFT detection side cap (0: full resolution)
+    ignore_two_view_tracks: bool  # the mapper drops two-view tracks (pycolmap's default; ours never)
+    pairing: str
+    options: tuple[Setting, ...] = ()   # every option of the method (ours: SfMConfig; pycolmap: its option objects)
+
+
+@dataclass(frozen=True)
 class SfMCell:
-    """One method on one view count, run in its own process."""
+    """One method variant on one view count, one repeat, run in its own process."""
 
     method: str                           # ours | pycolmap
     views: int
@@ -52,7 +75,7 @@ class SfMCell:
     peak_memory_mb: PeakMemory
     cpu_s: float | None                   # CPU seconds of the whole cell process (steadier when loaded)
     registered_images: int
-    tie_points: int
+    tie_points: int                       # 3D points of the model (as the metrics count them)
     observations: int
     mean_track_length: float | None
     mean_reprojection_error_px: float | None
@@ -61,9 +84,24 @@ class SfMCell:
     pairs: int
     pairs_sha256: str                     # the same pair list for both methods
     bench_settings: BenchSfMSettings
-    method_settings: dict[str, Any]       # the method's own option objects as they print (pycolmap's todict)
+    method_settings: MethodSettings
     scene_root: str
     environment: Provenance
+    parallel: int = 1                     # ours: workers; pycolmap: threads (the cell's column)
+    repeat: int = 1                       # 1..R: repeats run interleaved with the other cells
+    tie_points_2v: int | None = None      # 3D points seen by >= 2 registered images (one rule for both)
+    tie_points_3v: int | None = None      # ... by >= 3
+    stages: tuple[StageCost, ...] = ()    # every stage with CPU time and its own peak memory
+    load_average: tuple[float, ...] = ()  # 1/5/15-min load average when the cell started
+
+    @property
+    def label(self) -> str:
+        return variant_label(self.method, self.parallel)
+
+
+def variant_label(method: str, parallel: int) -> str:
+    """``ours-2w`` (2 front-end worker threads), ``pycolmap-2t`` (2 threads)."""
+    return f"{method}-{parallel}{'w' if method == 'ours' else 't'}"
 
 
 @dataclass(frozen=True)
@@ -71,6 +109,8 @@ class FailedCell:
     method: str
     views: int
     error: str
+    parallel: int = 1
+    repeat: int = 1
 
 
 @dataclass(frozen=True)
@@ -83,16 +123,49 @@ class MemoryFit:
 
 
 @dataclass(frozen=True)
-class SfMChecks:
-    """The done-when checks of issues 13 and 14 that the cells allow (None: not tested)."""
+class Spread:
+    """A figure over the repeats of one cell: median and range."""
 
-    time_ratio_168: float | None = None
+    median: float
+    low: float
+    high: float
+    n: int
+
+
+@dataclass(frozen=True)
+class SfMRow:
+    """One variant on one view count over its repeats (a row of bench.md)."""
+
+    label: str                         # ours-1w, ours-2w, pycolmap-1t, pycolmap-2t
+    method: str
+    parallel: int
+    views: int
+    total_s: Spread
+    cpu_s: Spread | None
+    stages_s: dict[str, Spread]        # stage -> wall seconds over the repeats
+    stage_peak_mb: dict[str, float]    # stage -> largest peak (main process + workers) over the repeats
+    peak_mb: float                     # largest ru_maxrss of the cell process over the repeats
+    registered_images: int
+    tie_points_2v: int | None
+    tie_points_3v: int | None
+    rotation_error_deg: float | None   # median over the repeats
+    load_average_1min: Spread | None   # at the cells' starts
+
+
+@dataclass(frozen=True)
+class SfMChecks:
+    """The done-when checks of issues 13, 14 and 34 that the cells allow (None: not tested)."""
+
+    time_ratio_168: float | None = None          # ours 2 workers / pycolmap 2 threads (medians)
     time_ratio_168_ok: bool | None = None
-    cpu_ratio_168: float | None = None
-    tie_ratio_168: float | None = None
+    time_ratio_168_1core: float | None = None    # ours 1 / pycolmap 1 thread
+    cpu_ratio_168: float | None = None           # CPU seconds, 2-core columns
+    tie_ratio_168: float | None = None           # tracks with >= 2 registered views, ours / pycolmap
     tie_ratio_168_ok: bool | None = None
+    tie_ratio_168_3v: float | None = None        # tracks with >= 3 registered views
     rotation_error_168_ok: bool | None = None
     same_pairs_168: bool | None = None
+    speedup_168: dict[str, float] = field(default_factory=dict)   # method -> time on 1 / time on 2 cores
     ours_total_exponent_ok: bool | None = None
     ours_memory_631_mb: float | None = None
     ours_memory_631_source: str = "not tested"
@@ -101,15 +174,17 @@ class SfMChecks:
 
 @dataclass(frozen=True)
 class SfMBench:
-    """``bench.json``: every cell, the growth exponents (method -> stage -> k) and the checks."""
+    """``bench.json``: every cell, the rows over repeats, growth exponents (variant -> stage -> k), checks."""
 
     settings: BenchSfMSettings
     environment: Provenance
     cells: list[SfMCell]
     failed: list[FailedCell] = field(default_factory=list)
+    rows: list[SfMRow] = field(default_factory=list)
     growth_exponents: dict[str, dict[str, float | None]] = field(default_factory=dict)
     peak_memory: dict[str, MemoryFit] = field(default_factory=dict)
     checks: SfMChecks = SfMChecks()
+    load_average: tuple[float, ...] = ()   # when bench.json was written
 
 
 @dataclass(frozen=True)
@@ -156,10 +231,43 @@ def write(record, path: Path) -> None:
     atomic_write(path, dumps(record))
 
 
+def _upgrade_cell_json(data):
+    """A cell of the first layout (one thread, budgets per method, settings as printed dicts) in
+    today's: its settings become a MethodSettings record, nothing of the measurement changes."""
+    if not isinstance(data, dict) or not isinstance(data.get("method_settings"), dict) \
+            or "method" in data["method_settings"]:
+        return data
+    old, method = data["method_settings"], data.get("method")
+    flat = flatten_settings(old)
+    values = dict((x.name, json.loads(x.value)) for x in flat)
+    if method == "ours":
+        budget, size, ignore = values.get("features.max_num_features"), values.get("features.max_image_size"), False
+    else:
+        budget, size = values.get("colmap_sfm_options.max_num_features"), values.get("colmap_sfm_options.max_image_size")
+        ignore = bool(values.get("incremental_options.triangulation.ignore_two_view_tracks", True))
+    bench = dict(data.get("bench_settings") or {})
+    threads = bench.pop("threads", 1)
+    bench["max_num_features"] = int(budget or 0)
+    settings = MethodSettings(str(method), int(threads), int(threads), int(budget or 0), int(size or 0), ignore,
+                              str(bench.get("pairing", "")), flat)
+    return dict(data, cpu_s=data.get("cpu_s"), bench_settings=bench, method_settings=records.to_dict(settings))
+
+
+def _flatten(prefix: str, value):
+    if isinstance(value, dict):
+        for k, v in value.items():
+            yield from _flatten(f"{prefix}.{k}" if prefix else str(k), v)
+    else:
+        yield prefix, value
+
+
+def flatten_settings(value) -> tuple[Setting, ...]:
+    """Every leaf of a nested option tree (dataclass-as-dict or pycolmap ``todict()``) as a Setting."""
+    return tuple(Setting(k, json.dumps(v, default=json_default, sort_keys=True)) for k, v in _flatten("", value))
+
+
 def read_cell(path: Path) -> SfMCell:
-    """The cell at ``path``, strictly (RecordError naming the file and the key); cells written
-    before the CPU time was measured read with ``cpu_s`` None."""
-    data = records.read_json(path)
-    if isinstance(data, dict) and "cpu_s" not in data:
-        data = dict(data, cpu_s=None)
+    """The cell at ``path``, strictly (RecordError naming the file and the key); cells of the first
+    layout (before equal budgets, thread columns and typed settings) are read in today's."""
+    data = _upgrade_cell_json(records.read_json(path))
     return records.from_dict(SfMCell, data, label=str(path))

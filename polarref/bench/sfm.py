@@ -1,17 +1,24 @@
 """``polarref bench sfm``: our SfM vs pycolmap incremental on the same images and pairs, vs views.
 
-One *cell* is one method on one view count. Every cell runs in its own child process (one
-thread: BLAS, OpenCV and pycolmap), so its peak memory (``getrusage(RUSAGE_SELF).ru_maxrss``
-and ``VmHWM`` of the child) belongs to that method alone, and writes ``OUT/cells/<method>-v<N>.json``
-with its stage times, peak memory, tie points, GT errors and every setting. A finished cell is
-reused on the next run (resume after an interruption); a cell made with other settings is
-refused unless ``--overwrite``. ``bench.json``, ``bench.md`` and ``bench.png`` are rebuilt from
-the cells (:mod:`polarref.bench.sfm_report`).
+Level by construction (issue 34): the same images, the fixed GT intrinsics, the same image pairs
+(our pairing, imported by pycolmap as its pair list; the SHA-256 of the list is in every cell)
+and the same SIFT budget (``--max-features``, default 4096) for both. Each method runs in columns
+of 1 and 2 cores: ours with its front end (features, matching, verification) on 1 and 2 worker
+threads (:mod:`polarref.sfm.frontend`, the pipeline's default way to use every core; the mapper's BLAS
+on as many threads), pycolmap with 1 and 2 threads. Tie points are counted by one rule for both
+from the finished models: 3D points seen by >= 2 registered images, and a second column >= 3
+(pycolmap's mapper drops two-view tracks by default, ours keeps them: both counts show it).
 
-Same input for both: the rendered images, the fixed GT intrinsics and the image pairs our
-pairing selects (default sequential, overlap 10), which pycolmap imports as its pair list
-(``match_image_pairs``): each method extracts and matches its own SIFT on those pairs. The
-SHA-256 of the pair list is stored in both cells.
+One *cell* is one variant (method and core count) on one view count, one repeat. Every cell runs
+in its own child process, so its memory belongs to that method alone; every stage (features
+and matching included) records its wall and CPU seconds and its own peak memory (the peak-RSS mark is
+reset at each stage's start, workers included: :mod:`polarref.sfm.stages`). A cell writes
+``OUT/cells/<variant>-v<N>-r<k>.json`` with its stages, tie points, GT errors, the load average
+at its start and the method's settings (:class:`polarref.bench.records.MethodSettings`). Repeats
+run interleaved (all cells once, then again) and the tables show median and range. A finished
+cell is reused on the next run (resume); a cell made with other settings is refused unless
+``--overwrite``. ``bench.json``, ``bench.md`` and ``bench.png`` are rebuilt from the cells
+(:mod:`polarref.bench.sfm_report`).
 """
 
 from __future__ import annotations
@@ -27,10 +34,11 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
-from polarref.bench.records import (BenchSfMSettings, FailedCell, PeakMemory, SfMBench, SfMCell, read_cell,
-                                    write)
+import numpy as np
+
+from polarref.bench.records import (BenchSfMSettings, FailedCell, MethodSettings, PeakMemory, SfMBench, SfMCell,
+                                    flatten_settings, read_cell, variant_label, write)
 from polarref.bench.sfm_report import STAGES, write_outputs  # noqa: F401 (STAGES re-exported)
 from polarref.core import records
 from polarref.core.errors import PolarrefError
@@ -38,25 +46,38 @@ from polarref.core.provenance import collect_record
 from polarref.core.status import RunStatus
 from polarref.model import Reconstruction
 from polarref.model.colmap import from_pycolmap, read_model
+from polarref.sfm.stages import StageClock, StageCost
 
 log = logging.getLogger(__name__)
 
 METHODS = ("ours", "pycolmap")
-# pipeline stages timed per method (scoring against GT and writing files are not counted)
+PARALLEL = (1, 2)   # ours: front-end worker threads; pycolmap: threads (the four columns of issue 34)
 THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@dataclass(frozen=True)
+class Variant:
+    """One column: a method on ``parallel`` workers (ours) or threads (pycolmap)."""
+
+    method: str
+    parallel: int = 1
+
+    @property
+    def label(self) -> str:
+        return variant_label(self.method, self.parallel)
 
 
 @dataclass(frozen=True)
 class _MethodOutput:
     """What one method's run hands to the cell (in the cell's process)."""
 
-    stages_s: dict[str, float]
+    stages: tuple[StageCost, ...]
     rec: Reconstruction
     gt: Reconstruction
     num_images: int
     pairs: int
     pairs_sha256: str
-    settings: dict[str, Any]   # the method's option objects as they print
+    settings: MethodSettings
 
 
 def scene_root(settings: BenchSfMSettings, views: int) -> Path:
@@ -88,8 +109,9 @@ def _pairs_digest(names: list[str], pairs) -> str:
 
 
 def _cpu_seconds() -> float:
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return float(r.ru_utime + r.ru_stime)
+    """This process's CPU seconds and its finished children's (the Dask workers, once shut down)."""
+    r, c = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return float(r.ru_utime + r.ru_stime + c.ru_utime + c.ru_stime)
 
 
 def peak_memory_mb() -> PeakMemory:
@@ -114,67 +136,93 @@ def _scene(root: Path):
     return names, loaded.polarref_camera(), read_model(loaded.gt_dir)
 
 
-def _ours_config(settings: BenchSfMSettings):
+def _ours_config(settings: BenchSfMSettings, parallel: int = 1):
     from polarref.sfm.pipeline import PRESETS
 
     base = PRESETS["default"]
-    return dataclasses.replace(base, use_cache=False, matching=dataclasses.replace(
-        base.matching, pairing=settings.pairing, sequential_overlap=settings.overlap))
+    return dataclasses.replace(
+        base, use_cache=False, threads=parallel,
+        features=dataclasses.replace(base.features, max_num_features=settings.max_num_features),
+        matching=dataclasses.replace(base.matching, pairing=settings.pairing, sequential_overlap=settings.overlap))
 
 
-def _run_ours(root: Path, settings: BenchSfMSettings) -> _MethodOutput:
+def _run_ours(root: Path, settings: BenchSfMSettings, parallel: int) -> _MethodOutput:
+    """Our pipeline in this process, its front end on ``parallel`` threads (polarref.sfm.frontend)."""
     from polarref.sfm.pipeline import run_sfm
 
     names, camera, gt = _scene(root)
-    config = _ours_config(settings)
+    config = _ours_config(settings, parallel)
     res = run_sfm(root / "images", None, config, camera=camera, gt=gt)
-    t = res.report.runtime_s
-    stages = {s: float(t.get(s, 0.0)) for s in STAGES["ours"]}
-    stages["ba"] = float(t.get("ba", 0.0))  # part of mapping
     pairs = pairs_for(len(names), settings)
-    return _MethodOutput(stages, res.reconstruction, gt, len(names), len(pairs), _pairs_digest(names, pairs),
-                         dataclasses.asdict(config))
+    ms = MethodSettings("ours", parallel, parallel, config.features.max_num_features, config.features.max_image_size,
+                        False, f"{settings.pairing}, overlap {settings.overlap}",
+                        flatten_settings(dataclasses.asdict(config)))
+    return _MethodOutput(res.stages, res.reconstruction, gt, len(names), len(pairs), _pairs_digest(names, pairs), ms)
 
 
-def _run_pycolmap(root: Path, settings: BenchSfMSettings, work: Path) -> _MethodOutput:
-    from polarref.peers.colmap_sfm import (ColmapSfMOptions, extract_and_match_sift, incremental_options,
+def _run_pycolmap(root: Path, settings: BenchSfMSettings, parallel: int, work: Path) -> _MethodOutput:
+    from polarref.peers.colmap_sfm import (ColmapSfMOptions, extract_sift, incremental_options, match_sift,
                                            run_mapper, sift_options)
 
     names, camera, gt = _scene(root)
     pairs = pairs_for(len(names), settings)
-    opts = ColmapSfMOptions(seed=settings.seed, num_threads=settings.threads)
+    opts = ColmapSfMOptions(seed=settings.seed, num_threads=parallel, max_num_features=settings.max_num_features)
     db = work / "database.db"
     pairs_txt = work / "pairs.txt"
     pairs_txt.write_text("".join(f"{names[i]} {names[j]}\n" for i, j in pairs))
     # The same extraction and imported-pair matching as the twin comparison (one code path).
-    t = extract_and_match_sift(root / "images", camera, db, opts, image_names=names, overwrite=True,
-                               pairs_file=pairs_txt)
-    extraction, matching = sift_options(opts)
+    clock = StageClock()
+    clock.start("features")
+    extract_sift(root / "images", camera, db, opts, image_names=names, overwrite=True)
+    clock.stop()
+    clock.start("matching")
+    match_sift(db, opts, pairs_txt)
+    clock.stop()
+    clock.start("mapping")
     run = run_mapper(db, root / "images", work / "sparse", "incremental", opts)
-    stages = {"features": t["features"], "matching": t["matching"], "mapping": run.stage_runtime_s["mapping"]}
+    clock.stop()
     if run.reconstruction is None:
         raise PolarrefError("pycolmap incremental mapping registered no images")
-    settings_out = {"colmap_sfm_options": dataclasses.asdict(opts),
-                    "incremental_options": incremental_options(opts).todict(),
-                    "extraction_options": extraction.todict(), "matching_options": matching.todict(),
-                    "pairing": f"imported pair list ({settings.pairing}, overlap {settings.overlap})"}
-    return _MethodOutput(stages, from_pycolmap(run.reconstruction), gt, len(names), len(pairs),
-                         _pairs_digest(names, pairs), settings_out)
+    extraction, matching = sift_options(opts)
+    mapper = incremental_options(opts)
+    ms = MethodSettings("pycolmap", parallel, parallel, opts.max_num_features, opts.max_image_size,
+                        bool(mapper.triangulation.ignore_two_view_tracks),
+                        f"imported pair list ({settings.pairing}, overlap {settings.overlap})",
+                        flatten_settings({"colmap_sfm_options": dataclasses.asdict(opts),
+                                          "incremental_options": mapper.todict(),
+                                          "extraction_options": extraction.todict(),
+                                          "matching_options": matching.todict()}))
+    return _MethodOutput(tuple(clock.stages), from_pycolmap(run.reconstruction), gt, len(names), len(pairs),
+                         _pairs_digest(names, pairs), ms)
 
 
-def run_cell(method: str, root: Path, settings: BenchSfMSettings, work: Path) -> SfMCell:
-    """Run one method on one scene here and return the cell record."""
+def tie_points_seen_by(rec: Reconstruction, min_images: int) -> int:
+    """3D points whose track holds >= ``min_images`` distinct registered images (one rule for both methods)."""
+    registered = np.array(sorted(rec.images), np.int64)
+    n = 0
+    for p in rec.points3D.values():
+        ids = np.unique(np.asarray(p.track, np.int64).reshape(-1, 2)[:, 0])
+        n += int(np.isin(ids, registered).sum() >= min_images)
+    return n
+
+
+def run_cell(variant: Variant, root: Path, settings: BenchSfMSettings, work: Path, repeat: int = 1) -> SfMCell:
+    """Run one method variant on one scene here and return the cell record."""
     from polarref import metrics as M
 
+    load = os.getloadavg()
     t0 = time.perf_counter()
-    got = _run_ours(root, settings) if method == "ours" else _run_pycolmap(root, settings, work)
+    got = (_run_ours(root, settings, variant.parallel) if variant.method == "ours"
+           else _run_pycolmap(root, settings, variant.parallel, work))
     wall = time.perf_counter() - t0
     m = M.evaluate(got.rec, gt=got.gt, num_images=got.num_images)
+    stages_s = {s.stage: float(s.wall_s) for s in got.stages if s.stage in (*STAGES[variant.method], "ba")}
     return SfMCell(
-        method=method, views=got.num_images, status=RunStatus.OK, stages_s=got.stages_s,
-        total_s=float(sum(got.stages_s[s] for s in STAGES[method])), wall_s=wall, peak_memory_mb=peak_memory_mb(),
-        # CPU seconds of the whole cell process (imports and scoring included): on a loaded
-        # machine a steadier figure than wall time (one thread each)
+        method=variant.method, views=got.num_images, status=RunStatus.OK, stages_s=stages_s,
+        total_s=float(sum(stages_s.get(s, 0.0) for s in STAGES[variant.method])), wall_s=wall,
+        peak_memory_mb=peak_memory_mb(),
+        # CPU seconds of the whole cell process and its workers (imports and scoring included):
+        # on a loaded machine a steadier figure than wall time
         cpu_s=_cpu_seconds(),
         registered_images=m.registered_images, tie_points=m.tie_points, observations=m.reprojected_px,
         mean_track_length=m.mean_track_length, mean_reprojection_error_px=m.mean_reprojection_error_px,
@@ -182,27 +230,29 @@ def run_cell(method: str, root: Path, settings: BenchSfMSettings, work: Path) ->
         center_error_rel_mean=None if m.gt is None else m.gt.center_error_rel_mean,
         pairs=got.pairs, pairs_sha256=got.pairs_sha256, bench_settings=settings, method_settings=got.settings,
         scene_root=str(root), environment=collect_record(seeds={"seed": settings.seed},
-                                                         threads={"all_stages": settings.threads}))
+                                                         threads={"all_stages": variant.parallel}),
+        parallel=variant.parallel, repeat=repeat, tie_points_2v=tie_points_seen_by(got.rec, 2),
+        tie_points_3v=tie_points_seen_by(got.rec, 3), stages=got.stages, load_average=tuple(load))
 
 
 def _child(argv: list[str]) -> int:
-    """``python -m polarref.bench.sfm METHOD SCENE_ROOT SETTINGS_JSON OUT_JSON`` (one cell)."""
+    """``python -m polarref.bench.sfm METHOD PARALLEL REPEAT SCENE_ROOT SETTINGS_JSON OUT_JSON`` (one cell)."""
     import tempfile
 
     import cv2
 
-    method, root, settings_json, out = argv
-    cv2.setNumThreads(1)
+    method, parallel, repeat, root, settings_json, out = argv
+    cv2.setNumThreads(int(parallel))
     settings = records.from_dict(BenchSfMSettings, json.loads(settings_json), label="bench settings")
     with tempfile.TemporaryDirectory(prefix="bench-sfm-") as work:
-        cell = run_cell(method, Path(root), settings, Path(work))
+        cell = run_cell(Variant(method, int(parallel)), Path(root), settings, Path(work), int(repeat))
     write(cell, Path(out))
     return 0
 
 
 # ---- the sweep (parent) ------------------------------------------------------------------------
-def cell_path(out: Path, method: str, views: int) -> Path:
-    return out / "cells" / f"{method}-v{views}.json"
+def cell_path(out: Path, variant: Variant, views: int, repeat: int = 1) -> Path:
+    return out / "cells" / f"{variant.label}-v{views}-r{repeat}.json"
 
 
 def load_cell(path: Path, settings: BenchSfMSettings) -> SfMCell | None:
@@ -225,54 +275,68 @@ def _log_line(out: Path, text: str) -> None:
         fh.write(f"{time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())} {text}\n")
 
 
-def _spawn(method: str, root: Path, settings: BenchSfMSettings, path: Path, timeout_s: float | None) -> None:
-    env = dict(os.environ, **{v: str(settings.threads) for v in THREAD_VARS})
-    cmd = [sys.executable, "-m", "polarref.bench.sfm", method, str(root),
+def _spawn(variant: Variant, repeat: int, root: Path, settings: BenchSfMSettings, path: Path,
+           timeout_s: float | None) -> None:
+    env = dict(os.environ, **{v: str(variant.parallel) for v in THREAD_VARS})
+    cmd = [sys.executable, "-m", "polarref.bench.sfm", variant.method, str(variant.parallel), str(repeat), str(root),
            json.dumps(dataclasses.asdict(settings)), str(path)]
     try:
         r = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=timeout_s)
     except subprocess.TimeoutExpired as exc:
-        raise PolarrefError(f"bench cell {method} ran past {timeout_s:.0f} s") from exc
+        raise PolarrefError(f"bench cell {variant.label} ran past {timeout_s:.0f} s") from exc
     if r.returncode != 0:
         tail = (r.stderr.strip().splitlines() or ["(no output)"])[-1]
-        raise PolarrefError(f"bench cell {method} on {root.name} failed: {tail}")
+        raise PolarrefError(f"bench cell {variant.label} on {root.name} failed: {tail}")
+
+
+def variants(methods: tuple[str, ...] = METHODS, parallel: tuple[int, ...] = PARALLEL) -> list[Variant]:
+    return [Variant(m, p) for p in parallel for m in methods]
+
+
+def _one(out: Path, variant: Variant, n: int, repeat: int, settings: BenchSfMSettings, overwrite: bool,
+         timeout_s: float | None, roots: list[Path], report_only: bool = False) -> SfMCell | FailedCell | None:
+    path = cell_path(out, variant, n, repeat)
+    name = f"{variant.label} v{n} r{repeat}"
+    cell = None if overwrite else load_cell(path, settings)
+    if cell is not None:
+        _log_line(out, f"{name}: finished cell reused ({cell.total_s:.1f} s)")
+        return cell
+    if report_only:
+        _log_line(out, f"{name}: not run (--report-only)")
+        return None
+    root = roots[0] if roots else scene_root(settings, n)
+    roots[:] = [root]
+    _log_line(out, f"{name}: running (load average {os.getloadavg()[0]:.2f})")
+    try:
+        _spawn(variant, repeat, root, settings, path, timeout_s)
+        cell = read_cell(path)
+    except (PolarrefError, records.RecordError) as exc:
+        _log_line(out, f"{name}: FAILED {exc}")
+        return FailedCell(variant.method, n, str(exc), variant.parallel, repeat)
+    _log_line(out, f"{name}: done, total {cell.total_s:.1f} s, peak {cell.peak_memory_mb.ru_maxrss_mb:.0f} MiB, "
+                   f"{cell.registered_images} registered, {cell.tie_points_2v} tie points (>= 2 views)")
+    return cell
 
 
 def run_bench(views: list[int], out: Path, settings: BenchSfMSettings = BenchSfMSettings(),
               methods: tuple[str, ...] = METHODS, overwrite: bool = False,
-              cell_timeout_s: float | None = None) -> SfMBench:
-    """Run every (method, views) cell not finished yet, then write bench.json/md/png from all cells."""
+              cell_timeout_s: float | None = None, parallel: tuple[int, ...] = PARALLEL,
+              repeats: int = 1, report_only: bool = False) -> SfMBench:
+    """Run every (variant, views, repeat) cell not finished yet, then write bench.json/md/png from all cells.
 
+    Repeats are interleaved: every variant and view count once, then all again, so a change of the
+    machine's load spreads over all columns instead of falling on one. ``report_only``: run no
+    cell, rebuild the outputs from the finished ones (a sweep stopped part-way)."""
     out.mkdir(parents=True, exist_ok=True)
     (out / "cells").mkdir(exist_ok=True)
     cells, failed = [], []
-    for n in views:
-        root = None
-        for method in methods:
-            path = cell_path(out, method, n)
-            cell = None if overwrite else load_cell(path, settings)
-            if cell is not None:
-                _log_line(out, f"{method} v{n}: finished cell reused ({cell.total_s:.1f} s)")
-                cells.append(cell)
-                continue
-            root = root or scene_root(settings, n)
-            _log_line(out, f"{method} v{n}: running")
-            try:
-                _spawn(method, root, settings, path, cell_timeout_s)
-            except PolarrefError as exc:
-                _log_line(out, f"{method} v{n}: FAILED {exc}")
-                failed.append(FailedCell(method, n, str(exc)))
-                continue
-            try:
-                cell = read_cell(path)
-            except records.RecordError as exc:
-                _log_line(out, f"{method} v{n}: FAILED {exc}")
-                failed.append(FailedCell(method, n, str(exc)))
-                continue
-            _log_line(out, f"{method} v{n}: done, total {cell.total_s:.1f} s, peak "
-                           f"{cell.peak_memory_mb.ru_maxrss_mb:.0f} MiB, {cell.registered_images} registered, "
-                           f"{cell.tie_points} tie points")
-            cells.append(cell)
+    roots: dict[int, list[Path]] = {n: [] for n in views}
+    for repeat in range(1, repeats + 1):
+        for n in views:
+            for variant in variants(methods, parallel):
+                got = _one(out, variant, n, repeat, settings, overwrite, cell_timeout_s, roots[n], report_only)
+                if got is not None:
+                    (failed if isinstance(got, FailedCell) else cells).append(got)
     return write_outputs(out, cells, failed, settings)
 
 

@@ -25,7 +25,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--scipy-max-obs", type=nonneg_int, default=400_000,
                         help="skip scipy on problems with more observations")
     parser.add_argument("--repeat", type=positive_int, default=1,
-                        help="timed runs per solver (interleaved); every run is stored, medians and ranges shown")
+                        help="timed runs per solver (ba) or cell (sfm), interleaved; every run is stored, "
+                        "medians and ranges shown")
     parser.add_argument("--merge", action="store_true",
                         help="add/replace these problems in an existing OUT/bench.json")
     parser.add_argument("--bisect-max-obs", type=nonneg_int, default=400_000,
@@ -48,6 +49,12 @@ def add_arguments(parser) -> None:
     sfm.add_argument("--overlap", type=positive_int, default=10, help="sequential pairing overlap")
     sfm.add_argument("--seed", type=nonneg_int, default=0)
     sfm.add_argument("--cell-timeout", type=positive_int, default=None, help="seconds per (method, views) cell")
+    sfm.add_argument("--parallel", type=int_range(1, 64), nargs="+", default=[1, 2],
+                     help="core counts per method: ours' front-end worker threads, pycolmap's threads (default: 1 2)")
+    sfm.add_argument("--max-features", type=positive_int, default=4096,
+                     help="SIFT keypoints per image, the same budget for both methods")
+    sfm.add_argument("--report-only", action="store_true",
+                     help="run no cell: rebuild bench.json/md/png from the finished cells (a sweep stopped part-way)")
     parser.add_argument("--out", required=True, help="output folder (bench.json, bench.md; sfm: also bench.png, "
                         "cells/, bench.log)")
     parser.add_argument("--overwrite", action="store_true")
@@ -91,8 +98,10 @@ def _run_sfm(args) -> int:
     if out.exists() and not out.is_dir():
         raise PolarrefError(f"{out} is not a folder (choose another output folder)")
     check_writable_parent(out / "bench.json")
-    settings = BenchSfMSettings(scene=args.scene, preset=args.preset, seed=args.seed, overlap=args.overlap)
+    settings = BenchSfMSettings(scene=args.scene, preset=args.preset, seed=args.seed, overlap=args.overlap,
+                                max_num_features=args.max_features)
     bench = run_bench(sorted(set(args.views)), out, settings, tuple(args.methods), overwrite=args.overwrite,
-                      cell_timeout_s=args.cell_timeout)
+                      cell_timeout_s=args.cell_timeout, parallel=tuple(sorted(set(args.parallel))),
+                      repeats=args.repeat, report_only=args.report_only)
     print((out / "bench.md").read_text())
     return 0 if bench.cells and not bench.failed else 1

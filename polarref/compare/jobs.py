@@ -41,10 +41,10 @@ def pycolmap_sift_db(image_dir: str, image_names: list[str], camera: dict, db_pa
                      seed: int, num_threads: int = 1, pairs_file: str = "",
                      max_num_features: int | None = None) -> MethodRun:
     """pycolmap SIFT + exhaustive matching (or the pairs of ``pairs_file``) + verification into ``db_path``."""
-    stages = extract_and_match_sift(Path(image_dir), camera_from_json(camera), Path(db_path),
-                                    _options(seed, num_threads, max_num_features), image_names=image_names,
-                                    overwrite=True, pairs_file=Path(pairs_file) if pairs_file else None)
-    return MethodRun("pycolmap-features", stage_runtime_s={k: float(v) for k, v in stages.items()},
+    sift = extract_and_match_sift(Path(image_dir), camera_from_json(camera), Path(db_path),
+                                  _options(seed, num_threads, max_num_features), image_names=image_names,
+                                  overwrite=True, pairs_file=Path(pairs_file) if pairs_file else None)
+    return MethodRun("pycolmap-features", stage_runtime_s={"features": sift.features, "matching": sift.matching},
                      verified_pairs=count_verified_pairs(Path(db_path)), peak_rss_mb=ours.peak_rss_mb())
 
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from polarref.camera import Camera
 from polarref.compare import presets
-from polarref.model.run import MethodRun, SkippedImage, TracePoint
+from polarref.model.run import MethodRun, TracePoint
 from polarref.peers.colmap_sfm import count_verified_pairs
 from polarref.sfm.config import PRESETS, SfMConfig
 
@@ -26,7 +26,9 @@ from polarref.sfm.config import PRESETS, SfMConfig
 _NOT_STAGES = {"total", "metrics", "export", "features_cached", "matches_cached"}
 # features/matching/verification of a method come from the shared cache: their real cost is the shared stage's
 _SHARED_STAGES = ("features", "matching", "verification")
-FEATURES_CACHED = "features (loaded from an earlier run's cache)"
+CACHED = "{} (loaded from an earlier run's cache)"
+MEASURED = "{} (measured when the cache was made)"
+FEATURES_CACHED = CACHED.format("features")
 
 
 def peak_rss_mb() -> float:
@@ -49,21 +51,30 @@ def sfm_config(preset: str, cache_dir: Path, pairs_file: str = "", track_conflic
 
 def _features_and_matches(image_dir: Path, cam: Camera, config: SfMConfig):
     from polarref.sfm.pipeline import load_images_and_features, match_and_verify
+    from polarref.sfm.stages import StageClock
 
-    timings: dict[str, float] = {}
-    feats, skipped, key = load_images_and_features(image_dir, config, timings)
-    matches = match_and_verify(feats, [cam], np.zeros(len(feats), np.int64), config, key, timings)
-    return matches, skipped, timings, key
+    clock = StageClock()
+    feats, skipped, key = load_images_and_features(image_dir, config, clock)
+    matches = match_and_verify(feats, [cam], np.zeros(len(feats), np.int64), config, key, clock)
+    return matches, skipped, clock, key
 
 
 def prepare_features(image_dir: Path, cam: Camera, config: SfMConfig) -> MethodRun:
     """Compute (and cache) features and verified matches; returns the timed stages."""
-    matches, skipped, timings, key = _features_and_matches(image_dir, cam, config)
-    stages = {k: float(timings[k]) for k in _SHARED_STAGES if k in timings}
-    if timings.get("features_cached"):  # the time to load them, not to extract them: say so
-        stages[FEATURES_CACHED] = stages.pop("features")
+    matches, skipped, clock, key = _features_and_matches(image_dir, cam, config)
+    stages: dict[str, float] = {}
+    for s in clock.stages:
+        if s.stage not in _SHARED_STAGES:
+            continue
+        if not s.cached:
+            stages[s.stage] = s.wall_s
+            continue
+        # the time to load them, not to compute them: say so, and count what computing them took
+        stages[CACHED.format(s.stage)] = s.wall_s
+        if s.measured_s is not None:
+            stages[MEASURED.format(s.stage)] = s.measured_s
     return MethodRun("ours-features", stage_runtime_s=stages, verified_pairs=len(matches.geometries),
-                     skipped_images=[SkippedImage(str(s["name"]), str(s["reason"])) for s in skipped],
+                     skipped_images=list(skipped),
                      feature_file=str(Path(config.cache_dir) / f"features-{key}.npz"), peak_rss_mb=peak_rss_mb())
 
 

@@ -123,35 +123,36 @@ def sift_options(opts: ColmapSfMOptions):
     return extraction, matching
 
 
-def extract_and_match_sift(image_dir: Path, camera, db_path: Path, opts: ColmapSfMOptions = ColmapSfMOptions(),
-                           image_names: Sequence[str] | None = None, overwrite: bool = False,
-                           pairs_file: Path | None = None) -> dict[str, float]:
-    """pycolmap SIFT, exhaustive matching (or the pairs of ``pairs_file``, a COLMAP match list,
-    e.g. from :mod:`polarref.sfm.pairing`, via ``match_image_pairs``) and verification into a new database.
+@dataclass(frozen=True)
+class SiftTimes:
+    """Wall seconds of pycolmap's SIFT stages (matching includes its verification)."""
 
-    Args:
-        image_dir: folder of the images.
-        camera: :class:`polarref.camera.Camera` shared by all images (fixed intrinsics).
-        db_path: database to create.
-        image_names: the images to use (default: every image in ``image_dir``).
-        overwrite: replace an existing ``db_path`` (otherwise PolarrefError).
+    features: float
+    matching: float
 
-    Returns:
-        {"features": s, "matching": s} (matching includes verification).
-    """
+
+def extract_sift(image_dir: Path, camera, db_path: Path, opts: ColmapSfMOptions = ColmapSfMOptions(),
+                 image_names: Sequence[str] | None = None, overwrite: bool = False) -> Path:
+    """pycolmap SIFT of ``image_dir`` (one shared camera with fixed intrinsics) into a new database."""
     pycolmap = _pycolmap()
     db_path = _fresh_database(db_path, overwrite)
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = camera.to_pycolmap().model.name
     # Given the parameters, the reader also sets has_prior_focal_length (trap 2 above).
     reader.camera_params = ",".join(repr(float(p)) for p in np.asarray(camera.params))
-    extraction, matching = sift_options(opts)
-    kwargs = {} if image_names is None else {"image_names": list(image_names)}
-    t0 = time.perf_counter()
+    extraction, _ = sift_options(opts)
+    names = {} if image_names is None else {"image_names": list(image_names)}
     pycolmap.extract_features(str(db_path), str(image_dir), camera_mode=pycolmap.CameraMode.SINGLE,
                               reader_options=reader, extraction_options=extraction,
-                              device=pycolmap.Device.cpu, **kwargs)
-    t1 = time.perf_counter()
+                              device=pycolmap.Device.cpu, **names)
+    return db_path
+
+
+def match_sift(db_path: Path, opts: ColmapSfMOptions = ColmapSfMOptions(), pairs_file: Path | None = None) -> None:
+    """Exhaustive matching (or the pairs of ``pairs_file``, a COLMAP match list, e.g. from
+    :mod:`polarref.sfm.pairing`, via ``match_image_pairs``) and verification of a SIFT database."""
+    pycolmap = _pycolmap()
+    _, matching = sift_options(opts)
     if pairs_file is None:
         pycolmap.match_exhaustive(str(db_path), matching_options=matching, device=pycolmap.Device.cpu)
     else:  # exactly the pairs every other method matches
@@ -159,7 +160,35 @@ def extract_and_match_sift(image_dir: Path, camera, db_path: Path, opts: ColmapS
         pairing.match_list_path = str(pairs_file)
         pycolmap.match_image_pairs(str(db_path), matching_options=matching, pairing_options=pairing,
                                    device=pycolmap.Device.cpu)
-    return {"features": t1 - t0, "matching": time.perf_counter() - t1}
+
+
+def extract_and_match_sift(image_dir: Path, camera, db_path: Path, opts: ColmapSfMOptions = ColmapSfMOptions(),
+                           image_names: Sequence[str] | None = None, overwrite: bool = False,
+                           pairs_file: Path | None = None) -> SiftTimes:
+    """:func:`extract_sift` then :func:`match_sift` into a new database.
+
+    Args:
+        image_dir: folder of the images.
+        camera: :class:`polarref.camera.Camera` shared by all images (fixed intrinsics).
+        db_path: database to create.
+        image_names: the images to use (default: every image in ``image_dir``).
+        overwrite: replace an existing ``db_path`` (otherwise PolarrefError).
+        pairs_file: match only these pairs (default: exhaustive).
+    """
+    t0 = time.perf_counter()
+    extract_sift(image_dir, camera, db_path, opts, image_names, overwrite)
+    t1 = time.perf_counter()
+    match_sift(db_path, opts, pairs_file)
+    return SiftTimes(t1 - t0, time.perf_counter() - t1)
+
+
+@dataclass(frozen=True)
+class ImportedFeatures:
+    """What :func:`import_features` wrote: image ids in input order, seconds per step."""
+
+    image_ids: tuple[int, ...]
+    import_s: float
+    verification_s: float | None = None   # pycolmap's own verification (only without ``verified``)
 
 
 def _match_array(m, i: int, j: int) -> tuple[int, int, np.ndarray]:
@@ -174,7 +203,7 @@ def _match_array(m, i: int, j: int) -> tuple[int, int, np.ndarray]:
 def import_features(db_path: Path, cameras, image_names: Sequence[str], keypoints: Sequence[np.ndarray],
                     matches: Mapping[Pair, np.ndarray], *, camera_of_image: Sequence[int] | None = None,
                     verified: Mapping[Pair, object] | None = None, descriptors: Sequence[np.ndarray] | None = None,
-                    overwrite: bool = False) -> tuple[dict[str, int], dict[str, float]]:
+                    overwrite: bool = False) -> ImportedFeatures:
     """Write our features into a new pycolmap database.
 
     Image ``i`` is written in list order (COLMAP assigns the ids); every camera gets
@@ -196,7 +225,7 @@ def import_features(db_path: Path, cameras, image_names: Sequence[str], keypoint
         overwrite: replace an existing ``db_path`` (otherwise PolarrefError).
 
     Returns:
-        ({image name: COLMAP image_id}, {"import": s[, "verification": s]}).
+        the COLMAP image ids (in ``image_names`` order) and the seconds of each step.
     """
     pycolmap = _pycolmap()
     cams = list(cameras) if isinstance(cameras, (list, tuple)) else [cameras]
@@ -238,14 +267,14 @@ def import_features(db_path: Path, cameras, image_names: Sequence[str], keypoint
     finally:
         db.close()
     t1 = time.perf_counter()
-    timings = {"import": t1 - t0}
+    verification_s = None
     if verified is None:
         pairs_txt = db_path.with_suffix(".pairs.txt")
         pairs = sorted({(min(i, j), max(i, j)) for i, j in matches})
         pairs_txt.write_text("".join(f"{image_names[i]} {image_names[j]}\n" for i, j in pairs))
         pycolmap.verify_matches(str(db_path), str(pairs_txt), pycolmap.TwoViewGeometryOptions())
-        timings["verification"] = time.perf_counter() - t1
-    return dict(zip(image_names, ids)), timings
+        verification_s = time.perf_counter() - t1
+    return ImportedFeatures(tuple(int(i) for i in ids), t1 - t0, verification_s)
 
 
 def copy_database(src: Path, dst: Path) -> Path:
@@ -295,9 +324,9 @@ def run_sift_sfm(image_dir: Path, camera, work_dir: Path, opts: ColmapSfMOptions
     ``work_dir/sparse``. Timings of all stages are in the result."""
     work_dir = Path(work_dir)
     db = work_dir / "database.db"
-    stages = extract_and_match_sift(image_dir, camera, db, opts, image_names=image_names, overwrite=overwrite)
+    sift = extract_and_match_sift(image_dir, camera, db, opts, image_names=image_names, overwrite=overwrite)
     run = run_mapper(db, image_dir, work_dir / "sparse", mapper, opts)
-    run.stage_runtime_s = {**stages, **run.stage_runtime_s}
+    run.stage_runtime_s = {"features": sift.features, "matching": sift.matching, **run.stage_runtime_s}
     return run
 
 

@@ -29,6 +29,9 @@ class SfMConfig:
     # images left out of a model that still share verified pairs start another model, up to
     # this many models in all (COLMAP's incremental mapper does the same; 1 = one model only)
     max_models: int = 10
+    # threads of the front end (features, matching, verification) in this process; 0 = every
+    # core it may use (polarref.sfm.frontend; the results do not depend on it)
+    threads: int = 0
 
 
 PRESETS: dict[str, SfMConfig] = {

@@ -28,6 +28,7 @@ from polarref.sfm import features as F
 from polarref.sfm.cache import cache_dir_for, cache_valid, code_digest, hash_parts, load_matches, save_matches, seal
 from polarref.sfm.config import PRESETS, SfMConfig, with_ba  # noqa: F401 (re-exported)
 from polarref.sfm import feature_cache as FC
+from polarref.sfm import frontend as FE
 from polarref.sfm import rays as R_
 from polarref.sfm.bundle import to_reconstruction
 from polarref.sfm.mapper import run_mapper
@@ -36,7 +37,9 @@ from polarref.sfm.report import ModelSummary, SfMReport, UnregisteredImage
 from polarref.sfm.matching import match_pairs, select_pairs
 from polarref.sfm.state import MapState
 from polarref.sfm.tracks import build_tracks
+from polarref.sfm.stages import StageClock, StageCost
 from polarref.sfm.verification import TwoViewGeometry, verify_pairs
+from polarref.io.scene_folder import SkippedImage
 from polarref.core.status import RunStatus
 
 log = logging.getLogger(__name__)
@@ -45,13 +48,9 @@ log = logging.getLogger(__name__)
 @dataclass
 class SfMResult:
     reconstruction: Reconstruction
-    report: SfMReport      # what OUT/metrics.json holds
+    report: SfMReport      # what OUT/metrics.json holds (its JSON form: report.to_json())
     out_dir: Path | None
-
-    @property
-    def metrics(self) -> dict:
-        """The report in its metrics.json form (serialization view of :attr:`report`)."""
-        return self.report.to_json()
+    stages: tuple[StageCost, ...] = ()   # every stage's wall/CPU time, peak memory, cache flag
 
 
 @dataclass
@@ -125,9 +124,25 @@ def _parts_dir(config: SfMConfig) -> Path:
 
 
 # ---- stages -----------------------------------------------------------------------------------
-def load_images_and_features(image_dir: Path, config: SfMConfig, timings: dict) -> tuple[list[F.Features], list[dict], str]:
-    """Features of every readable image (cached); (features, skipped [{name, reason}], cache key)."""
-    t0 = time.perf_counter()
+def _read_skipped_json(path: Path) -> list[SkippedImage]:
+    return [SkippedImage(str(s["name"]), str(s["reason"])) for s in json.loads(path.read_text())]
+
+
+def _read_extraction_json(path: Path) -> float | None:
+    """The extraction wall time stored beside a features cache entry (None: an entry from before)."""
+    try:
+        return float(json.loads(path.read_text())["wall_s"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def load_images_and_features(image_dir: Path, config: SfMConfig,
+                             clock: StageClock) -> tuple[list[F.Features], list[SkippedImage], str]:
+    """Features of every readable image (cached); (features, skipped images, cache key).
+
+    ``clock`` gets the ``features`` stage; loaded from the cache it is marked so, with the
+    extraction time measured when the cache entry was made."""
+    clock.start("features")
     paths = F.list_images(image_dir) if Path(image_dir).is_dir() else []
     if not paths:
         raise PolarrefError(f"no images found in {image_dir} (suffixes {', '.join(F.IMAGE_SUFFIXES)})")
@@ -135,23 +150,26 @@ def load_images_and_features(image_dir: Path, config: SfMConfig, timings: dict) 
     key = hash_parts("features", code_digest(F), [p.name for p in paths], digests, config.features)
     cache = _cache_file(config, f"features-{key}.npz")
     skipped_file = cache.with_suffix(".skipped.json")
+    timing_file = cache.with_suffix(".extraction.json")
     if config.use_cache and cache_valid(cache) and cache_valid(skipped_file):
         # descriptors stay on disk until matching needs them (ensure_descriptors): with the
         # matches cached too, a run never reads them (631 views: 1.3 GB off the peak)
         feats = FC.load_without_descriptors(cache)
-        skipped = json.loads(skipped_file.read_text())
-        timings["features_cached"] = True
+        skipped = _read_skipped_json(skipped_file)
+        cached, measured = True, _read_extraction_json(timing_file)
     else:
+        t0 = time.perf_counter()
         feats, skipped = _extract_all(paths, config, key)
+        cached, measured = False, None
         if config.use_cache:
             F.save(cache, feats)
             seal(cache)
-            atomic_write(skipped_file, json.dumps(skipped))
+            atomic_write(skipped_file, json.dumps([dataclasses.asdict(s) for s in skipped]))
             seal(skipped_file)
-        timings["features_cached"] = False
+            atomic_write(timing_file, json.dumps({"wall_s": time.perf_counter() - t0}))
     for s in skipped if len(feats) >= 2 else ():  # too few left: the one error line names them
-        log.warning("skipped image %s: %s", s["name"], s["reason"])
-    timings["features"] = time.perf_counter() - t0
+        log.warning("skipped image %s: %s", s.name, s.reason)
+    clock.stop(cached=cached, measured_s=measured)
     return feats, skipped, key
 
 
@@ -166,9 +184,9 @@ def ensure_descriptors(feats: list[F.Features], config: SfMConfig, feature_key: 
 
 
 def match_and_verify(feats: list[F.Features], cameras: list, camera_of_image: np.ndarray, config: SfMConfig,
-                     feature_key: str, timings: dict, centers: np.ndarray | None = None) -> Matches:
-    """Putative and verified matches (cached)."""
-    t0 = time.perf_counter()
+                     feature_key: str, clock: StageClock, centers: np.ndarray | None = None) -> Matches:
+    """Putative and verified matches (cached); ``clock`` gets the matching and verification stages."""
+    clock.start("matching")
     cam_key = [(c.model, c.width, c.height, np.asarray(c.params).tolist()) for c in cameras]
     from polarref.sfm import matching, verification
 
@@ -177,32 +195,55 @@ def match_and_verify(feats: list[F.Features], cameras: list, camera_of_image: np
     cache = _cache_file(config, f"matches-{key}.npz")
     if config.use_cache and cache_valid(cache):
         putative, geoms = load_matches(cache)
-        timings["matching"] = time.perf_counter() - t0
-        timings["verification"] = 0.0
-        timings["matches_cached"] = True
+        clock.stop(cached=True, measured_s=_read_extraction_json(cache.with_suffix(".extraction.json")))
+        clock.add("verification", 0.0)
     else:
         ensure_descriptors(feats, config, feature_key)
         pairs = select_pairs(len(feats), config.matching, centers, names=[f.name for f in feats])
         focal = float(np.mean([R_.mean_focal(c) for c in cameras]))
         executor = execution.current()
-        if executor.in_process:
+        threads = FE.thread_count(config.threads)
+        if executor.in_process and threads > 1:
+            putative, geoms = _match_in_threads(feats, pairs, cameras, camera_of_image, focal, config, threads, clock)
+        elif executor.in_process:
             putative = match_pairs([f.descriptors for f in feats], pairs, config.matching)
-            timings["matching"] = time.perf_counter() - t0
-            t1 = time.perf_counter()
-            xy = [R_.normalized(R_.bearings(cameras[camera_of_image[i]], f.keypoints)) for i, f in enumerate(feats)]
+            clock.stop()
+            clock.start("verification")
+            xy = _normalized(feats, cameras, camera_of_image)
             geoms = verify_pairs(xy, putative, focal, config.verification)
-            timings["verification"] = time.perf_counter() - t1
+            clock.stop()
         else:
             putative, geoms = _match_on_cluster(executor, feats, pairs, cameras, camera_of_image, focal, config,
-                                                key, timings, t0)
+                                                key, clock)
         if config.use_cache:
             save_matches(cache, putative, geoms)
-        timings["matches_cached"] = False
+            atomic_write(cache.with_suffix(".extraction.json"), json.dumps(
+                {"wall_s": clock.seconds("matching") + clock.seconds("verification")}))
     return Matches([f.name for f in feats], feats, putative, geoms)
 
 
-def _extract_all(paths: list[Path], config: SfMConfig, key: str) -> tuple[list[F.Features], list[dict]]:
-    """One task per image; on a cluster each writes its features to a file in the cache folder."""
+def _normalized(feats: list[F.Features], cameras: list, camera_of_image: np.ndarray) -> list[np.ndarray]:
+    return [R_.normalized(R_.bearings(cameras[camera_of_image[i]], f.keypoints)) for i, f in enumerate(feats)]
+
+
+def _match_in_threads(feats: list[F.Features], pairs: list[tuple[int, int]], cameras: list,
+                      camera_of_image: np.ndarray, focal: float, config: SfMConfig, threads: int, clock: StageClock):
+    """Matching + verification of chunks of pairs on ``threads`` threads, merged in pair order."""
+    data = FE.FrontEndInput([f.descriptors for f in feats], _normalized(feats, cameras, camera_of_image), focal,
+                            config.matching, config.verification)
+    done = FE.match_and_verify_threaded(data, pairs, threads)
+    putative = {p: m for d in done for p, m in d.putative.items()}
+    geoms = {p: g for d in done for p, g in d.geometries.items()}
+    # both steps ran inside the same tasks: split the stage by their CPU shares
+    clock.stop()
+    m_s, v_s = sum(d.matching_s for d in done), sum(d.verification_s for d in done)
+    clock.split("matching", ("matching", "verification"), m_s / (m_s + v_s) if m_s + v_s > 0 else 1.0)
+    return putative, geoms
+
+
+def _extract_all(paths: list[Path], config: SfMConfig, key: str) -> tuple[list[F.Features], list[SkippedImage]]:
+    """One task per image: in this process on the front end's threads, or on a cluster where each
+    task writes its features to a file in the cache folder."""
     from polarref.sfm.tasks import ExtractTask, extract_image
 
     executor = execution.current()
@@ -210,9 +251,11 @@ def _extract_all(paths: list[Path], config: SfMConfig, key: str) -> tuple[list[F
     tasks = [ExtractTask(str(p), config.features, None if parts is None else str(parts / f"features-{key}-{os.getpid()}-{i:05d}.npz"))
              for i, p in enumerate(paths)]
     feats, skipped = [], []
-    for done in executor.map(extract_image, tasks, desc="features"):
+    run = (executor.map(extract_image, tasks, desc="features") if not executor.in_process
+           else FE.thread_map(extract_image, tasks, FE.thread_count(config.threads), "features"))
+    for done in run:
         if done.skipped:  # warned once, by the caller, with the cached case
-            skipped.append({"name": done.name, "reason": done.skipped})
+            skipped.append(SkippedImage(done.name, done.skipped))
         elif done.features is not None:
             feats.append(done.features)
         else:
@@ -222,8 +265,7 @@ def _extract_all(paths: list[Path], config: SfMConfig, key: str) -> tuple[list[F
 
 
 def _match_on_cluster(executor, feats: list[F.Features], pairs: list[tuple[int, int]], cameras: list,
-                      camera_of_image: np.ndarray, focal: float, config: SfMConfig, key: str, timings: dict,
-                      t0: float):
+                      camera_of_image: np.ndarray, focal: float, config: SfMConfig, key: str, clock: StageClock):
     """Matching + verification as chunk tasks exchanging files; merged in pair order."""
     from polarref.sfm.tasks import MatchTask, chunks, match_chunk
 
@@ -249,10 +291,9 @@ def _match_on_cluster(executor, feats: list[F.Features], pairs: list[tuple[int, 
     putative = {p: putative_all[p] for p in pairs if p in putative_all}
     geoms = {p: geoms_all[p] for p in pairs if p in geoms_all}
     # Matching and verification ran inside the same tasks: split the wall time by their CPU shares.
-    wall = time.perf_counter() - t0
+    clock.stop()
     m_s, v_s = sum(d.matching_s for d in done), sum(d.verification_s for d in done)
-    share = m_s / (m_s + v_s) if m_s + v_s > 0 else 1.0
-    timings["matching"], timings["verification"] = wall * share, wall * (1.0 - share)
+    clock.split("matching", ("matching", "verification"), m_s / (m_s + v_s) if m_s + v_s > 0 else 1.0)
     return putative, geoms
 
 
@@ -297,9 +338,8 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         check_dir_target(target, overwrite)
         check_writable_parent(target)
     t_start = time.perf_counter()
-    timings: dict[str, float | bool] = {}
+    clock = StageClock()
     from polarref.core.provenance import collect_record
-    from polarref.io.scene_folder import SkippedImage
 
     extra: list[Reconstruction] = []
     report = SfMReport(str(image_dir), config, collect_record(seeds={
@@ -310,16 +350,16 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
             return
         with publish_dir(target, overwrite=overwrite, owned=SFM_OUTPUTS) as out:
             if rec is not None:
-                t0 = time.perf_counter()
+                clock.start("export")
                 _update_point_errors(rec)
                 from polarref.sfm.model_files import write_model
 
                 write_model(rec, out / "model", model_format)
                 for k, r in enumerate(extra):
                     write_model(r, out / f"model-{k + 2}", model_format)
-                timings["export"] = time.perf_counter() - t0
-            timings["total"] = time.perf_counter() - t_start
-            report.runtime_s = timings
+                clock.stop()
+            clock.add("total", time.perf_counter() - t_start)
+            report.runtime_s = clock.to_json()
             M.write_json(out / "metrics.json", report.to_json())
 
     from polarref.sfm import budget as B
@@ -329,13 +369,13 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         config_features, rule = B.for_photos(config.features, SfMConfig().features)
         config = dataclasses.replace(config, features=config_features)
     try:
-        feats, skipped, fkey = load_images_and_features(Path(image_dir), config, timings)
+        feats, skipped, fkey = load_images_and_features(Path(image_dir), config, clock)
         report.feature_budget = B.describe(config.features, rule, [(f.width, f.height) for f in feats],
                                            [len(f.keypoints) for f in feats])
-        report.skipped_images = [SkippedImage(str(s["name"]), str(s["reason"])) for s in skipped]
+        report.skipped_images = list(skipped)
         report.num_images = len(feats) + len(skipped)
         if len(feats) < 2:
-            why = f" ({len(skipped)} skipped, e.g. {skipped[0]['name']}: {skipped[0]['reason']})" if skipped else ""
+            why = f" ({len(skipped)} skipped, e.g. {skipped[0].name}: {skipped[0].reason})" if skipped else ""
             raise PolarrefError(f"{len(feats)} readable image(s) in {image_dir}{why}; need at least 2")
         sizes = [(f.width, f.height) for f in feats]
         if camera is None and gt is None:  # a folder of photos: cameras from EXIF, self-calibrated
@@ -356,16 +396,16 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
             config = dataclasses.replace(config, mapper=dataclasses.replace(
                 config.mapper, refine=auto_refine))
         initial_cameras = list(cameras)
-        matches = match_and_verify(feats, cameras, cam_idx, config, fkey, timings)
+        matches = match_and_verify(feats, cameras, cam_idx, config, fkey, clock)
         report.num_verified_pairs = len(matches.geometries)
-        t0 = time.perf_counter()
+        clock.start("tracks")
         tracks = build_tracks([len(f.keypoints) for f in feats],
                               {k: g.inliers for k, g in matches.geometries.items()},
                               conflicts=config.track_conflicts)
-        timings["tracks"] = time.perf_counter() - t0
+        clock.stop()
         report.num_tracks = int(tracks.num_tracks)
         report.num_conflicting_tracks_dropped = int(tracks.num_conflicting)
-        t0 = time.perf_counter()
+        clock.start("mapping")
         if config.mapper.guided.enabled:
             ensure_descriptors(feats, config, fkey)
         descriptors = [f.descriptors for f in feats] if config.mapper.guided.enabled else None
@@ -377,8 +417,8 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         models = _map_all(feats, list(cameras), cam_idx, guessed, tracks, matches.geometries, config,
                           descriptors, priors, image_sigma_px)
         state, mlog = models[0]
-        timings["mapping"] = time.perf_counter() - t0
-        timings["ba"] = float(sum(b.wall_s for _, ml in models for b in ml.ba))
+        clock.stop()
+        clock.add("ba", float(sum(b.wall_s for _, ml in models for b in ml.ba)))
         report.initial_pair = [feats[i].name for i in mlog.initial_pair]
         report.registration_order = [feats[i].name for i in mlog.registration_order]
         report.models = [ModelSummary("model" if k == 0 else f"model-{k + 1}", int(st.registered.sum()),
@@ -410,23 +450,24 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         rec = to_reconstruction(state, colors=[f.colors for f in feats])
         extra = [to_reconstruction(st, colors=[f.colors for f in feats]) for st, _ in models[1:]]
     except PolarrefError as exc:
+        clock.close()
         report.status = RunStatus.FAILED
         report.error = str(exc)
-        timings["total"] = time.perf_counter() - t_start
-        report.runtime_s = timings
+        clock.add("total", time.perf_counter() - t_start)
+        report.runtime_s = clock.to_json()
         if target is not None and holds_finished_result(target):
             # a failed rerun never replaces a finished result by its failure
             raise PolarrefError(f"{exc}; the finished result in {target} was kept", option=exc.option) from exc
         _publish(None)
         raise
-    t0 = time.perf_counter()
+    clock.start("metrics")
     report.metrics, report.gt_skipped = _score(rec, gt, mesh, report.num_images)
-    timings["metrics"] = time.perf_counter() - t0
+    clock.stop()
     report.status = RunStatus.OK
-    timings["total"] = time.perf_counter() - t_start
-    report.runtime_s = timings
+    clock.add("total", time.perf_counter() - t_start)
+    report.runtime_s = clock.to_json()
     _publish(rec)
-    return SfMResult(rec, report, target)
+    return SfMResult(rec, report, target, tuple(clock.stages))
 
 
 def _map_all(feats, cameras: list, cam_idx: np.ndarray, guessed: np.ndarray, tracks,
