@@ -227,12 +227,13 @@ def test_committed_aerotriangulation_markdown_is_generated_from_its_json():
     for path in found:
         table = AerotriTable.from_json(json.loads(path.read_text()))
         assert table.markdown() == path.with_suffix(".md").read_text(), path
-        assert table.provenance["git_dirty"] is False, f"{path}: generated from a dirty tree"
+        assert table.provenance.git_dirty is False, f"{path}: generated from a dirty tree"
 
 
 def test_table_round_trip_and_verdicts():
     from polarref.georef.adjust import AerotriangulationRecord, CheckPointStats
     from polarref.georef.predict import PredictedRMSE
+    from polarref.core.provenance import collect_record
     from polarref.georef.table import AerotriRow, AerotriTable, MonteCarlo, Variant
 
     def rec(h, z, n_ctl):
@@ -243,8 +244,10 @@ def test_table_round_trip_and_verdicts():
     t = AerotriTable("s", 12, (("polarref polar", 12),), 0.25, "layout", (2.0, 2.0, 4.0), 0.0, None, 0.5, 0.5, 0,
                      pred, MonteCarlo(5, 1, "polar", pred, pred),
                      (AerotriRow("polarref", Variant.PRIORS_ON, rec(1.4 * np.sqrt(2), 1.6, 0)),
-                      AerotriRow("polarref", Variant.PRIORS_GCPS, rec(0.49, 0.76, 10))), ("n",), {"x": 1})
+                      AerotriRow("polarref", Variant.PRIORS_GCPS, rec(0.49, 0.76, 10))), ("n",),
+                     collect_record(seeds={"x": 1}), 0.003)
     assert AerotriTable.from_json(t.to_json()) == t
+    assert "sigma 2 / 2 / 4 m (x / y / z) + 0.3% of the range" in t.markdown()
     md = t.markdown()
     # 1.4x horizontal is within 1.5x, 1.6x in Z is not; 0.49 m = 1.96 GSD <= 2, 0.76 m = 3.04 GSD > 3
     assert "horizontal 1.40x, Z 1.60x the prediction (<= 1.5x): NOT met" in md

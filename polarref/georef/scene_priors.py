@@ -29,6 +29,7 @@ class ScenePriorParams:
     vertical_sigma_m: float
     rotation_sigma_deg: float
     correlation: float
+    position_sigma_rel: float = 0.0  # plus this share of the range to the scene centre (comet)
 
 
 def _load(path: Path) -> dict:
@@ -51,7 +52,20 @@ def scene_prior_params(path: Path) -> ScenePriorParams:
     p = _load(path)["priors"]["params"]
     vert = p.get("vertical_sigma_m") or p["position_sigma_m"]
     return ScenePriorParams(float(p["position_sigma_m"]), float(vert), float(p["rotation_sigma_deg"]),
-                            float(p["correlation"]))
+                            float(p["correlation"]), float(p.get("position_sigma_rel", 0.0)))
+
+
+def prior_sequence(path: Path, image_names) -> np.ndarray:
+    """(N,) flight index of each image of ``image_names`` along which the priors drifted: the
+    ``priors.sequence`` of a twin's sub-block (synth.subblock), else the views' order."""
+    data = _load(path)
+    views = [v["name"] for v in data.get("views") or []]
+    seq = data["priors"].get("sequence", list(range(len(views))))
+    where = dict(zip(views, seq))
+    missing = [n for n in image_names if n not in where]
+    if missing:
+        raise PolarrefError(f"{path}: no prior for image {missing[0]!r}")
+    return np.array([where[n] for n in image_names], np.int64)
 
 
 def read_scene_priors(path: Path, image_names) -> tuple[PosePrior, ...]:

@@ -8,6 +8,7 @@ import enum
 import math
 from dataclasses import dataclass
 
+from polarref.core.provenance import Provenance
 from polarref.georef.adjust import AerotriangulationRecord, CheckPointStats
 from polarref.georef.predict import PredictedRMSE
 
@@ -60,7 +61,8 @@ class AerotriTable:
     monte_carlo: MonteCarlo | None
     rows: tuple[AerotriRow, ...]
     notes: tuple[str, ...]
-    provenance: dict
+    provenance: Provenance
+    prior_sigma_rel: float = 0.0  # the centre priors' sigma grows by this share of the range (comet)
 
     def to_json(self) -> dict:
         out = dataclasses.asdict(self)
@@ -73,12 +75,12 @@ class AerotriTable:
             raise ValueError(f"aerotriangulation table format {d.get('format')!r}, expected {TABLE_FORMAT!r}")
         mc = d["monte_carlo"]
         rows = tuple(AerotriRow(r["method"], Variant(r["variant"]), _record(r["record"])) for r in d["rows"])
-        kw = {f.name: d[f.name] for f in dataclasses.fields(cls)}
+        kw = {f.name: d.get(f.name, f.default) for f in dataclasses.fields(cls)}
         kw.update(prior_sigma_m=tuple(d["prior_sigma_m"]), predicted=PredictedRMSE(**d["predicted"]),
                   monte_carlo=None if mc is None else MonteCarlo(mc["draws"], mc["seed"], mc["form"],
                                                                   PredictedRMSE(**mc["rmse"]),
                                                                   PredictedRMSE(**mc["linear"])),
-                  rows=rows, notes=tuple(d["notes"]), registered=tuple((k, int(v)) for k, v in d["registered"]))
+                  rows=rows, notes=tuple(d["notes"]), provenance=Provenance(**d["provenance"]), registered=tuple((k, int(v)) for k, v in d["registered"]))
         return cls(**kw)
 
     def markdown(self) -> str:
@@ -94,13 +96,17 @@ def _f(x: float, d: int = 3) -> str:
     return "n/a" if x is None or not math.isfinite(x) else f"{x:.{d}f}"
 
 
+def _rel(share: float) -> str:
+    return f" + {100 * share:g}% of the range to the scene centre" if share else ""
+
+
 def _header(t: AerotriTable) -> list[str]:
     s = t.prior_sigma_m
     att = "none" if t.attitude_sigma_deg is None else f"{t.attitude_sigma_deg:g} deg"
     p = t.predicted
     lines = [f"# Aerotriangulation: {t.scene}", "",
              f"{t.views} views; GSD {t.gsd_m:.3f} m; pose priors from {t.priors_source}: sigma "
-             f"{s[0]:g} / {s[1]:g} / {s[2]:g} m (x / y / z), lag-one correlation {t.prior_correlation:g} "
+             f"{s[0]:g} / {s[1]:g} / {s[2]:g} m (x / y / z){_rel(t.prior_sigma_rel)}, lag-one correlation {t.prior_correlation:g} "
              f"along the image order, attitude {att}; marks {t.mark_sigma_px:g} px; tie points "
              f"{t.image_sigma_px:g} px; GCP layout seed {t.seed}. Registered: "
              + ", ".join(f"{k} {v}" for k, v in t.registered) + ".", "",
