@@ -30,7 +30,8 @@ from polarref.georef.adjust import align_to_datum, evaluate, georeference, trian
 from polarref.georef.formats import Georef, Role, load_georef
 from polarref.core.geometry import so3_log
 from polarref.georef.predict import PredictedRMSE, datum_error, predict_priors_only
-from polarref.georef.scene_priors import prior_sequence, priors_of_section, read_scene_priors, scene_prior_params
+from polarref.georef.scene_priors import (pose_priors, prior_sequence, read_scene_priors, scene_prior_params,
+                                          views_from_json)
 from polarref.georef.table import AerotriRow, AerotriTable, MonteCarlo, Variant
 from polarref.model.colmap import from_pycolmap, read_model
 from polarref.sfm.pairing import PairingConfig, priors_from_scene, select, write_pairs
@@ -161,8 +162,8 @@ def _monte_carlo(rec, gt_imgs, georef: Georef, pp: PriorParams, form: str, draws
     sq, lin = [], []
     for k in range(draws):
         cfg = preset(scene, "small", priors=pp, seed=seed + k)
-        drawn = draw_priors(cfg, flight, centre)["views"]
-        pri = priors_of_section([drawn[int(k)] for k in seq], names, names, "monte carlo")
+        drawn = views_from_json(draw_priors(cfg, flight, centre)["views"])
+        pri = pose_priors(tuple(drawn[int(k)] for k in seq), names, names, "monte carlo")
         g = Georef(pri, georef.points, georef.marks)
         r = copy.deepcopy(rec)
         georeference(r, g, form, use_priors=True, use_control=False)
@@ -297,8 +298,8 @@ def main() -> int:
         extra = read_scene_priors(work / "scene.json", names)
     elif a.priors == "twin":
         cfg = preset(kind, "small", priors=pp, seed=a.seed)
-        extra = priors_of_section(draw_priors(cfg, [im.cam_from_world for im in gt_imgs], centre)["views"],
-                                  names, names, "twin priors")
+        extra = pose_priors(views_from_json(draw_priors(cfg, [im.cam_from_world for im in gt_imgs], centre)["views"]),
+                            names, names, "twin priors")
     georef = load_georef(names, layout_priors if a.priors == "layout" else None, gcps, marks, extra_priors=extra)
     seq = prior_sequence(work / "scene.json", names) if a.priors == "scene" else np.arange(len(names))
     pairs = _pairs_file(work) if a.pairs == "priors" else None

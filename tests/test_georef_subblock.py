@@ -64,7 +64,10 @@ def test_prior_sequence_read_back(tmp_path):
     from polarref.georef.scene_priors import PRIORS_FORMAT, prior_sequence
 
     views = [{"name": n} for n in ("a.png", "b.png", "c.png")]
-    pri = {"format": PRIORS_FORMAT, "views": [{}] * 3, "params": {}}
+    view = {"center": [0, 0, 1], "center_sigma_m": [2, 2, 4], "qvec": [1, 0, 0, 0], "tvec": [0, 0, -1],
+            "rotation_sigma_deg": 0.0}
+    pri = {"format": PRIORS_FORMAT, "views": [view] * 3,
+           "params": {"position_sigma_m": 2.0, "vertical_sigma_m": 4.0, "rotation_sigma_deg": 0.0, "correlation": 0.9}}
     p = tmp_path / "scene.json"
     p.write_text(json.dumps({"views": views, "priors": pri}))
     assert prior_sequence(p, ["c.png", "a.png"]).tolist() == [2, 0]
@@ -72,6 +75,9 @@ def test_prior_sequence_read_back(tmp_path):
     assert prior_sequence(p, ["a.png", "b.png", "c.png"]).tolist() == [40, 41, 75]
     with pytest.raises(PolarrefError, match="no prior for image 'd.png'"):
         prior_sequence(p, ["d.png"])
+    p.write_text(json.dumps({"views": views, "priors": {**pri, "params": {}}}))
+    with pytest.raises(PolarrefError, match="malformed priors section"):
+        prior_sequence(p, ["a.png"])
 
 
 def test_prediction_follows_the_flight_sequence():
