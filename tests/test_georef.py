@@ -252,6 +252,11 @@ def test_table_round_trip_and_verdicts():
     # 1.4x horizontal is within 1.5x, 1.6x in Z is not; 0.49 m = 1.96 GSD <= 2, 0.76 m = 3.04 GSD > 3
     assert "horizontal 1.40x, Z 1.60x the prediction (<= 1.5x): NOT met" in md
     assert "horizontal 1.96 GSD (<= 2), Z 3.04 GSD (<= 3): NOT met" in md
+    # the pooled Monte Carlo is judged both ways: 1.00x is within 1.5x, 0.5x is not
+    assert "horizontal 1.00x, Z 1.00x (within 1.5x either way: met" in md
+    low = PredictedRMSE(0.5, 0.5, 0.5, 0.5 * np.sqrt(2))
+    md = dataclasses.replace(t, monte_carlo=MonteCarlo(5, 1, "polar", low, pred)).markdown()
+    assert "horizontal 0.50x, Z 0.50x (within 1.5x either way: NOT met" in md
 
 
 # ---- seeded layouts on rendered scenes: UAV ground points, comet landmarks ------------------------
