@@ -31,26 +31,27 @@ def main() -> int:
     ap.add_argument("--threads", type=int, default=1)
     a = ap.parse_args()
 
-    import drjit
-
     from synth import meshes
-    from synth.config import twin
+    from synth.config import TWINS, twin
     from synth.conventions import pinhole_params
     from synth.mitsuba_variant import load_mitsuba
     from synth.render import _scene_json, _ViewRenderer, build_geometry, code_version, view_names
     from synth.scene import SCENE_JSON, PinholeCamera, atomic_write_bytes, write_gt
     from synth.subblock import SubBlock, cut_scene_json
 
-    cfg = twin(a.twin)
-    if cfg.scene != "uav":
-        print(f"error: {a.twin} is not a UAV twin", file=sys.stderr)
+    if TWINS.get(a.twin) != "uav":
+        uav = ", ".join(t for t, s in TWINS.items() if s == "uav")
+        print(f"error: {a.twin!r} is not a UAV twin (choose from {uav})", file=sys.stderr)
         return 2
+    cfg = twin(a.twin)
     block = SubBlock(a.twin, *a.lines, *a.positions)
     try:
         idx = block.indices(cfg)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    import drjit  # after the checks: a refused call loads no JIT
+
     t0 = time.perf_counter()
     geo = build_geometry(cfg)
     print(f"geometry of {a.twin}: {len(geo.vertices)} vertices in {time.perf_counter() - t0:.1f} s; "

@@ -120,3 +120,21 @@ def test_triangulated_matches_points_by_id():
     st = check_stats(tri, pts)
     assert st.count == 2 and st.rmse_z == pytest.approx(np.sqrt(5.0)) and st.max_3d == pytest.approx(np.sqrt(14.0))
     assert check_stats(tri, pts[1:2]) is None
+
+
+@pytest.mark.parametrize("args, match", [
+    (["rosetta", "--lines", "0:2", "--positions", "0:2"], "not a UAV twin"),
+    (["mappilot", "--lines", "0:99", "--positions", "0:2"], "outside the twin's 15 lines x 33 positions"),
+])
+def test_subblock_script_bad_input_is_one_line(tmp_path, args, match):
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    cmd = [sys.executable, str(root / "scripts" / "twin_subblock.py"), args[0], str(tmp_path / "out"), *args[1:]]
+    r = subprocess.run(cmd, capture_output=True, text=True, cwd=root, env={**os.environ, "PYTHONPATH": str(root)})
+    assert r.returncode == 2 and match in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1 and "Traceback" not in r.stderr
+    assert not (tmp_path / "out").exists()
