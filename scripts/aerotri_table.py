@@ -65,6 +65,9 @@ def _args():
     ap.add_argument("--pairs", choices=("exhaustive", "priors"), default="exhaustive",
                     help="priors: the pairs polarref.sfm.pairing chooses from scene.json's priors, the same "
                          "for our SfM and pycolmap's")
+    ap.add_argument("--forms", nargs="+", choices=PARAMS, default=list(PARAMS),
+                    help="the BA forms of our rows (default: all); parts run side by side are joined by "
+                         "scripts/aerotri_merge.py")
     ap.add_argument("--no-pycolmap", action="store_true")
     ap.add_argument("--overwrite", action="store_true")
     return ap.parse_args()
@@ -208,14 +211,14 @@ def _peer_model(folder: Path, mapper):
     return rec
 
 
-def _ours(work: Path, gt, georef: Georef, mark_sigma: float, tie_points: str, pairs: Path | None):
+def _ours(work: Path, gt, georef: Georef, mark_sigma: float, tie_points: str, pairs: Path | None, forms):
     """Per BA form, the three variants of the final adjustment: on that form's own SfM
     (``tie_points`` "each") or on the one SfM of form ``tie_points``."""
     rows, registered, notes, models = [], [], [], {}
     shared = None if tie_points == "each" else _sfm(work, gt, georef, tie_points, pairs)
     if shared is not None:
         registered.append((f"polarref ({tie_points} SfM: the tie points of every form)", len(shared.images)))
-    for form in PARAMS:
+    for form in forms:
         model = shared if shared is not None else _sfm(work, gt, georef, form, pairs)
         if shared is None:
             registered.append((f"polarref {form}", len(model.images)))
@@ -303,8 +306,8 @@ def main() -> int:
     georef = load_georef(names, layout_priors if a.priors == "layout" else None, gcps, marks, extra_priors=extra)
     seq = prior_sequence(work / "scene.json", names) if a.priors == "scene" else np.arange(len(names))
     pairs = _pairs_file(work) if a.pairs == "priors" else None
-    rows, registered, notes, models = _ours(work, gt, georef, a.mark_sigma, a.tie_points, pairs)
-    mc = (_monte_carlo(models[PARAMS[0]], gt_imgs, georef, pp, PARAMS[0], a.mc, 1000 + a.seed, seq, kind, centre)
+    rows, registered, notes, models = _ours(work, gt, georef, a.mark_sigma, a.tie_points, pairs, a.forms)
+    mc = (_monte_carlo(models[a.forms[0]], gt_imgs, georef, pp, a.forms[0], a.mc, 1000 + a.seed, seq, kind, centre)
           if a.mc else None)
     if not a.no_pycolmap:
         prow, preg = _pycolmap(work, gt, georef, a.mark_sigma, pairs)

@@ -258,6 +258,21 @@ def test_table_round_trip_and_verdicts():
     md = dataclasses.replace(t, monte_carlo=MonteCarlo(5, 1, "polar", low, pred)).markdown()
     assert "horizontal 0.50x, Z 0.50x (within 1.5x either way: NOT met" in md
 
+    # parts run side by side (one form each) join into the same table
+    from polarref.georef.table import merge_tables
+
+    a = dataclasses.replace(t, rows=t.rows[:1], monte_carlo=None, notes=("n", "a"))
+    b = dataclasses.replace(t, rows=t.rows[1:], notes=("n",))
+    merged = merge_tables([a, b])
+    assert merged.rows == t.rows and merged.monte_carlo == t.monte_carlo and merged.notes == ("n", "a")
+    assert merged.registered == t.registered
+    with pytest.raises(ValueError, match="differ in gsd_m"):
+        merge_tables([a, dataclasses.replace(b, gsd_m=0.3)])
+    with pytest.raises(ValueError, match="different commits"):
+        merge_tables([a, dataclasses.replace(b, provenance=dataclasses.replace(b.provenance, git_commit="x"))])
+    with pytest.raises(ValueError, match="same row twice"):
+        merge_tables([a, dataclasses.replace(b, rows=t.rows)])
+
 
 # ---- seeded layouts on rendered scenes: UAV ground points, comet landmarks ------------------------
 @pytest.mark.slow

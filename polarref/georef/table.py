@@ -87,6 +87,34 @@ class AerotriTable:
         return "\n".join(_header(self) + _rows(self) + _verdicts(self)) + "\n"
 
 
+def merge_tables(parts: list[AerotriTable]) -> AerotriTable:
+    """One table from parts of one run split by form (scripts/aerotri_table.py --forms), run side
+    by side from the same commit on the same scene, layout and priors: rows in the order of the
+    parts, the registrations and notes once each, the Monte Carlo of the part that ran it.
+
+    Raises ValueError when the parts disagree on what they share or on their commit."""
+    first = parts[0]
+    same = ("scene", "views", "gsd_m", "priors_source", "prior_sigma_m", "prior_correlation", "attitude_sigma_deg",
+            "mark_sigma_px", "image_sigma_px", "seed", "predicted", "prior_sigma_rel")
+    for p in parts[1:]:
+        bad = [f for f in same if getattr(p, f) != getattr(first, f)]
+        if bad:
+            raise ValueError(f"the parts differ in {', '.join(bad)}")
+        if (p.provenance.git_commit, p.provenance.git_dirty) != (first.provenance.git_commit, first.provenance.git_dirty):
+            raise ValueError("the parts ran from different commits")
+    mcs = [p.monte_carlo for p in parts if p.monte_carlo is not None]
+    if len(mcs) > 1:
+        raise ValueError(f"{len(mcs)} parts ran the Monte Carlo; one may")
+    rows = tuple(r for p in parts for r in p.rows)
+    keys = [(r.method, r.variant, r.record.form) for r in rows]
+    if len(set(keys)) != len(keys):
+        raise ValueError("the parts hold the same row twice")
+    once = lambda xs: tuple(dict.fromkeys(xs))  # noqa: E731 (order kept, repeats dropped)
+    return dataclasses.replace(first, registered=once(x for p in parts for x in p.registered),
+                               monte_carlo=mcs[0] if mcs else None, rows=rows,
+                               notes=once(n for p in parts for n in p.notes))
+
+
 def _record(r: dict) -> AerotriangulationRecord:
     c = r["check"]
     return AerotriangulationRecord(**{**r, "check": None if c is None else CheckPointStats(**c)})
