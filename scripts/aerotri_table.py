@@ -59,9 +59,10 @@ def _args():
                     help="layout: independent 2 m / 4 m (gcp_layout); scene: scene.json's; twin: drawn here "
                          "as the UAV twins draw theirs (synth.priors, mappilot's parameters, seed --seed)")
     ap.add_argument("--mc", type=int, default=20, help="Monte Carlo redraws of the prior noise (0: none)")
-    ap.add_argument("--tie-points", choices=("each", *PARAMS), default="each",
+    ap.add_argument("--tie-points", choices=("each", *PARAMS, "pycolmap"), default="each",
                     help="each: one SfM per BA form; FORM: one SfM (that form, priors inside) gives the tie "
-                         "points that every form then adjusts (aerotriangulation on fixed tie points)")
+                         "points that every form then adjusts (aerotriangulation on fixed tie points); "
+                         "pycolmap: its plain incremental model (no priors, held intrinsics) gives them")
     ap.add_argument("--pairs", choices=("exhaustive", "priors"), default="exhaustive",
                     help="priors: the pairs polarref.sfm.pairing chooses from scene.json's priors, the same "
                          "for our SfM and pycolmap's")
@@ -215,9 +216,14 @@ def _ours(work: Path, gt, georef: Georef, mark_sigma: float, tie_points: str, pa
     """Per BA form, the three variants of the final adjustment: on that form's own SfM
     (``tie_points`` "each") or on the one SfM of form ``tie_points``."""
     rows, registered, notes, models = [], [], [], {}
-    shared = None if tie_points == "each" else _sfm(work, gt, georef, tie_points, pairs)
-    if shared is not None:
-        registered.append((f"polarref ({tie_points} SfM: the tie points of every form)", len(shared.images)))
+    if tie_points == "pycolmap":
+        shared = _pycolmap_plain(work, gt, pairs)
+        registered.append(("pycolmap incremental (its tie points adjusted by every polarref form)",
+                           len(shared.images)))
+    else:
+        shared = None if tie_points == "each" else _sfm(work, gt, georef, tie_points, pairs)
+        if shared is not None:
+            registered.append((f"polarref ({tie_points} SfM: the tie points of every form)", len(shared.images)))
     for form in forms:
         model = shared if shared is not None else _sfm(work, gt, georef, form, pairs)
         if shared is None:
@@ -233,6 +239,8 @@ def _ours(work: Path, gt, georef: Georef, mark_sigma: float, tie_points: str, pa
                                                  - model.images[i].cam_from_world.center))
                             for i in rec.images)
                 src = "the mapper's" if shared is None else f"the {tie_points} mapper's"
+                if tie_points == "pycolmap":
+                    src = "pycolmap's plain (free-frame) model is moved by a similarity onto the priors; its"
                 notes.append(f"polarref {form}: {src} model is in the priors' frame; the final "
                              f"priors-only adjustment in {form} (after a similarity) moved its centres by at most "
                              f"{moved:.2e} m")
@@ -240,9 +248,8 @@ def _ours(work: Path, gt, georef: Georef, mark_sigma: float, tie_points: str, pa
     return rows, registered, notes, models
 
 
-def _pycolmap(work: Path, gt, georef: Georef, mark_sigma: float, pairs: Path | None):
-    from polarref.peers.colmap_priors import run_prior_mapper, similarity_to_control
-    from polarref.peers.colmap_sfm import extract_and_match_sift, run_mapper
+def _pycolmap_db(work: Path, gt, pairs: Path | None) -> Path:
+    from polarref.peers.colmap_sfm import extract_and_match_sift
 
     cam = next(iter(gt.cameras.values()))
     db = work / "pycolmap" / "database.db"
@@ -250,9 +257,23 @@ def _pycolmap(work: Path, gt, georef: Georef, mark_sigma: float, pairs: Path | N
     if not done.is_file():
         extract_and_match_sift(work / "images", cam, db, overwrite=True, pairs_file=pairs)
         done.write_text("extraction and matching finished\n")
+    return db
+
+
+def _pycolmap_plain(work: Path, gt, pairs: Path | None):
+    from polarref.peers.colmap_sfm import run_mapper
+
+    db = _pycolmap_db(work, gt, pairs)
+    return _peer_model(work / "pycolmap" / "plain", lambda: run_mapper(db, work / "images", work / "pycolmap" / "plain"))
+
+
+def _pycolmap(work: Path, gt, georef: Georef, mark_sigma: float, pairs: Path | None):
+    from polarref.peers.colmap_priors import run_prior_mapper, similarity_to_control
+
+    db = _pycolmap_db(work, gt, pairs)
     ev = dict(image_sigma_px=IMAGE_SIGMA_PX, mark_sigma_px=mark_sigma)
     img = work / "images"
-    plain = _peer_model(work / "pycolmap" / "plain", lambda: run_mapper(db, img, work / "pycolmap" / "plain"))
+    plain = _pycolmap_plain(work, gt, pairs)
     pri = _peer_model(work / "pycolmap" / "priors",
                       lambda: run_prior_mapper(db, img, work / "pycolmap" / "priors", georef.priors))
     rows, registered = [], []
