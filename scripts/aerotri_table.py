@@ -66,9 +66,9 @@ def _args():
     ap.add_argument("--pairs", choices=("exhaustive", "priors"), default="exhaustive",
                     help="priors: the pairs polarref.sfm.pairing chooses from scene.json's priors, the same "
                          "for our SfM and pycolmap's")
-    ap.add_argument("--forms", nargs="+", choices=PARAMS, default=list(PARAMS),
-                    help="the BA forms of our rows (default: all); parts run side by side are joined by "
-                         "scripts/aerotri_merge.py")
+    ap.add_argument("--forms", nargs="*", choices=PARAMS, default=list(PARAMS),
+                    help="the BA forms of our rows (default: all; none: the peer's rows only); parts run side "
+                         "by side are joined by scripts/aerotri_merge.py")
     ap.add_argument("--no-pycolmap", action="store_true")
     ap.add_argument("--overwrite", action="store_true")
     return ap.parse_args()
@@ -329,7 +329,7 @@ def main() -> int:
     pairs = _pairs_file(work) if a.pairs == "priors" else None
     rows, registered, notes, models = _ours(work, gt, georef, a.mark_sigma, a.tie_points, pairs, a.forms)
     mc = (_monte_carlo(models[a.forms[0]], gt_imgs, georef, pp, a.forms[0], a.mc, 1000 + a.seed, seq, kind, centre)
-          if a.mc else None)
+          if a.mc and a.forms else None)
     if not a.no_pycolmap:
         prow, preg = _pycolmap(work, gt, georef, a.mark_sigma, pairs)
         rows, registered = rows + prow, registered + preg
