@@ -235,15 +235,16 @@ def _ours(work: Path, gt, georef: Georef, mark_sigma: float, tie_points: str, pa
                              image_sigma_px=IMAGE_SIGMA_PX)
             rows.append(AerotriRow("polarref", variant, r))
             if variant == Variant.PRIORS_ON:
+                placed = copy.deepcopy(model)  # where the similarity onto the priors alone puts it
+                align_to_datum(placed, georef, True, True)
                 moved = max(float(np.linalg.norm(rec.images[i].cam_from_world.center
-                                                 - model.images[i].cam_from_world.center))
-                            for i in rec.images)
-                src = "the mapper's" if shared is None else f"the {tie_points} mapper's"
+                                                 - placed.images[i].cam_from_world.center)) for i in rec.images)
+                src = ("the mapper's model (in the priors' frame)" if shared is None
+                       else f"the {tie_points} mapper's model (in the priors' frame)")
                 if tie_points == "pycolmap":
-                    src = "pycolmap's plain (free-frame) model is moved by a similarity onto the priors; its"
-                notes.append(f"polarref {form}: {src} model is in the priors' frame; the final "
-                             f"priors-only adjustment in {form} (after a similarity) moved its centres by at most "
-                             f"{moved:.2e} m")
+                    src = "pycolmap's plain model (free frame)"
+                notes.append(f"polarref {form}: {src}, placed by a similarity onto the prior centres; the final "
+                             f"priors-only adjustment in {form} then moved its centres by at most {moved:.2e} m")
             print(form, variant, r.check, flush=True)
     return rows, registered, notes, models
 
