@@ -227,12 +227,13 @@ def test_committed_aerotriangulation_markdown_is_generated_from_its_json():
     for path in found:
         table = AerotriTable.from_json(json.loads(path.read_text()))
         assert table.markdown() == path.with_suffix(".md").read_text(), path
-        assert table.provenance["git_dirty"] is False, f"{path}: generated from a dirty tree"
+        assert table.provenance.git_dirty is False, f"{path}: generated from a dirty tree"
 
 
 def test_table_round_trip_and_verdicts():
     from polarref.georef.adjust import AerotriangulationRecord, CheckPointStats
     from polarref.georef.predict import PredictedRMSE
+    from polarref.core.provenance import collect_record
     from polarref.georef.table import AerotriRow, AerotriTable, MonteCarlo, Variant
 
     def rec(h, z, n_ctl):
@@ -243,12 +244,34 @@ def test_table_round_trip_and_verdicts():
     t = AerotriTable("s", 12, (("polarref polar", 12),), 0.25, "layout", (2.0, 2.0, 4.0), 0.0, None, 0.5, 0.5, 0,
                      pred, MonteCarlo(5, 1, "polar", pred, pred),
                      (AerotriRow("polarref", Variant.PRIORS_ON, rec(1.4 * np.sqrt(2), 1.6, 0)),
-                      AerotriRow("polarref", Variant.PRIORS_GCPS, rec(0.49, 0.76, 10))), ("n",), {"x": 1})
+                      AerotriRow("polarref", Variant.PRIORS_GCPS, rec(0.49, 0.76, 10))), ("n",),
+                     collect_record(seeds={"x": 1}), 0.003)
     assert AerotriTable.from_json(t.to_json()) == t
+    assert "sigma 2 / 2 / 4 m (x / y / z) + 0.3% of the range" in t.markdown()
     md = t.markdown()
     # 1.4x horizontal is within 1.5x, 1.6x in Z is not; 0.49 m = 1.96 GSD <= 2, 0.76 m = 3.04 GSD > 3
     assert "horizontal 1.40x, Z 1.60x the prediction (<= 1.5x): NOT met" in md
     assert "horizontal 1.96 GSD (<= 2), Z 3.04 GSD (<= 3): NOT met" in md
+    # the pooled Monte Carlo is judged both ways: 1.00x is within 1.5x, 0.5x is not
+    assert "horizontal 1.00x, Z 1.00x (within 1.5x either way: met" in md
+    low = PredictedRMSE(0.5, 0.5, 0.5, 0.5 * np.sqrt(2))
+    md = dataclasses.replace(t, monte_carlo=MonteCarlo(5, 1, "polar", low, pred)).markdown()
+    assert "horizontal 0.50x, Z 0.50x (within 1.5x either way: NOT met" in md
+
+    # parts run side by side (one form each) join into the same table
+    from polarref.georef.table import merge_tables
+
+    a = dataclasses.replace(t, rows=t.rows[:1], monte_carlo=None, notes=("n", "a"))
+    b = dataclasses.replace(t, rows=t.rows[1:], notes=("n",))
+    merged = merge_tables([a, b])
+    assert merged.rows == t.rows and merged.monte_carlo == t.monte_carlo and merged.notes == ("n", "a")
+    assert merged.registered == t.registered
+    with pytest.raises(ValueError, match="differ in gsd_m"):
+        merge_tables([a, dataclasses.replace(b, gsd_m=0.3)])
+    with pytest.raises(ValueError, match="different commits"):
+        merge_tables([a, dataclasses.replace(b, provenance=dataclasses.replace(b.provenance, git_commit="x"))])
+    with pytest.raises(ValueError, match="same row twice"):
+        merge_tables([a, dataclasses.replace(b, rows=t.rows)])
 
 
 # ---- seeded layouts on rendered scenes: UAV ground points, comet landmarks ------------------------

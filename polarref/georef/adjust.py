@@ -49,11 +49,25 @@ class AerotriangulationRecord:
     iterations: int
 
 
-def triangulate_marks(rec, marks, ids) -> dict[str, np.ndarray]:
+@dataclass(frozen=True)
+class Triangulated:
+    """Ground points intersected from their marks: ids (K,) and xyz (K, 3), metres."""
+
+    ids: tuple[str, ...]
+    xyz: np.ndarray
+
+    def matched(self, points) -> tuple[tuple, np.ndarray]:
+        """(the points of ``points`` that were triangulated, in their order; their estimates (M, 3))."""
+        at = {gid: k for k, gid in enumerate(self.ids)}
+        found = tuple(p for p in points if p.id in at)
+        return found, self.xyz[[at[p.id] for p in found]].reshape(-1, 3)
+
+
+def triangulate_marks(rec, marks, ids) -> Triangulated:
     """Least-squares ray intersection of each point in ``ids`` from its marks in registered
     images of ``rec`` (>= 2 needed; points with fewer are left out)."""
     by_name = {im.name: im for im in rec.images.values()}
-    out = {}
+    got, xyz = [], []
     for gid in ids:
         A, b = np.zeros((3, 3)), np.zeros(3)
         n = 0
@@ -70,14 +84,16 @@ def triangulate_marks(rec, marks, ids) -> dict[str, np.ndarray]:
             b += P @ im.cam_from_world.center
             n += 1
         if n >= 2:
-            out[gid] = np.linalg.solve(A, b)
-    return out
+            got.append(gid)
+            xyz.append(np.linalg.solve(A, b))
+    return Triangulated(tuple(got), np.array(xyz, float).reshape(-1, 3))
 
 
-def check_stats(est: dict[str, np.ndarray], points) -> CheckPointStats | None:
-    d = np.array([est[p.id] - p.xyz for p in points if p.id in est])
-    if not len(d):
+def check_stats(est: Triangulated, points) -> CheckPointStats | None:
+    found, X = est.matched(points)
+    if not found:
         return None
+    d = X - np.array([p.xyz for p in found])
     rm = np.sqrt((d**2).mean(0))
     n3 = np.linalg.norm(d, axis=1)
     return CheckPointStats(len(d), *map(float, rm), float(np.hypot(rm[0], rm[1])),
@@ -123,9 +139,9 @@ def align_to_datum(rec, georef: Georef, use_priors: bool, use_control: bool) -> 
                 dst.append(p.centre)
     if use_control and len(src) < MIN_CONTROL_POINTS:
         ctl = georef.of_role(Role.CONTROL)
-        est = triangulate_marks(rec, georef.marks, [p.id for p in ctl])
-        src += [est[p.id] for p in ctl if p.id in est]
-        dst += [p.xyz for p in ctl if p.id in est]
+        found, X = triangulate_marks(rec, georef.marks, [p.id for p in ctl]).matched(ctl)
+        src += list(X)
+        dst += [p.xyz for p in found]
     try:
         sim = umeyama(np.array(src), np.array(dst))
     except ValueError as exc:

@@ -28,8 +28,8 @@ class PredictedRMSE:
     rmse_horizontal: float
 
 
-def _ar1(n: int, rho: float) -> np.ndarray:
-    k = np.arange(n)
+def _ar1(sequence: np.ndarray, rho: float) -> np.ndarray:
+    k = np.asarray(sequence, float)
     return rho ** np.abs(k[:, None] - k[None, :])
 
 
@@ -45,7 +45,8 @@ def _datum_rows(points: np.ndarray, origin: np.ndarray) -> np.ndarray:
 
 def predict_priors_only(centres: np.ndarray, centre_sigma: np.ndarray, check: np.ndarray,
                         correlation: float = 0.0, rotations: np.ndarray | None = None,
-                        rotation_sigma_rad: float | None = None) -> PredictedRMSE:
+                        rotation_sigma_rad: float | None = None,
+                        sequence: np.ndarray | None = None) -> PredictedRMSE:
     """Expected check-point RMSE of a priors-only datum.
 
     Args:
@@ -55,15 +56,17 @@ def predict_priors_only(centres: np.ndarray, centre_sigma: np.ndarray, check: np
         correlation: lag-one correlation of the prior errors along the image order.
         rotations: (N, 3, 3) cam_from_world, when attitude priors (camera-frame error) are used.
         rotation_sigma_rad: their 1-sigma per axis.
+        sequence: (N,) each view's index in the flight the drift was drawn along (default 0..N-1);
+            a sub-block of a twin (synth.subblock) skips the twin's views between its lines.
     """
     n = len(centres)
     blocks = _blocks(centres, centre_sigma, rotations, rotation_sigma_rad)
-    corr = np.kron(_ar1(n, correlation), np.eye(3))
+    corr = np.kron(_ar1(np.arange(n) if sequence is None else sequence, correlation), np.eye(3))
     sd = [centre_sigma.reshape(-1), np.full(3 * n, rotation_sigma_rad or 0.0)]
     H = sum(Ab.T @ (wb[:, None] * Ab) for Ab, wb in blocks)
     Hi = np.linalg.inv(H)
     # cov(theta) = H^-1 (sum_b A_b' W_b S_b W_b A_b) H^-1: the errors are uncorrelated across blocks;
-    # S_b: component k of views i and j correlate by rho^|i-j|
+    # S_b: component k of views i and j correlate by rho^|s_i - s_j| (s: the sequence)
     M = sum((Ab.T * wb) @ (corr * np.outer(s, s)) @ (wb[:, None] * Ab) for (Ab, wb), s in zip(blocks, sd))
     cov = Hi @ M @ Hi
     J = _datum_rows(np.asarray(check, float), centres.mean(0))

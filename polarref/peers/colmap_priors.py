@@ -80,11 +80,10 @@ def similarity_to_control(rec, georef: Georef) -> int:
     This is what a pycolmap user can do with GCPs: a 7-parameter transformation after the
     mapping, no adjustment (the model's shape is unchanged)."""
     ctl = georef.of_role(Role.CONTROL)
-    est = triangulate_marks(rec, georef.marks, [p.id for p in ctl])
-    used = [p for p in ctl if p.id in est]
+    used, X = triangulate_marks(rec, georef.marks, [p.id for p in ctl]).matched(ctl)
     if len(used) < 3:
         raise PolarrefError(f"similarity to control points: {len(used)} triangulated, 3 needed")
-    sim = umeyama(np.array([est[p.id] for p in used]), np.array([p.xyz for p in used]))
+    sim = umeyama(X, np.array([p.xyz for p in used]))
     for im in rec.images.values():
         im.cam_from_world = sim.transform_pose(im.cam_from_world)
     for p in rec.points3D.values():
