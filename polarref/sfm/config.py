@@ -29,6 +29,9 @@ class SfMConfig:
     # images left out of a model that still share verified pairs start another model, up to
     # this many models in all (COLMAP's incremental mapper does the same; 1 = one model only)
     max_models: int = 10
+    # features.max_image_size 0 asked for on purpose (--max-image-size 0): full resolution even
+    # for photo folders and images over 3200 px, which sfm/budget.py otherwise detects at 3200 px
+    full_size: bool = False
 
 
 PRESETS: dict[str, SfMConfig] = {

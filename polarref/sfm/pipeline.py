@@ -324,10 +324,9 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
 
     from polarref.sfm import budget as B
 
-    rule = "as configured"
-    if camera is None and gt is None:
-        config_features, rule = B.for_photos(config.features, SfMConfig().features)
-        config = dataclasses.replace(config, features=config_features)
+    config_features, rule = B.choose(config.features, SfMConfig().features, photos=camera is None and gt is None,
+                                     full_size=config.full_size, sizes=B.header_sizes(image_dir))
+    config = dataclasses.replace(config, features=config_features)
     try:
         feats, skipped, fkey = load_images_and_features(Path(image_dir), config, timings)
         report.feature_budget = B.describe(config.features, rule, [(f.width, f.height) for f in feats],
