@@ -300,15 +300,26 @@ def _reset_far_principal_points(state: MapState, cfg: MapperConfig) -> list[int]
     reset = []
     for c in np.unique(state.camera_of_image[state.registered]):
         cam = state.cameras[int(c)]
-        centre = np.array([cam.width, cam.height]) / 2.0
-        offset = float(np.linalg.norm(cam.principal_point - centre))
-        if offset <= cfg.pp_max_offset * max(cam.width, cam.height):
+        centred = centred_if_far(cam, cfg.pp_max_offset)
+        if centred is None:
             continue
-        params = cam.params.copy()
-        params[[cam.param_names.index("cx"), cam.param_names.index("cy")]] = centre
         log.info("camera %d: principal point refined %.1f px off the image centre (> %.0f %% of %d px): "
-                 "taken for drift, held at the centre", int(c) + 1, offset, 100 * cfg.pp_max_offset,
+                 "taken for drift, held at the centre", int(c) + 1, _pp_offset(cam), 100 * cfg.pp_max_offset,
                  max(cam.width, cam.height))
-        state.set_camera(int(c), type(cam)(cam.model, cam.width, cam.height, params))
+        state.set_camera(int(c), centred)
         reset.append(int(c))
     return reset
+
+
+def _pp_offset(cam) -> float:
+    return float(np.linalg.norm(cam.principal_point - np.array([cam.width, cam.height]) / 2.0))
+
+
+def centred_if_far(cam, max_offset: float):
+    """``cam`` with its principal point at the image centre when it lies farther than
+    ``max_offset`` x the longer side from it; None when it does not."""
+    if _pp_offset(cam) <= max_offset * max(cam.width, cam.height):
+        return None
+    params = cam.params.copy()
+    params[[cam.param_names.index("cx"), cam.param_names.index("cy")]] = [cam.width / 2.0, cam.height / 2.0]
+    return type(cam)(cam.model, cam.width, cam.height, params)
