@@ -59,6 +59,12 @@ class MapperConfig:
     # every unregistered image gets max_registration_attempts more tries (at the register
     # config's retry threshold), as long as the previous round registered something
     retry_rounds: int = 5
+    # ... and from the first such round on, points down to this ray angle are kept (deg; the
+    # triangulation's min_angle_deg, COLMAP's 1.5, holds until then). Walking forward down a
+    # street (Lund, photo 16 of 29) the tracks shared with the map's last images are seen from
+    # nearly one direction: 99 of them sat below 1.5 deg, 42 keypoints reached 3D points, PnP
+    # needs 30 inliers; at 1.0 deg 25 of 29 photos register instead of 15
+    stalled_min_angle_deg: float = 1.0
     # a camera still at its guessed focal length (no EXIF) with registered images is refined in
     # every global BA from this many registered images on (EXIF / given focal lengths wait for
     # refine_min_images)
@@ -251,6 +257,10 @@ def run_mapper(state: MapState, geoms: dict[tuple[int, int], TwoViewGeometry],
             # the map grew since the images failed: complete it, then give them new tries
             rescued_at = int(state.registered.sum())
             out.retry_rounds += 1
+            if state.tri.min_angle_deg > cfg.stalled_min_angle_deg:
+                log.info("no image registers at %d of %d: points down to %.1f deg kept from now on", rescued_at,
+                         int(allowed.sum()), cfg.stalled_min_angle_deg)
+                state.tri = dataclasses.replace(state.tri, min_angle_deg=cfg.stalled_min_angle_deg)
             _global_ba(state, cfg, out, gauge, hook)
             state.filter()
             _retriangulate(state)
