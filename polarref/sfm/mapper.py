@@ -62,8 +62,8 @@ class MapperConfig:
     # ... and from the first such round on, points down to this ray angle are kept (deg; the
     # triangulation's min_angle_deg, COLMAP's 1.5, holds until then). Walking forward down a
     # street (Lund, photo 16 of 29) the tracks shared with the map's last images are seen from
-    # nearly one direction: 99 of them sat below 1.5 deg, 42 keypoints reached 3D points, PnP
-    # needs 30 inliers; at 1.0 deg 25 of 29 photos register instead of 15
+    # nearly one direction: 99 of them had no point (below 1.5 deg or over 2 px), 42 keypoints
+    # reached 3D points, PnP needs 30 inliers; at 1.0 deg 25 of 29 photos register instead of 15
     stalled_min_angle_deg: float = 1.0
     # a camera still at its guessed focal length (no EXIF) with registered images is refined in
     # every global BA from this many registered images on (EXIF / given focal lengths wait for
@@ -72,11 +72,12 @@ class MapperConfig:
     # the principal point ("pp" in refine) is refined in the final rounds only, and only when every
     # camera of the map holds pp_min_images registered images: fewer views do not separate it from
     # the rotations. Fountain-P11 (GT principal point 23 px off the centre, 0.48 deg of tilt that a
-    # centre-aligned rotation error counts): refined to 3.5 px of GT, rotation error 0.49 -> 0.07 deg
+    # centre-aligned rotation error counts): refined to 1.5 px of GT, rotation error 0.49 -> 0.045 deg
     pp_min_images: int = 10
     # a principal point refined farther than this fraction of the longer side from the image
-    # centre is drift along the pp/rotation valley, not a lens (Lund: 97 px of 1024 with k
-    # changing sign; Fountain's calibrated offset is 0.75 %): reset to the centre and held
+    # centre is drift along the pp/rotation valley, not a lens (Lund 90 px of 1024, Sceaux 116 of
+    # 2832; refined from 10 images on, Lund's moved 97 px and its k changed sign; Fountain's
+    # calibrated offset is 0.75 %): reset to the centre and held
     pp_max_offset: float = 0.02
     guided: GuidedConfig = field(default_factory=GuidedConfig)  # track continuation (needs descriptors)
     init: InitConfig = field(default_factory=InitConfig)
