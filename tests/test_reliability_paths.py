@@ -311,7 +311,7 @@ def test_few_photos_keep_their_exif_camera(small_copy, tmp_path):
         p.unlink()
     r = cli("sfm", str(small_copy), "--out", str(tmp_path / "s"), "--preset", "small", "--no-cache", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
-    assert "intrinsics not refined (focal,dist requested): 6 registered images, refinement starts at 10" in r.stderr
+    assert "intrinsics not refined (focal,pp,dist requested): 6 registered images, refinement starts at 10" in r.stderr
     cams = json.loads((tmp_path / "s" / "metrics.json").read_text())["cameras"]
     assert len(cams) == 1 and cams[0]["refined"] == cams[0]["initial"]
     assert cams[0]["initial"][0] == pytest.approx(f35 / 43.27 * diag, rel=1e-6)  # EXIF's focal, not moved

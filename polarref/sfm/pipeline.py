@@ -404,6 +404,8 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
             log.warning("intrinsics not refined (%s requested): %d registered images, refinement starts at %d",
                         ",".join(report.refine), int(state.registered.sum()), config.mapper.refine_min_images)
             report.refine = []
+        if "pp" in report.refine and not mlog.pp_refined:  # held: too few images, or drifted (sfm/mapper.py)
+            report.refine.remove("pp")
         report.cameras = camera_reports(initial_cameras, state.cameras, sources, cam_idx,
                                         [f.name for f in feats], gt)
         rec = to_reconstruction(state, colors=[f.colors for f in feats])
