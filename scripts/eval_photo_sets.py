@@ -69,6 +69,9 @@ def _ours(name: str, images: Path, work: Path, size: int, gt, n: int, log) -> di
     res["unregistered"] = [u["name"] for u in metrics.get("unregistered", [])]
     res["feature_budget"] = metrics.get("feature_budget")
     res["focal_px"] = {c["camera_id"]: round(c["refined"][0], 1) for c in metrics["cameras"]}
+    # the refined intrinsics in full (principal point: held at the centre, or refined, sfm/mapper.py)
+    res["cameras"] = {c["camera_id"]: dict(zip(c["names"], (round(v, 6) for v in c["refined"])))
+                      for c in metrics["cameras"]}
     return res
 
 

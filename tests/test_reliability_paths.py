@@ -175,35 +175,7 @@ def test_closed_stdout_is_not_an_error(tmp_path):
     assert json.loads((tmp_path / "b.json").read_text())["iterations"] == 1
 
 
-# ---- case 9: one 24 MP image among small ones: SIFT memory bounded -----------------------------
-def _png(path: Path, w: int, h: int) -> Path:
-    from PIL import Image
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    Image.new("L", (w, h)).save(path)  # only the header is read by the bound
-    return path
-
-
-def test_sift_memory_bounded_by_the_largest_image(tmp_path, monkeypatch, caplog):
-    import polarref.commands.sfm as S
-    from polarref.sfm.pipeline import PRESETS
-
-    small = [_png(tmp_path / f"{i}.png", 320, 240) for i in range(3)]
-    cfg = PRESETS["small"]
-    assert cfg.features.max_image_size == 0
-    assert S._bound_detection(cfg, None, small) is cfg  # small images: nothing changes
-    big = small + [_png(tmp_path / "big.png", 6000, 4000)]
-    bounded = S._bound_detection(cfg, None, big)
-    assert bounded.features.max_image_size == S.DEFAULT_DETECT_SIDE == 3200
-    assert "1 image(s) larger than 3200 px (e.g. big.png, 6000x4000)" in caplog.text
-    assert "5.6 GB" in caplog.text  # 235 B/px x 24 MP: the measured 5.92 GB peak, less the interpreter
-    # full size asked for explicitly: refused when it does not fit, with a size that does
-    monkeypatch.setattr(S, "_available_bytes", lambda: 2_000_000_000)
-    with pytest.raises(PolarrefError, match=r"big.png: a 6000x4000 image needs about 5.6 GB .* "
-                                            r"use --max-image-size 3\d{3} or less"):
-        S._bound_detection(cfg, 0, big)
-    monkeypatch.setattr(S, "_available_bytes", lambda: 64_000_000_000)
-    assert S._bound_detection(cfg, 0, big) is cfg  # it fits: full size as asked
+# ---- case 9: one 24 MP image among small ones: SIFT memory bounded (tests/test_sfm_budget.py) ------
 
 
 @pytest.mark.slow  # ~35 s: two methods each start, find no verified pair and fail
@@ -339,7 +311,7 @@ def test_few_photos_keep_their_exif_camera(small_copy, tmp_path):
         p.unlink()
     r = cli("sfm", str(small_copy), "--out", str(tmp_path / "s"), "--preset", "small", "--no-cache", cwd=tmp_path)
     assert r.returncode == 0, r.stderr
-    assert "intrinsics not refined (focal,dist requested): 6 registered images, refinement starts at 10" in r.stderr
+    assert "intrinsics not refined (focal,pp,dist requested): 6 registered images, refinement starts at 10" in r.stderr
     cams = json.loads((tmp_path / "s" / "metrics.json").read_text())["cameras"]
     assert len(cams) == 1 and cams[0]["refined"] == cams[0]["initial"]
     assert cams[0]["initial"][0] == pytest.approx(f35 / 43.27 * diag, rel=1e-6)  # EXIF's focal, not moved

@@ -37,15 +37,16 @@ def _views(src: Path) -> list[Path]:
     return sorted((src / "images").iterdir())
 
 
-def _padded(src: Path, dst: Path, side: int, n: int) -> None:
-    """The first ``n`` views centred on a black canvas of longer side ``side``: same focal length
-    and principal point at the centre, so the default guess 1.2 x side moves off the truth."""
+def _padded(src: Path, dst: Path, side: int, n: int, shift: tuple[int, int] = (0, 0)) -> None:
+    """The first ``n`` views on a black canvas of longer side ``side``: same focal length, so the
+    default guess 1.2 x side moves off the truth; the principal point at the canvas centre plus
+    ``shift`` (px)."""
     dst.mkdir(parents=True)
     for p in _views(src)[:n]:
         im = Image.open(p).convert("RGB")
         h = round(side * im.height / im.width)
         canvas = Image.new("RGB", (side, h))
-        canvas.paste(im, ((side - im.width) // 2, (h - im.height) // 2))
+        canvas.paste(im, ((side - im.width) // 2 + shift[0], (h - im.height) // 2 + shift[1]))
         canvas.save(dst / p.name)
 
 
@@ -62,11 +63,11 @@ def _relative_rotation_errors_deg(rec, gt, name_of: dict[str, str]) -> np.ndarra
     return np.asarray(out)
 
 
-def _unknown_focal(comet, tmp_path, ba: str, n: int):
+def _unknown_focal(comet, tmp_path, ba: str, n: int, shift: tuple[int, int] = (0, 0)):
     src, gt = comet
     f_true = next(iter(gt.cameras.values())).fx
     side = round(1.3 * f_true / 1.2)  # the guess 1.2 x side is 30 % above the truth
-    _padded(src, tmp_path / "photos", side, n)
+    _padded(src, tmp_path / "photos", side, n, shift)
     cfg = with_ba(PRESETS["small"], ba)
     cfg = type(cfg)(**{**cfg.__dict__, "cache_dir": str(tmp_path / "cache")})
     res = run_sfm(tmp_path / "photos", None, cfg)
@@ -86,9 +87,31 @@ def test_unknown_focal_30_percent_off_registers_all_and_refines_it(comet, tmp_pa
     assert errs.max() < 1.0 and errs.mean() < 0.4
 
 
+def test_principal_point_off_the_centre_is_refined(comet, tmp_path):
+    """The photos' principal point 6 px (1.4 % of the side) off the centre, where the start holds
+    it: the final rounds move it onto the truth (Fountain-P11: 23 px, 0.48 deg of tilt)."""
+    src, gt = comet
+    cam0 = next(iter(gt.cameras.values()))
+    res, f_true, cam = _unknown_focal(comet, tmp_path, PARAMS[0], 12, shift=(-5, -3))
+    assert res.report.metrics.registered_images == 12
+    side = round(1.3 * f_true / 1.2)
+    w, h = cam0.width, cam0.height
+    truth = np.array([(side - w) // 2 - 5, (round(side * h / w) - h) // 2 - 3]) + cam0.principal_point
+    start, refined = np.array(cam.initial[1:3]), np.array(cam.refined[1:3])
+    assert np.linalg.norm(start - truth) > 5.5
+    assert np.linalg.norm(refined - truth) < 1.5, (refined, truth)
+    assert abs(cam.refined[0] / f_true - 1) < 0.01
+
+
+# Cause found (not mended: polarref/ba/intrinsics.py): the angular whitening W = A^-1 is computed at
+# each solve's starting intrinsics and held, so d(W)/d(focal) is missing from the Jacobian; W grows
+# with f, the cost in angle units falls as f grows, and the solves settle on a focal too long by
+# ~cost / curvature. Synthetic 12 cameras, focal refined from 5 % off, 4 solves (ba.synthetic seed 3):
+# angular +0.013 / +0.061 / +0.264 % at 0.25 / 0.5 / 1 px noise (~noise^2), Euclidean -0.005 /
+# -0.009 / -0.019 %; the same at every solve after the first (a fixed point, not convergence).
 ANGULAR_GAP = pytest.mark.xfail(strict=True, reason="issue 32 not met for the angular form: its self-calibrated "
-                                "focal length ends 1.49 % off (also with 5 extra refinement rounds: a bias, not "
-                                "convergence); the other forms are within 1 %")
+                                "focal length ends 1.49 % off (whitening held at the starting intrinsics: a "
+                                "bias ~ noise^2, see above); the other forms are within 1 %")
 
 
 @pytest.mark.slow  # three full runs (~15-60 s each on 2 loaded cores); PARAMS[0] runs above
@@ -169,3 +192,15 @@ def test_disconnected_sets_and_a_photo_that_overlaps_nothing(comet, tmp_path, ca
     assert "noise.png" in said and "2 separate models" in said
     errs = _relative_rotation_errors_deg(res.reconstruction, gt, {p.name: p.name for p in views})
     assert errs.max() < 1.0 and errs.mean() < 0.4
+
+
+def test_principal_point_far_off_the_centre_is_taken_for_drift():
+    from polarref.camera import Camera
+    from polarref.sfm.mapper import centred_if_far
+
+    near = Camera("SIMPLE_RADIAL", 1000, 800, [900.0, 500 + 12.0, 400 - 16.0, 0.01])  # 20 px = 2 % of 1000
+    assert centred_if_far(near, 0.02) is None
+    far = Camera("OPENCV", 1000, 800, [900.0, 905.0, 500 + 15.0, 400 - 16.0, 0.01, 0.0, 0.0, 0.0])  # 21.9 px
+    back = centred_if_far(far, 0.02)
+    assert back.principal_point.tolist() == [500.0, 400.0]
+    assert (back.fx, back.fy, back.distortion) == (far.fx, far.fy, far.distortion)

@@ -1,5 +1,5 @@
-"""Unknown focal length: P4Pf registration (registration.estimate_pose_and_focal), the image
-size / feature budget of photo folders (sfm.budget), and F-matrix verification of guessed cameras."""
+"""Unknown focal length: P4Pf registration (registration.estimate_pose_and_focal) and
+F-matrix verification of guessed cameras."""
 
 from __future__ import annotations
 
@@ -8,8 +8,6 @@ import pytest
 
 from polarref.camera import Camera
 from polarref.core.geometry import Rigid3, so3_exp
-from polarref.sfm import budget as B
-from polarref.sfm.features import FeatureConfig
 from polarref.sfm.registration import RegisterConfig, estimate_pose_and_focal
 
 
@@ -49,16 +47,3 @@ def test_p4pf_refuses_too_few_or_random_correspondences():
     assert estimate_pose_and_focal(rng.uniform(0, 480, (100, 2)), X, guess, RegisterConfig(), 0) is None
 
 
-def test_feature_budget_scales_with_the_image_size():
-    assert B.scaled_features(3200) == 8192 and B.scaled_features(0) == 8192
-    assert B.scaled_features(1600) == 8192 and B.scaled_features(6400) == 16384
-    cfg, rule = B.for_photos(FeatureConfig(), FeatureConfig())
-    assert (cfg.max_image_size, cfg.max_num_features) == (3200, 8192) and "pycolmap" in rule
-    cfg, rule = B.for_photos(FeatureConfig(max_image_size=1600), FeatureConfig())
-    assert (cfg.max_image_size, cfg.max_num_features) == (1600, 8192) and "1600 given" in rule
-    cfg, rule = B.for_photos(FeatureConfig(max_image_size=4800), FeatureConfig())
-    assert cfg.max_num_features == 12288 and "linear in the side above" in rule
-    mine = FeatureConfig(max_num_features=100, max_image_size=1600)
-    assert B.for_photos(mine, FeatureConfig()) == (mine, "as configured")
-    rec = B.describe(FeatureConfig(max_image_size=1000), "x", [(2000, 1000), (800, 600)], [10, 30])
-    assert (rec.mean_detection_side, rec.mean_keypoints) == (900.0, 20.0)

@@ -74,8 +74,9 @@ def _config(args: argparse.Namespace):
     if args.max_features is not None:
         cfg = rep(cfg, features=rep(cfg.features, max_num_features=args.max_features))
     if args.max_image_size is not None:
-        # a photo folder's feature budget then scales with it (sfm/budget.py)
-        cfg = rep(cfg, features=rep(cfg.features, max_image_size=args.max_image_size))
+        # a photo folder's feature budget then scales with it; 0 = full size, on purpose (sfm/budget.py)
+        cfg = rep(cfg, features=rep(cfg.features, max_image_size=args.max_image_size),
+                  full_size=args.max_image_size == 0)
     if args.pairing:
         cfg = rep(cfg, matching=rep(cfg.matching, pairing=args.pairing))
     if args.triangulation:
@@ -117,7 +118,8 @@ def run(args: argparse.Namespace) -> int:
         # With no readable image, run_sfm reports that (and writes metrics.json).
         if first is not None:
             camera = parse_camera(args.camera, first.shape[1], first.shape[0])
-    cfg = _bound_detection(_config(args), args.max_image_size, F.list_images(image_dir))
+    _refuse_unfitting_size(args.max_image_size, F.list_images(image_dir))
+    cfg = _config(args)
     georef = _read_georef(args, root, image_dir)
     model_format = _model_format(args, [p.name for p in F.list_images(image_dir)])
     res = run_sfm(image_dir, args.out, cfg, camera=camera, gt=gt, mesh=mesh, overwrite=args.overwrite,
@@ -153,49 +155,28 @@ def run(args: argparse.Namespace) -> int:
 # octaves (x 4/3): ~235 bytes per detection pixel. Measured: one 6000x4000 PNG among six 320x240
 # ones, `polarref sfm --preset small`: 5.92 GB peak RSS at full size.
 SIFT_BYTES_PER_PX = 235
-DEFAULT_DETECT_SIDE = 3200  # COLMAP's default max_image_size: ~1.6 GB for a 3:2 image
 
 
-def _bound_detection(cfg, asked: int | None, paths: list[Path]):
-    """Bound SIFT's memory by the largest image. With no --max-image-size and a full-size preset,
-    images larger than DEFAULT_DETECT_SIDE are detected at that size (keypoints scale back exactly;
-    smaller images are untouched), with a warning. Full size asked for (0) but not fitting in the
-    memory available: refused with the size that fits."""
-    side = cfg.features.max_image_size
-    sizes = [(p, _image_size_of(p)) for p in paths]
-    sizes = [(p, wh) for p, wh in sizes if wh is not None]
-    if not sizes or side:
-        return cfg
+def _refuse_unfitting_size(asked: int | None, paths: list[Path]) -> None:
+    """An image size asked for (0 = full size) at which SIFT on the largest image does not fit in
+    the memory available: refused with the size that fits. Without --max-image-size the size
+    comes from sfm/budget.py's rule, which bounds it."""
+    from polarref.sfm.budget import header_size
+
+    if asked is None:
+        return
+    sizes = [(p, wh) for p, wh in ((p, header_size(p)) for p in paths) if wh is not None]
+    if not sizes:
+        return
     p, (w, h) = max(sizes, key=lambda item: item[1][0] * item[1][1])
-    if asked is None and max(w, h) > DEFAULT_DETECT_SIDE:
-        big = sum(max(wh) > DEFAULT_DETECT_SIDE for _, wh in sizes)
-        log.warning("%d image(s) larger than %d px (e.g. %s, %dx%d): features detected at %d px (full size would "
-                    "need about %.1f GB; --max-image-size 0 keeps it)", big, DEFAULT_DETECT_SIDE, p.name, w, h,
-                    DEFAULT_DETECT_SIDE, SIFT_BYTES_PER_PX * w * h / 1e9)
-        rep = dataclasses.replace
-        return rep(cfg, features=rep(cfg.features, max_image_size=DEFAULT_DETECT_SIDE))
-    need, avail = SIFT_BYTES_PER_PX * w * h, _available_bytes()
+    scale = min(1.0, asked / max(w, h)) if asked else 1.0
+    need, avail = SIFT_BYTES_PER_PX * w * h * scale ** 2, _available_bytes()
     if avail is not None and need > 0.8 * avail:
-        fits = int(max(w, h) * (0.8 * avail / need) ** 0.5)
-        raise PolarrefError(f"{p}: a {w}x{h} image needs about {need / 1e9:.1f} GB for SIFT at full size, more "
+        fits = int(scale * max(w, h) * (0.8 * avail / need) ** 0.5)
+        at = f"at {asked} px" if asked else "at full size"
+        raise PolarrefError(f"{p}: a {w}x{h} image needs about {need / 1e9:.1f} GB for SIFT {at}, more "
                             f"than the {avail / 1e9:.1f} GB of memory available; use --max-image-size {fits} "
                             "or less")
-    return cfg
-
-
-def _image_size_of(path: Path) -> tuple[int, int] | None:
-    """(width, height) from the file's header (no decoding); None when unreadable."""
-    import warnings
-
-    from PIL import Image, UnidentifiedImageError
-
-    try:
-        with warnings.catch_warnings():  # a huge image is what this check is for, not news
-            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
-            with Image.open(path) as im:
-                return im.size
-    except (OSError, UnidentifiedImageError, ValueError, Image.DecompressionBombError):
-        return None
 
 
 def _available_bytes() -> int | None:

@@ -28,7 +28,10 @@ log = logging.getLogger(__name__)
 DEFAULT_FOCAL_FACTOR = 1.2
 CAMERA_MODES = ("per-model", "single", "per-image")
 EXIF_MODEL = "SIMPLE_RADIAL"
-EXIF_REFINE = ("focal", "dist")  # COLMAP's ba_refine_* defaults: focal and extra params, not pp
+# COLMAP's ba_refine_* defaults are focal and extra params, not pp; the mapper refines pp only in
+# its final rounds, only with enough images per camera, and keeps it only near the centre
+# (sfm/mapper.py: pp_min_images, pp_max_offset)
+EXIF_REFINE = ("focal", "pp", "dist")
 # Focal lengths outside [0.1, 20] x max(width, height) (a 360 deg to a 3 deg field of view, about
 # 3.6 mm to 720 mm at 35 mm equivalent) are a broken tag (65535, 1), not a lens.
 FOCAL_FACTOR_RANGE = (0.1, 20.0)

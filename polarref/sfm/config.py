@@ -32,6 +32,9 @@ class SfMConfig:
     # threads of the front end (features, matching, verification) in this process; 0 = every
     # core it may use (polarref.sfm.frontend; the results do not depend on it)
     threads: int = 0
+    # features.max_image_size 0 asked for on purpose (--max-image-size 0): full resolution even
+    # for photo folders and images over 3200 px, which sfm/budget.py otherwise detects at 3200 px
+    full_size: bool = False
 
 
 PRESETS: dict[str, SfMConfig] = {

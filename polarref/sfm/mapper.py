@@ -59,10 +59,26 @@ class MapperConfig:
     # every unregistered image gets max_registration_attempts more tries (at the register
     # config's retry threshold), as long as the previous round registered something
     retry_rounds: int = 5
+    # ... and from the first such round on, points down to this ray angle are kept (deg; the
+    # triangulation's min_angle_deg, COLMAP's 1.5, holds until then). Walking forward down a
+    # street (Lund, photo 16 of 29) the tracks shared with the map's last images are seen from
+    # nearly one direction: 99 of them had no point (below 1.5 deg or over 2 px), 42 keypoints
+    # reached 3D points, PnP needs 30 inliers; at 1.0 deg 25 of 29 photos register instead of 15
+    stalled_min_angle_deg: float = 1.0
     # a camera still at its guessed focal length (no EXIF) with registered images is refined in
     # every global BA from this many registered images on (EXIF / given focal lengths wait for
     # refine_min_images)
     refine_guessed_min_images: int = 3
+    # the principal point ("pp" in refine) is refined in the final rounds only, and only when every
+    # camera of the map holds pp_min_images registered images: fewer views do not separate it from
+    # the rotations. Fountain-P11 (GT principal point 23 px off the centre, 0.48 deg of tilt that a
+    # centre-aligned rotation error counts): refined to 1.5 px of GT, rotation error 0.49 -> 0.045 deg
+    pp_min_images: int = 10
+    # a principal point refined farther than this fraction of the longer side from the image
+    # centre is drift along the pp/rotation valley, not a lens (Lund 90 px of 1024, Sceaux 116 of
+    # 2832; refined from 10 images on, Lund's moved 97 px and its k changed sign; Fountain's
+    # calibrated offset is 0.75 %): reset to the centre and held
+    pp_max_offset: float = 0.02
     guided: GuidedConfig = field(default_factory=GuidedConfig)  # track continuation (needs descriptors)
     init: InitConfig = field(default_factory=InitConfig)
     register: RegisterConfig = field(default_factory=RegisterConfig)
@@ -77,6 +93,8 @@ class MapperLog:
     guided_observations: int = 0  # observations added by guided matching (before filtering)
     retry_rounds: int = 0         # rounds of retries after no image registered (see MapperConfig)
     focal_estimates: dict[int, float] = field(default_factory=dict)  # camera -> focal (px) from P4Pf
+    pp_refined: list[int] = field(default_factory=list)  # cameras whose principal point was refined and kept
+    pp_reset: list[int] = field(default_factory=list)    # ... refined, found past pp_max_offset, reset
 
 
 def _image_tracks(state: MapState, image: int) -> np.ndarray:
@@ -85,7 +103,7 @@ def _image_tracks(state: MapState, image: int) -> np.ndarray:
 
 
 def _global_ba(state: MapState, cfg: MapperConfig, log_: MapperLog, gauge: list[int],
-               hook: PriorHook | None = None) -> None:
+               hook: PriorHook | None = None, pp: bool = False) -> None:
     if hook is not None:
         hook.realign(state)
     reg = [int(i) for i in np.flatnonzero(state.registered)]
@@ -96,7 +114,7 @@ def _global_ba(state: MapState, cfg: MapperConfig, log_: MapperLog, gauge: list[
     # images under a guess tens of % off fails, so it is refined from refine_guessed_min_images on
     guess_in_map = bool(state.focal_guessed[state.camera_of_image[reg]].any())
     enough = len(reg) >= cfg.refine_min_images or (guess_in_map and len(reg) >= cfg.refine_guessed_min_images)
-    refine = tuple(cfg.refine or ()) if enough else ()
+    refine = tuple(g for g in cfg.refine or () if g != "pp" or pp) if enough else ()
     info = bundle.adjust(state, var, list(gauge), cfg.ba, cfg.global_ba_iterations, cfg.global_ba_loss,
                          refine=refine, priors=hook)
     info.kind, info.num_registered = "global", len(reg)
@@ -240,6 +258,10 @@ def run_mapper(state: MapState, geoms: dict[tuple[int, int], TwoViewGeometry],
             # the map grew since the images failed: complete it, then give them new tries
             rescued_at = int(state.registered.sum())
             out.retry_rounds += 1
+            if state.tri.min_angle_deg > cfg.stalled_min_angle_deg:
+                log.info("no image registers at %d of %d: points down to %.1f deg kept from now on", rescued_at,
+                         int(allowed.sum()), cfg.stalled_min_angle_deg)
+                state.tri = dataclasses.replace(state.tri, min_angle_deg=cfg.stalled_min_angle_deg)
             _global_ba(state, cfg, out, gauge, hook)
             state.filter()
             _retriangulate(state)
@@ -256,11 +278,59 @@ def run_mapper(state: MapState, geoms: dict[tuple[int, int], TwoViewGeometry],
             _guided(state, np.flatnonzero(state.registered), descriptors, cfg, out)
             n_at_global, pts_at_global = int(state.registered.sum()), int(state.has_point.sum())
     out.failed_registrations = {k: v for k, v in out.failed_registrations.items() if not state.registered[k]}
-    for _ in range(cfg.final_ba_rounds + (cfg.refine_extra_rounds if cfg.refine else 0)):
+    pp = "pp" in (cfg.refine or ()) and _pp_separable(state, cfg)
+    rounds = cfg.final_ba_rounds + (cfg.refine_extra_rounds if cfg.refine else 0)
+    for _ in range(rounds):
         _retriangulate(state)
         _guided(state, np.flatnonzero(state.registered), descriptors, cfg, out)
-        _global_ba(state, cfg, out, gauge, hook)
+        _global_ba(state, cfg, out, gauge, hook, pp=pp)
         state.filter()
+    if pp:
+        out.pp_reset = _reset_far_principal_points(state, cfg)
+        used = np.unique(state.camera_of_image[state.registered])
+        out.pp_refined = [int(c) for c in used if int(c) not in out.pp_reset]
+        for _ in range(cfg.final_ba_rounds if out.pp_reset else 0):  # the map settles on the held centre
+            _retriangulate(state)
+            _global_ba(state, cfg, out, gauge, hook)
+            state.filter()
     if state.registered.sum() < 2:
         raise PolarrefError("fewer than two images could be registered")
     return out
+
+
+def _pp_separable(state: MapState, cfg: MapperConfig) -> bool:
+    """Whether every camera of the map holds enough registered images to refine its principal point."""
+    counts = np.bincount(state.camera_of_image[state.registered], minlength=len(state.cameras))
+    used = counts[counts > 0]
+    return bool(len(used)) and int(used.min()) >= cfg.pp_min_images
+
+
+def _reset_far_principal_points(state: MapState, cfg: MapperConfig) -> list[int]:
+    """Cameras whose refined principal point lies past ``pp_max_offset`` of the longer side from
+    the image centre, reset to the centre (the caller re-adjusts the map)."""
+    reset = []
+    for c in np.unique(state.camera_of_image[state.registered]):
+        cam = state.cameras[int(c)]
+        centred = centred_if_far(cam, cfg.pp_max_offset)
+        if centred is None:
+            continue
+        log.info("camera %d: principal point refined %.1f px off the image centre (> %.0f %% of %d px): "
+                 "taken for drift, held at the centre", int(c) + 1, _pp_offset(cam), 100 * cfg.pp_max_offset,
+                 max(cam.width, cam.height))
+        state.set_camera(int(c), centred)
+        reset.append(int(c))
+    return reset
+
+
+def _pp_offset(cam) -> float:
+    return float(np.linalg.norm(cam.principal_point - np.array([cam.width, cam.height]) / 2.0))
+
+
+def centred_if_far(cam, max_offset: float):
+    """``cam`` with its principal point at the image centre when it lies farther than
+    ``max_offset`` x the longer side from it; None when it does not."""
+    if _pp_offset(cam) <= max_offset * max(cam.width, cam.height):
+        return None
+    params = cam.params.copy()
+    params[[cam.param_names.index("cx"), cam.param_names.index("cy")]] = [cam.width / 2.0, cam.height / 2.0]
+    return type(cam)(cam.model, cam.width, cam.height, params)

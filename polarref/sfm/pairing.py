@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import hashlib
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -70,7 +70,6 @@ class PairSet:
     names: list[str]
     pairs: list[tuple[int, int]]
     config: PairingConfig
-    header: dict = field(default_factory=dict)  # provenance written into the file
 
     @property
     def digest(self) -> str:

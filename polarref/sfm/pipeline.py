@@ -364,10 +364,9 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
 
     from polarref.sfm import budget as B
 
-    rule = "as configured"
-    if camera is None and gt is None:
-        config_features, rule = B.for_photos(config.features, SfMConfig().features)
-        config = dataclasses.replace(config, features=config_features)
+    config_features, rule = B.choose(config.features, SfMConfig().features, photos=camera is None and gt is None,
+                                     full_size=config.full_size, sizes=B.header_sizes(image_dir))
+    config = dataclasses.replace(config, features=config_features)
     try:
         feats, skipped, fkey = load_images_and_features(Path(image_dir), config, clock)
         report.feature_budget = B.describe(config.features, rule, [(f.width, f.height) for f in feats],
@@ -445,6 +444,8 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
             log.warning("intrinsics not refined (%s requested): %d registered images, refinement starts at %d",
                         ",".join(report.refine), int(state.registered.sum()), config.mapper.refine_min_images)
             report.refine = []
+        if "pp" in report.refine and not mlog.pp_refined:  # held: too few images, or drifted (sfm/mapper.py)
+            report.refine.remove("pp")
         report.cameras = camera_reports(initial_cameras, state.cameras, sources, cam_idx,
                                         [f.name for f in feats], gt)
         rec = to_reconstruction(state, colors=[f.colors for f in feats])

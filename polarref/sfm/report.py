@@ -18,6 +18,8 @@ from polarref.metrics import SCHEMA_VERSION, ReconstructionMetrics
 from polarref.core.provenance import Provenance
 from polarref.io.scene_folder import SkippedImage
 from polarref.sfm.ba_runs import BARun, ColmapBARun  # noqa: F401 (re-exported)
+from polarref.sfm.budget import FeatureBudget
+from polarref.sfm.calibration import CameraReport
 from polarref.sfm.config import SfMConfig
 from polarref.core.status import RunStatus
 
@@ -62,11 +64,11 @@ class SfMReport:
     unregistered_images: list[str] | None = None
     unregistered: list[UnregisteredImage] | None = None  # the same images with the reason
     models: list[ModelSummary] | None = None   # every model, largest first (metrics: the first)
-    feature_budget: Any = None           # polarref.sfm.budget.FeatureBudget: image size and keypoints used
+    feature_budget: FeatureBudget | None = None   # image size and keypoints used (sfm/budget.py)
     guided_observations: int | None = None
     ba: list[BARun] | None = None        # every bundle adjustment of the mapper, in order
     refine: list[str] | None = None          # intrinsics groups refined
-    cameras: list[Any] | None = None         # polarref.sfm.calibration.CameraReport per camera
+    cameras: list[CameraReport] | None = None    # start, refined and GT intrinsics per camera
     metrics: ReconstructionMetrics | None = None   # scores of the finished model
     gt_skipped: str = ""                 # why the GT comparison was not made ("" when made or no GT)
     runtime_s: dict[str, float | bool] = field(default_factory=dict)   # stage -> s; *_cached flags
