@@ -1,8 +1,10 @@
-"""The README's SfM-speed finding, generated from ``reports/bench-sfm/bench.json`` and its rechecks.
+"""The README's SfM-speed finding, generated from the level bench ``reports/bench-sfm/level/bench.json``.
 
-``python -m polarref.bench.readme_sfm reports/bench-sfm README.md`` rewrites the block between the
-README's markers; ``tests/test_readme_sfm.py`` fails when the README and the JSON differ (issue 30:
-the hand-written bullet kept quoting a sweep that a clean recheck had superseded).
+``python -m polarref.bench.readme_sfm reports/bench-sfm/level README.md`` rewrites the block between
+the README's markers; ``tests/test_readme_sfm.py`` fails when the README and the JSON differ (issue 30:
+a hand-written bullet kept quoting a sweep that a recheck had superseded). The first-layout sweep
+(``reports/bench-sfm/bench.json``: pycolmap with twice our SIFT budget, one thread each, each method's
+own tie-point rule) is named as superseded, never quoted (issue 34).
 """
 
 from __future__ import annotations
@@ -10,94 +12,68 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from polarref.bench.records import SfMBench, SfMCell
+from polarref.bench.records import SfMBench, SfMRow
+from polarref.bench.sfm_report import TARGET_VIEWS
 from polarref.core import records
 from polarref.core.atomic import atomic_write
 from polarref.core.markers import replace_block
 
-BEGIN = "<!-- sfm-findings: generated from reports/bench-sfm/*bench.json, do not edit by hand -->"
+BEGIN = "<!-- sfm-findings: generated from reports/bench-sfm/level/bench.json, do not edit by hand -->"
 END = "<!-- /sfm-findings -->"
-HEADLINE_VIEWS = 168
 
 
-def _cell(bench: SfMBench, method: str, views: int) -> SfMCell | None:
-    return next((c for c in bench.cells if c.method == method and c.views == views and c.status == "ok"), None)
+def _row(bench: SfMBench, label: str, views: int) -> SfMRow | None:
+    return next((r for r in bench.rows if r.label == label and r.views == views), None)
 
 
-def _commit(bench: SfMBench) -> str:
-    env = bench.environment
-    return f"commit {env.git_commit[:7] or 'unknown'}{' dirty' if env.git_dirty else ' (clean)'}"
+def _x(v: float | None) -> str:
+    return "not tested" if v is None else f"{v:.2f}x"
 
 
-def _ratio(bench: SfMBench, views: int) -> float | None:
-    ours, ref = _cell(bench, "ours", views), _cell(bench, "pycolmap", views)
-    return ours.total_s / ref.total_s if ours and ref and ref.total_s else None
+def _load(bench: SfMBench) -> str:
+    loads = [r.load_average_1min for r in bench.rows if r.load_average_1min is not None]
+    if not loads:
+        return "load average not recorded"
+    return f"1-minute load average {min(s.low for s in loads):.0f}-{max(s.high for s in loads):.0f} on 2 cores at the cells' starts"
 
 
-def sweep_line(bench: SfMBench, where: str) -> str:
-    views = sorted({c.views for c in bench.cells})
-    ours, ref = _cell(bench, "ours", HEADLINE_VIEWS), _cell(bench, "pycolmap", HEADLINE_VIEWS)
-    head = (f"- **SfM speed** (`{where}/`, `polarref bench sfm --scene {bench.settings.scene} --views "
-            f"{' '.join(map(str, views))}`, {_commit(bench)}, {bench.settings.threads} thread per method, each cell in "
-            f"its own process; this bullet is generated from the JSON by `python -m polarref.bench.readme_sfm "
-            f"{where} README.md`): on the same rendered {bench.settings.scene} images and the same "
-            f"{bench.settings.pairing} pairs (pycolmap imports ours), ")
-    if ours is None or ref is None:
-        return head + f"the {HEADLINE_VIEWS}-view cells did not both finish (not tested)."
-    ratios = [r for r in (_ratio(bench, v) for v in views) if r is not None]
-    rot = "lower" if ours.rotation_error_deg_mean < ref.rotation_error_deg_mean else "higher"
-    k = bench.growth_exponents
-    mem_v = max(views)
-    mo, mr = _cell(bench, "ours", mem_v), _cell(bench, "pycolmap", mem_v)
-    return (head + f"ours takes **{ours.total_s / ref.total_s:.2f}x** pycolmap incremental's time at {HEADLINE_VIEWS} "
-            f"views ({ours.total_s:.1f} vs {ref.total_s:.1f} s, sum of the stages) with "
-            f"{ours.tie_points / ref.tie_points:.2f}x its tie points ({ours.tie_points:,} vs {ref.tie_points:,}) and a "
-            f"{rot} GT rotation error ({ours.rotation_error_deg_mean:.3f} vs {ref.rotation_error_deg_mean:.3f} deg); "
-            f"{min(ratios):.2f}-{max(ratios):.2f}x at {views[0]}-{views[-1]} views. Growth exponent of our total time "
-            f"from 84 to {mem_v} views {_exp(k, 'ours')} (pycolmap {_exp(k, 'pycolmap')}); peak memory "
-            f"{_mem(mo)} MiB at {mem_v} views (pycolmap {_mem(mr)}).")
+def level_line(bench: SfMBench, where: str) -> str:
+    """One bullet: the 168-view checks of the level bench, with its provenance and load."""
+    env, st, c = bench.environment, bench.settings, bench.checks
+    views = sorted({r.views for r in bench.rows})
+    repeats = max((r.total_s.n for r in bench.rows if r.views == TARGET_VIEWS), default=0)
+    head = (f"- **SfM speed, level bench** (`{where}/`, `polarref bench sfm --views {' '.join(map(str, views))}`, "
+            f"commit {env.git_commit[:7]}{' dirty' if env.git_dirty else ' (clean)'}; generated by "
+            f"`python -m polarref.bench.readme_sfm {where} README.md`): the same rendered {st.scene} images, the "
+            f"same {st.pairing} pairs (pycolmap imports ours) and the same SIFT budget ({st.max_num_features}) for "
+            f"both; ours with 1 and 2 front-end threads, pycolmap with 1 and 2 threads; tie points by one rule. ")
+    o2, p2 = _row(bench, "ours-2w", TARGET_VIEWS), _row(bench, "pycolmap-2t", TARGET_VIEWS)
+    if o2 is None or p2 is None or c.time_ratio_168 is None:
+        return head + f"The {TARGET_VIEWS}-view cells on 2 cores did not both finish (not tested).\n"
+    rot = (f"{o2.rotation_error_deg:.3f} vs {p2.rotation_error_deg:.3f} deg GT rotation error"
+           if o2.rotation_error_deg is not None and p2.rotation_error_deg is not None else "rotation error not tested")
+    return (head + f"At {TARGET_VIEWS} views ({repeats} repeat{'s' if repeats != 1 else ''}) ours took "
+            f"**{_x(c.time_ratio_168)}** pycolmap's wall time with both on 2 cores ({o2.total_s.median:.1f} vs "
+            f"{p2.total_s.median:.1f} s; {_x(c.time_ratio_168_1core)} on 1 core; CPU seconds {_x(c.cpu_ratio_168)}), "
+            f"with {_x(c.tie_ratio_168)} its tie points seen by >= 2 registered images ({o2.tie_points_2v:,} vs "
+            f"{p2.tie_points_2v:,}; {_x(c.tie_ratio_168_3v)} by >= 3) and {rot}. **Indicative only**: "
+            f"{_load(bench)}. The first-layout sweep (`reports/bench-sfm/bench.json`: pycolmap with twice our SIFT "
+            "budget, one thread each, each method's own tie-point rule) is superseded and not quoted.\n")
 
 
-def _exp(k: dict[str, dict[str, float | None]], method: str) -> str:
-    v = k.get(method, {}).get("total_84_336")
-    return "n/a" if v is None else f"{v:.2f}"
+def findings_block(level_dir: Path) -> str:
+    where = "/".join(level_dir.parts[-3:]) if len(level_dir.parts) >= 3 else str(level_dir)
+    return level_line(records.load(SfMBench, level_dir / "bench.json"), where)
 
 
-def _mem(c: SfMCell | None) -> str:
-    return "n/a" if c is None else f"{c.peak_memory_mb.ru_maxrss_mb:.0f}"
-
-
-def recheck_line(bench: SfMBench, where: str) -> str:
-    views = sorted({c.views for c in bench.cells})
-    parts = []
-    for v in views:
-        ours, ref = _cell(bench, "ours", v), _cell(bench, "pycolmap", v)
-        if ours is None or ref is None:
-            parts.append(f"{v} views not tested")
-            continue
-        cpu = (f", CPU time {ours.cpu_s / ref.cpu_s:.2f}x" if ours.cpu_s and ref.cpu_s else "")
-        parts.append(f"**{ours.total_s / ref.total_s:.2f}x** at {v} views ({ours.total_s:.1f} vs {ref.total_s:.1f} s{cpu}; "
-                     f"tie points {ours.tie_points:,} vs {ref.tie_points:,})")
-    return f"  Recheck (`{where}/`, {_commit(bench)}): " + "; ".join(parts) + ". It supersedes the sweep's figure there."
-
-
-def findings_block(bench_dir: Path) -> str:
-    """The sweep's line, then one line per recheck folder (``recheck-*``, in name order)."""
-    root = bench_dir.parent.name + "/" + bench_dir.name
-    lines = [sweep_line(records.load(SfMBench, bench_dir / "bench.json"), root)]
-    for sub in sorted(bench_dir.glob("recheck-*/bench.json")):
-        lines.append(recheck_line(records.load(SfMBench, sub), f"{root}/{sub.parent.name}"))
-    return "\n".join(lines) + "\n"
-
-
-def update_readme(readme: Path, bench_dir: Path) -> Path:
+def update_readme(readme: Path, level_dir: Path) -> Path:
     try:
-        text = replace_block(readme.read_text(), BEGIN, END, findings_block(bench_dir))
+        text = replace_block(readme.read_text(), BEGIN, END, findings_block(level_dir))
     except ValueError as exc:
         raise SystemExit(f"{readme}: {exc}") from exc
     return atomic_write(readme, text)
 
 
-if __name__ == "__main__":  # python -m polarref.bench.readme_sfm reports/bench-sfm README.md
+if __name__ == "__main__":  # python -m polarref.bench.readme_sfm reports/bench-sfm/level README.md
     print(update_readme(Path(sys.argv[2] if len(sys.argv) > 2 else "README.md"),
-                        Path(sys.argv[1] if len(sys.argv) > 1 else "reports/bench-sfm")))
+                        Path(sys.argv[1] if len(sys.argv) > 1 else "reports/bench-sfm/level")))
