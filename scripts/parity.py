@@ -84,7 +84,7 @@ EVIDENCE_MODES = MODES[1:5]
 def evidence_problems(data: Path):
     """(label, prepared problem, max_iterations) behind the defaults (options.DEFAULT_*)."""
     from polarref.ba.adapter import problem_from_reconstruction
-    from polarref.compare.experiment_problems import low_parallax_problem
+    from polarref.compare.claims.experiment_problems import low_parallax_problem
     out = []
     for label, spec in (("Ladybug-49", str(data / "bal" / "problem-49-7776-pre.txt")),
                         ("synth-20", "synth-20"), ("synth-60", "synth-60")):

@@ -1,7 +1,7 @@
 """Pilot of the controlled claim experiments on the pilot seeds (issue 30's pre-registration).
 
 Runs the C3/C4 timing experiment and the C5 outlier runs on the pilot seeds named in
-``polarref/compare/preregistration.toml`` (disjoint from its test seeds) and prints the standard
+``polarref/compare/claims/preregistration.toml`` (disjoint from its test seeds) and prints the standard
 deviations the pre-registration states, from which each claim's minimum detectable effect is
 computed. The printed values are copied into the file by hand and committed before any run that
 uses them.
@@ -19,10 +19,10 @@ import time
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from polarref.compare import experiments
-from polarref.compare.claims_experiments import paired_series
-from polarref.compare.claims_robustness import paired_relative, point_rate
-from polarref.compare.preregistration import PREREG
+from polarref.compare.claims import experiments
+from polarref.compare.claims.controlled import paired_series
+from polarref.compare.claims.robustness import paired_relative, point_rate
+from polarref.compare.claims.preregistration import PREREG
 
 
 def main() -> None:

@@ -2,7 +2,7 @@
 
     PYTHONPATH=. python scripts/replication_report.py --out reports/replication-small
 
-Scenes come from ``polarref/compare/preregistration.toml`` ``[replication]``; real sets are read
+Scenes come from ``polarref/compare/claims/preregistration.toml`` ``[replication]``; real sets are read
 under ``--data`` (default: $POLARREF_DATA, else ../shared/data). Resumable: a scene folder with a
 ``metrics.json`` is reused, never rerun. An existing replication.json is replaced only with
 --overwrite (the scene runs under it are reused either way).
@@ -15,8 +15,8 @@ import logging
 import sys
 from pathlib import Path
 
-from polarref.compare.replication import replicate
-from polarref.compare.replication_render import render
+from polarref.compare.run.replication import replicate
+from polarref.compare.run.replication_render import render
 from polarref.core import records
 from polarref.core.atomic import atomic_write
 from polarref.core.data import data_root

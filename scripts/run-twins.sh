@@ -15,7 +15,7 @@ TWINS=${TWINS:-"rosetta mappilot poets-park"}
 mkdir -p "$OUT"
 for twin in $TWINS; do
   case $twin in rosetta) kind=comet ;; *) kind=uav ;; esac
-  dir=$(.venv/bin/python -c "from polarref.compare.scenes import synthetic_root as r; print(r('$kind', '$twin', 0))")
+  dir=$(.venv/bin/python -c "from polarref.compare.run.scenes import synthetic_root as r; print(r('$kind', '$twin', 0))")
   echo "$(date -u +%FT%T) render $twin -> $dir"
   $P --no-progress render "$kind" --preset "$twin" --out "$dir" || { echo "render $twin failed"; continue; }
   echo "$(date -u +%FT%T) compare $twin"

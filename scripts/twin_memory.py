@@ -15,7 +15,7 @@ import json
 import sys
 from pathlib import Path
 
-from polarref.compare.twins import rerun_ours_stage
+from polarref.compare.twins.pipeline import rerun_ours_stage
 from polarref.core.errors import PolarrefError
 from polarref.core.provenance import collect
 

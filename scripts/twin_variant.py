@@ -17,8 +17,8 @@ import json
 import sys
 from pathlib import Path
 
-from polarref.compare.thresholds import TWIN_ROSETTA_MIN_TIES
-from polarref.compare.twins import rerun_ours_stage, score_model
+from polarref.compare.claims.thresholds import TWIN_ROSETTA_MIN_TIES
+from polarref.compare.twins.pipeline import rerun_ours_stage, score_model
 from polarref.core.errors import PolarrefError
 from polarref.core.provenance import collect
 from polarref.sfm.pipeline import PRESETS

@@ -85,3 +85,17 @@ def small_copy(comet_small_scene, tmp_path):
 def uav_small_scene():
     """Folder of the small UAV scene (12 views, 320x240), see synth/scene.py for the layout."""
     return _cached_scene("uav", "small")
+
+
+# ---- test folders on sys.path (issue 29: tests mirror the packages) ----
+# Tests live in one folder per package (tests/ba, tests/compare/report, ...). Test modules import
+# helpers from one another by module name (``from test_report_build import synthetic_metrics``,
+# ``from _dense_scene import Sphere``); pytest puts only a test file's own folder on sys.path, so
+# every test folder is put there once, here (test file names are unique across folders).
+import sys as _sys  # noqa: E402
+from pathlib import Path as _Path  # noqa: E402
+
+_HERE = _Path(__file__).resolve().parent
+for _folder in [_HERE] + sorted(p for p in _HERE.rglob("*") if p.is_dir() and not p.name.startswith((".", "_"))):
+    if str(_folder) not in _sys.path:
+        _sys.path.append(str(_folder))

@@ -192,3 +192,39 @@ def test_untyped_data_does_not_grow():
     assert len(c.dict_returning) <= MAX_DICT_RETURNING, c.dict_returning
     assert len(c.loose_fields) <= MAX_LOOSE_FIELDS, c.loose_fields
     assert len(c.string_subscripts) <= MAX_STRING_SUBSCRIPTS, len(c.string_subscripts)
+
+
+# ---- compare/ split into run/ claims/ twins/ report/ (issue 29) ----
+COMPARE_SUBPACKAGES = ("run", "claims", "twins", "report")
+
+
+def test_compare_holds_its_face_the_schema_and_four_subpackages():
+    top = ROOT / "polarref" / "compare"
+    assert sorted(p.name for p in top.glob("*.py")) == ["__init__.py", "schema.py"]
+    subs = sorted(p.name for p in top.iterdir() if p.is_dir() and (p / "__init__.py").is_file())
+    assert subs == sorted(COMPARE_SUBPACKAGES)
+
+
+# Imports between compare's subpackages (all of them read compare.schema from below). The two
+# upward reads: run.pipeline writes the report at the end of a run, report.index reads the twins' tables.
+COMPARE_DIRECTIONS = {("twins", "run"), ("twins", "claims"), ("run", "claims"), ("report", "claims"),
+                      ("run", "report"), ("report", "twins")}
+
+
+def test_compare_subpackages_import_in_the_documented_directions():
+    found = set()
+    for mod, targets in import_graph().items():
+        parts = mod.split(".")
+        if parts[:2] != ["polarref", "compare"] or len(parts) < 4:
+            continue
+        for t in targets:
+            tp = t.split(".")
+            if tp[:2] == ["polarref", "compare"] and len(tp) >= 4 and tp[2] != parts[2]:
+                found.add((parts[2], tp[2]))
+    assert found <= COMPARE_DIRECTIONS, sorted(found - COMPARE_DIRECTIONS)
+
+
+def test_tests_mirror_the_packages():
+    """Every test file sits in the folder of the package it tests (tests/<package>/...)."""
+    top = sorted(p.name for p in (ROOT / "tests").glob("test_*.py"))
+    assert top == ["test_layout.py"], top

@@ -18,7 +18,7 @@ pass at scale too.
 The results are bit-identical to the eager build: every per-observation value is computed by
 the same code on the same inputs (a slice of the observations), and the kernels accumulate in
 the same order (points ascending, observations ascending within a point); the residuals
-without Jacobians come from the same rays and projections as with them (tests/test_ba_memory.py
+without Jacobians come from the same rays and projections as with them (tests/ba/test_ba_memory.py
 compares both paths exactly).
 """
 

@@ -1,7 +1,7 @@
 """The README's SfM-speed finding, generated from the level bench ``reports/bench-sfm/level/bench.json``.
 
 ``python -m polarref.bench.readme_sfm reports/bench-sfm/level README.md`` rewrites the block between
-the README's markers; ``tests/test_readme_sfm.py`` fails when the README and the JSON differ (issue 30:
+the README's markers; ``tests/bench/test_readme_sfm.py`` fails when the README and the JSON differ (issue 30:
 a hand-written bullet kept quoting a sweep that a recheck had superseded). The first-layout sweep
 (``reports/bench-sfm/bench.json``: pycolmap with twice our SIFT budget, one thread each, each method's
 own tie-point rule) is named as superseded, never quoted (issue 34).

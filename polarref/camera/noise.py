@@ -9,7 +9,7 @@ phi carries no information near the principal point and first-order propagation 
 
 Gating rule (for solvers): use the phi observation only where the first-order
 ``sigma_phi <= max_sigma_phi``. A sensible ``max_sigma_phi`` is a few times smaller than 1 rad
-(e.g. 0.05 rad keeps the linearization valid; see tests/test_camera_noise.py).
+(e.g. 0.05 rad keeps the linearization valid; see tests/camera/test_camera_noise.py).
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ import logging
 from pathlib import Path
 
 from polarref.commands._types import SEED, float_range, positive_float
-from polarref.compare import presets
+from polarref.compare.run import presets
 from polarref.core.errors import PolarrefError, UsageError
 from polarref.core.status import RunStatus
 
@@ -24,7 +24,7 @@ def _budget(text: str) -> float:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from polarref.compare.methods import METHOD_NAMES
+    from polarref.compare.run.methods import METHOD_NAMES
 
     parser.add_argument("scene", nargs="?", default=None, metavar="SCENE|DIR",
                         help="comet (default), uav, a rendered scene folder, or an image set with ground "
@@ -62,8 +62,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _run_twin(args: argparse.Namespace) -> int:
     """A twin of the paper's datasets: resumable stages and the paper-layout table."""
-    from polarref.compare import paper_tables as PT
-    from polarref.compare.twins import DEFAULT_TIMEOUT_S, TwinRun, run_twin
+    from polarref.compare.twins import tables as PT
+    from polarref.compare.twins.pipeline import DEFAULT_TIMEOUT_S, TwinRun, run_twin
 
     from polarref.core.atomic import check_writable_parent
 
@@ -118,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
     _check_twin_options(args, args.scene in TWINS)
     if args.scene in TWINS:
         return _run_twin(args)
-    from polarref.compare.pipeline import CompareConfig, command_line, run_compare
+    from polarref.compare.run.pipeline import CompareConfig, command_line, run_compare
 
     if args.scene is not None and Path(args.scene).expanduser().is_dir():
         _refuse_spaced_names(Path(args.scene).expanduser())

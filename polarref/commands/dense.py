@@ -29,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from polarref.compare.pipeline import command_line
+    from polarref.compare.run.pipeline import command_line
     from polarref.dense.pipeline import DenseConfig, run_dense
 
     base = DenseConfig()

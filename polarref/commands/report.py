@@ -25,10 +25,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from polarref.compare.report import build_report
+    from polarref.compare.report.build import build_report
 
     if args.index:
-        from polarref.compare.index import build_index
+        from polarref.compare.report.index import build_index
 
         for d in args.dirs:
             written = build_index(d)
@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
         written = build_report(d, metrics)
         print(f"wrote {written.markdown} and {written.html} ({len(written.figures)} figures)")
         if args.screenshot:
-            from polarref.compare.browser import screenshot
+            from polarref.compare.report.browser import screenshot
 
             check = screenshot(written.html, d / "screenshot.png")
             for problem in check.console_errors + [f"network request: {u}" for u in check.network_requests]:

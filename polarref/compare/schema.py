@@ -166,7 +166,7 @@ class DrawVerdict:
 
 @dataclass
 class ClaimInvariance:
-    """Verdicts of one claim under the invariance draws (:mod:`polarref.compare.claims_invariance`)."""
+    """Verdicts of one claim under the invariance draws (:mod:`polarref.compare.claims.invariance`)."""
 
     base_verdict: str         # in the experiments' own frame
     agree_share: float        # fraction of draws with the same verdict
@@ -214,7 +214,7 @@ class Environment:
 
 @dataclass
 class ViewCloud:
-    """One point cloud of the 3D view, subsampled and quantized (see ``polarref.compare.view3d``)."""
+    """One point cloud of the 3D view, subsampled and quantized (see ``polarref.compare.report.view3d``)."""
 
     key: str                  # method name, "gt-surface" or "dense:<method>"
     label: str
@@ -272,7 +272,7 @@ class DenseRun:
 
 @dataclass
 class DenseSection:
-    """``polarref compare --dense``: one run per pose source (:mod:`polarref.compare.dense_stage`)."""
+    """``polarref compare --dense``: one run per pose source (:mod:`polarref.compare.run.dense`)."""
 
     runs: list[DenseRun] = field(default_factory=list)
 
@@ -291,7 +291,7 @@ class MetricsFile:
     ba_traces: list[BATrace] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
     view3d: View3D | None = None
-    dense: DenseSection | None = None  # compare --dense (polarref.compare.dense_stage)
+    dense: DenseSection | None = None  # compare --dense (polarref.compare.run.dense)
 
     def method(self, name: str) -> MethodResult | None:
         return next((m for m in self.methods if m.name == name), None)

@@ -150,7 +150,7 @@ class DaskExecutor:
         self.cluster = None
         if spec.mode == "local":
             # Workers are not daemonic so that a compare method running in a worker can still
-            # start its own isolated child process (polarref.compare.runner).
+            # start its own isolated child process (polarref.core.isolated).
             with dask.config.set({"distributed.worker.daemon": False}), _quiet_dask():
                 self.cluster = LocalCluster(n_workers=spec.workers, threads_per_worker=1, processes=True,
                                             dashboard_address=":0", env=dict(THREAD_ENV),

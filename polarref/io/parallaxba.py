@@ -12,7 +12,7 @@ ParallaxBA (``README.txt``: ``ParallaxBA -cam Cam90.txt -fea Feature90.txt -cali
 * optional ``XYZ.txt`` (or ``XYZ<N>.txt``): initial points, ``X Y Z`` per line in feature order
   (ParallaxBA's ``-xyz``).
 
-Verified convention (on the fakepile demo, see tests/test_io_parallaxba.py):
+Verified convention (on the fakepile demo, see tests/io/test_io_parallaxba.py):
 ``cam_from_world = (Rz(alpha) Ry(beta) Rx(gamma))^T = Rx(-gamma) Ry(-beta) Rz(-alpha)`` with the
 usual right-handed elementary rotations ``Rx(a) = [[1,0,0],[0,c,-s],[0,s,c]]`` etc., and
 ``u ~ K cam_from_world (X - C)``. In words: ``world_from_cam`` is the z-y-x (yaw-pitch-roll)

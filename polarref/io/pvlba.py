@@ -9,7 +9,7 @@ In elementary rotations (right-handed, active: ``Rx(a) = [[1,0,0],[0,c,-s],[0,s,
 matrix is ``R = Rz(-ez) Rx(-ex) Ry(ey)``, i.e. ``world_from_cam = Ry(-ey) Rx(ex) Rz(ez)``: the
 photogrammetric phi-omega-kappa (Y-X-Z) order with ``R_phi = [[c,0,-s],[0,1,0],[s,0,c]]``.
 
-BlocksExchange conventions verified on ``sample_at.xml`` (tests/test_io_pvlba.py), reprojecting
+BlocksExchange conventions verified on ``sample_at.xml`` (tests/io/test_io_pvlba.py), reprojecting
 the stored tie points through the stored poses (105 observations):
 
 * ``Pose/Rotation`` is cam_from_world (rows = camera axes), ``Pose/Center`` the camera centre,

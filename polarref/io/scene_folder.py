@@ -36,7 +36,7 @@ class Scene:
     """One scene as every stage sees it: the one scene record of polarref.
 
     :func:`discover` fills the folder's listing (nothing is read but the file names);
-    :func:`polarref.compare.scenes.prepare` also the fixed camera, the ground truth keyed by the
+    :func:`polarref.compare.run.scenes.prepare` also the fixed camera, the ground truth keyed by the
     image names the methods see (after any downscaling) and how the scene came about. It lives
     with the readers because its ground truth is read by them (COLMAP folder, Strecha cameras).
     """

@@ -4,7 +4,7 @@ Layout (9 rows): rows 1-3 K; row 4 radial distortion (zeros in the published dat
 R, the camera-to-world rotation (``world_from_cam``); row 8 the camera centre C; row 9 ``width
 height``. Projection ``x ~ K R^T (X - C)``, so ``cam_from_world = (R^T, -R^T C)``.
 
-Verified on fountain-P11 (tests/test_io_strecha.py) by the epipolar (Sampson) error of SIFT
+Verified on fountain-P11 (tests/io/test_io_strecha.py) by the epipolar (Sampson) error of SIFT
 matches between neighbouring views under the ground-truth poses: median 0.11-0.19 px at full
 resolution on pairs 3-4, 4-5, 5-6, 3-5 (97-98 % of ratio-test matches below 2 px); reading R as
 world-to-camera instead gives ~80-95 px.

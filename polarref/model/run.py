@@ -1,6 +1,6 @@
 """The one record of a method's run: ``MethodRun`` (ours or a peer's, in compare, twins and benches).
 
-A job (one process, :mod:`polarref.compare.runner`) returns a MethodRun; the shared stages
+A job (one process, :mod:`polarref.core.isolated`) returns a MethodRun; the shared stages
 several methods read (features and matches, a feature database) return one too, named after the
 stage. The record crosses process and module boundaries only as itself: written with
 :func:`polarref.core.records.save` / read back strictly with :func:`read` (``to_json`` /

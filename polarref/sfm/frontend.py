@@ -9,7 +9,7 @@ not start worker processes of their own.
 
 Each image and each pair is computed exactly as in the one-thread loop (per-pair RANSAC seeds,
 ``cv2.setRNGSeed`` is per thread), and results are merged in input order, so the output does
-not depend on the thread count (tests/test_sfm_frontend.py). Inside the pool BLAS and OpenCV's
+not depend on the thread count (tests/sfm/test_sfm_frontend.py). Inside the pool BLAS and OpenCV's
 own parallel loops run on one thread each, so N threads use N cores, not N x N.
 """
 

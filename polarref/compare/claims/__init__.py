@@ -1,0 +1,1 @@
+"""The claims scorecard (``scorecard``) and what its verdicts rest on: the controlled experiments (``experiments``, ``experiment_problems``, ``experiment_records``; run as ``jobs`` in their own processes; verdicts in ``controlled``, ``robustness``, ``invariance``), the pre-registration, the thresholds and the single-run rules."""

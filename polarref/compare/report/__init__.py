@@ -1,0 +1,1 @@
+"""Pages drawn from metrics.json (:mod:`polarref.compare.schema`) alone: the report (``build``, ``render``, ``figures``, ``view3d``, ``dense_section``), the index page over every report folder and twin table (``index``), the README findings and the headless-browser checks (``browser``)."""

@@ -1,0 +1,1 @@
+"""Running a comparison on one scene: ``pipeline`` (``polarref compare``, end to end), the one job set of compare and the twins (``jobs``, each job a process of ``polarref.core.isolated``), our SfM as methods (``ours``), the methods and pairs (``methods``), ``presets``, the inputs (``scenes``), scoring (``scoring``) and the dense stage (``dense``)."""

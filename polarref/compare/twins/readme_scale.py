@@ -1,0 +1,67 @@
+"""The README's finding at the paper's scale, generated from ``reports/paper-tables/*/paper-table.json``.
+
+``python -m polarref.compare.twins.readme_scale reports/paper-tables README.md`` rewrites the block between
+the README's markers; ``tests/compare/twins/test_readme_scale.py`` fails when the README and the JSON differ
+(issue 30: every figure quoted in the README comes from committed JSON, checked by a test).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from polarref.compare.twins.tables import BASELINE, OURS, PAPER, MethodResult, TwinTable, load_tables, verdicts
+from polarref.core.atomic import atomic_write
+from polarref.core.markers import replace_block
+
+BEGIN = "<!-- scale-findings: generated from reports/paper-tables/*/paper-table.json, do not edit by hand -->"
+END = "<!-- /scale-findings -->"
+PEERS = (("pycolmap-incremental-sift", "pycolmap incremental"), ("pycolmap-global-sift", "pycolmap global"))
+
+
+def _ok(m: MethodResult | None) -> bool:
+    return m is not None and m.status == "ok"
+
+
+def _run(m: MethodResult | None, label: str, images: int) -> str:
+    if not _ok(m):
+        return f"{label}: {m.status if m else 'not run'}" + (f" ({m.reason})" if m and m.reason else "")
+    seg = f", {m.segments} resumed segments" if m.segments > 1 else ""
+    return (f"{label} {m.registered}/{images} views in {m.efficiency_min:.1f} min{seg} ({m.tie_points:,} tie points, "
+            f"{m.accuracy_px:.3f} px, {m.rotation_error_deg:.4f} deg)")
+
+
+def twin_line(name: str, t: TwinTable, where: str) -> str:
+    prov = t.provenance
+    commit = (f"commit {prov.commit[:7]}{' dirty' if prov.dirty else ' (clean)'}" if prov and prov.commit
+              else "commit unknown")
+    base, ours = t.methods.get(BASELINE), t.methods.get(OURS)
+    v = verdicts(t)
+    head = f"- `{where}/{name}/` (Table {PAPER[name].table}, {t.images} views, {commit}): "
+    if not (_ok(base) and _ok(ours)):
+        return head + "the Euclidean / polar pair did not both finish (not tested); " + "; ".join(
+            _run(t.methods.get(k), label, t.images) for k, label in PEERS) + "."
+    ba = v["C4"].values.get("ba_speedup")
+    return (head + _run(base, "ours Euclidean", t.images) + "; " + _run(ours, "ours polar", t.images)
+            + f"; BA time Euclidean/polar x{ba:.2f}" + f"; C4 {v['C4'].verdict}, C5 {v['C5'].verdict}; "
+            + "; ".join(_run(t.methods.get(k), label, t.images) for k, label in PEERS) + ".")
+
+
+def findings_block(root: Path) -> str:
+    """One line per twin that has a table (the paper's order)."""
+    where = root.parent.name + "/" + root.name
+    lines = [twin_line(name, t, where) for name, t in load_tables(root).items() if t is not None]
+    return "\n".join(lines or ["- no twin table committed (not tested)."]) + "\n"
+
+
+def update_readme(readme: Path, root: Path) -> Path:
+    try:
+        text = replace_block(readme.read_text(), BEGIN, END, findings_block(root))
+    except ValueError as exc:
+        raise SystemExit(f"{readme}: {exc}") from exc
+    return atomic_write(readme, text)
+
+
+if __name__ == "__main__":  # python -m polarref.compare.twins.readme_scale reports/paper-tables README.md
+    print(update_readme(Path(sys.argv[2] if len(sys.argv) > 2 else "README.md"),
+                        Path(sys.argv[1] if len(sys.argv) > 1 else "reports/paper-tables")))
