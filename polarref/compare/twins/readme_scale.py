@@ -41,16 +41,16 @@ def twin_line(name: str, t: TwinTable, where: str) -> str:
     if not (_ok(base) and _ok(ours)):
         return head + "the Euclidean / polar pair did not both finish (not tested); " + "; ".join(
             _run(t.methods.get(k), label, t.images) for k, label in PEERS) + "."
-    ba = v["C4"].values.get("ba_speedup")
+    ba = v.c4.values.get("ba_speedup")
     return (head + _run(base, "ours Euclidean", t.images) + "; " + _run(ours, "ours polar", t.images)
-            + f"; BA time Euclidean/polar x{ba:.2f}" + f"; C4 {v['C4'].verdict}, C5 {v['C5'].verdict}; "
+            + f"; BA time Euclidean/polar x{ba:.2f}" + f"; C4 {v.c4.verdict}, C5 {v.c5.verdict}; "
             + "; ".join(_run(t.methods.get(k), label, t.images) for k, label in PEERS) + ".")
 
 
 def findings_block(root: Path) -> str:
     """One line per twin that has a table (the paper's order)."""
     where = root.parent.name + "/" + root.name
-    lines = [twin_line(name, t, where) for name, t in load_tables(root).items() if t is not None]
+    lines = [twin_line(t.twin, t, where) for t in load_tables(root)]
     return "\n".join(lines or ["- no twin table committed (not tested)."]) + "\n"
 
 
