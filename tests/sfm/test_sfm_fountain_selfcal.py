@@ -20,9 +20,9 @@ def test_fountain_focal_10_percent_off_is_refined(shared_data, ba):
     g = gt.cameras[1]
     start = Camera(g.model, g.width, g.height, [g.params[0] * 1.1, g.params[1] * 1.1, *g.params[2:]])
     cfg = with_ba(PRESETS["fountain"], ba)  # default feature/match cache: warm after one run
-    fixed = run_sfm(root / "images", None, cfg, camera=g, gt=gt).metrics
+    fixed = run_sfm(root / "images", None, cfg, camera=g, gt=gt).report.to_json()
     cal_cfg = dataclasses.replace(cfg, mapper=dataclasses.replace(cfg.mapper, refine=("focal",)))
-    cal = run_sfm(root / "images", None, cal_cfg, camera=start, gt=gt).metrics
+    cal = run_sfm(root / "images", None, cal_cfg, camera=start, gt=gt).report.to_json()
     cam = cal["cameras"][0]
     print(ba, "fixed", fixed["metrics"]["gt"]["rotation_error_deg_mean"], "refined", cal["metrics"]["gt"]["rotation_error_deg_mean"],
           cam["refined"][:2], cam["focal_error_rel"])
