@@ -9,7 +9,6 @@ import json
 import sys
 from pathlib import Path
 
-from polarref.core.atomic import atomic_write
 from polarref.georef.table import AerotriTable, merge_tables
 
 
@@ -28,9 +27,7 @@ def main() -> int:
     except (OSError, ValueError, KeyError) as exc:
         print(f"aerotri_merge: {exc}", file=sys.stderr)
         return 1
-    a.out.mkdir(parents=True, exist_ok=True)
-    atomic_write(a.out / "aerotriangulation.json", json.dumps(table.to_json(), indent=2) + "\n")
-    atomic_write(a.out / "aerotriangulation.md", table.markdown())
+    table.write(a.out)
     print(table.markdown())
     return 0
 

@@ -24,7 +24,6 @@ from pathlib import Path
 import numpy as np
 
 from polarref.ba.parameterization import PARAMS
-from polarref.core.atomic import atomic_write
 from polarref.core.provenance import collect_record
 from polarref.georef.adjust import align_to_datum, evaluate, georeference, triangulate_marks
 from polarref.georef.formats import Georef, Role, load_georef
@@ -347,9 +346,7 @@ def main() -> int:
         (pp.position_sigma_m, pp.position_sigma_m, pp.vertical_sigma_m or pp.position_sigma_m), pp.correlation,
         pp.rotation_sigma_deg or None, a.mark_sigma, IMAGE_SIGMA_PX, a.seed, _predicted(gt_imgs, georef, pp, seq),
         mc, tuple(rows), tuple(notes), prov, pp.position_sigma_rel)
-    a.out.mkdir(parents=True, exist_ok=True)
-    atomic_write(a.out / "aerotriangulation.json", json.dumps(table.to_json(), indent=2) + "\n")
-    atomic_write(a.out / "aerotriangulation.md", table.markdown())
+    table.write(a.out)
     print(table.markdown())
     return 0
 

@@ -5,9 +5,12 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import json
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
+from polarref.core.atomic import atomic_write
 from polarref.core.provenance import Provenance
 from polarref.georef.adjust import AerotriangulationRecord, CheckPointStats
 from polarref.georef.predict import PredictedRMSE
@@ -85,6 +88,12 @@ class AerotriTable:
 
     def markdown(self) -> str:
         return "\n".join(_header(self) + _rows(self) + _verdicts(self)) + "\n"
+
+    def write(self, out: Path) -> None:
+        """``out/aerotriangulation.json`` and ``.md`` (the markdown generated from the same record)."""
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_write(out / "aerotriangulation.json", json.dumps(self.to_json(), indent=2) + "\n")
+        atomic_write(out / "aerotriangulation.md", self.markdown())
 
 
 def merge_tables(parts: list[AerotriTable]) -> AerotriTable:
