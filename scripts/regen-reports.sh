@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Regenerate the committed example reports under reports/, their screenshots and the index page.
 # The only command that writes into reports/ (polarref compare writes ./polarref-out/ by default).
-# About 4 minutes on 2 cores with warm caches (plus the replication, below); needs ../shared/data for the fountain report and
+# About 15 minutes on 2 cores (the comparisons plus the replication, below); needs ../shared/data for the fountain report and
 # Chromium (scripts/setup.sh installs it as root) for the screenshots.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -19,3 +19,6 @@ PYTHONPATH=. .venv/bin/python scripts/replication_report.py --out reports/replic
 # Work products (databases, logs, models) stay out of git: reports/*/runs/ is ignored.
 $P --no-progress report --screenshot reports/comet-small reports/comet-default reports/strecha_fountain-P11-small
 $P --no-progress report --index reports
+# The README's findings and run times are generated from the metrics.json just written (tests compare them).
+.venv/bin/python -m polarref.compare.report.readme_findings reports README.md
+.venv/bin/python -m polarref.compare.report.readme_runtime reports README.md
