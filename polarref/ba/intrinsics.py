@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from polarref.ba.angular_obs import axis_chart_rows, phi_rows, theta_rows, wrap
-from polarref.ba.chart_curvature import (angle_whitening_D_k, chart_whitening_D_k,
+from polarref.ba.chart_curvature import (ChartLens, angle_whitening_D_k, chart_whitening_D_k,
                                          theta_weight_D_k)
 from polarref.ba.options import IntrinsicsResult  # noqa: F401 (re-exported: its record lives with BASummary)
 from polarref.ba.parameterization import BoundedPoints, Staged
@@ -240,17 +240,20 @@ class SelfCalibrating:
         inner.whiten = np.linalg.inv(np.where(inner.phi_ok[:, None, None], self.A, np.eye(2)))
         inner.w_theta = 1.0 / np.linalg.norm(np.nan_to_num(self.A[:, 0, :]), axis=1).clip(1e-300)
         if len(inner.chart_idx):
+            # the chart point of the observed angles and W = uv_D_e there, exact (chart_curvature)
+            # where angular_obs.axis_chart_rows' near-axis branch (t < 1e-3) truncates the value
+            # to (x, y) / z while its Jacobian keeps the t^2 term: the two differ at O(t^2),
+            # < 4e-7 relative, which is nothing for the residual but O(1) in the whitening's
+            # intrinsics derivative on those rows
             ci = inner.chart_idx
-            e = np.empty((len(ci), 2))
-            self.B = np.empty((len(ci), 2, 2))
+            th, ph = self.ang[ci, 0], np.nan_to_num(self.ang[ci, 1])
+            inner.chart_obs = th[:, None] * np.stack([np.cos(ph), np.sin(ph)], 1)
+            inner.chart_whiten = np.empty((len(ci), 2, 2))
             cg = self.blocks.groups[p.obs_cam[ci]]
             for g, cam in enumerate(cams):
                 sel = np.flatnonzero(cg == g)
-                ray, dray = cam.unproject_with_jacobian(p.obs_uv[ci[sel]])
-                e[sel], Je = axis_chart_rows(ray, True)
-                self.B[sel] = Je @ dray
-            inner.chart_obs = e
-            inner.chart_whiten = np.linalg.inv(self.B)
+                inner.chart_whiten[sel] = ChartLens.at(cam, inner.chart_obs[sel]).jacobian()
+            self.B = np.linalg.inv(inner.chart_whiten)
         inner.refresh_kernel_rows()
 
     def camera_points(self, R, C, pts) -> np.ndarray:
