@@ -22,8 +22,8 @@ Residual Jacobians with respect to the intrinsics ``k`` (analytic, never finite 
   and its derivative ``dW/dk (ang_pred - ang_obs)`` joins the Jacobian (chart_curvature.py:
   the projection's second derivatives). Held at the starting intrinsics instead (as before
   issue 32), the angle-unit cost fell as the focal length grew and the solves settled on a
-  focal too long by ~noise^2 (+0.26 % at 1 px on a synthetic scene): a different objective,
-  not the pixel-equivalent one. The gating (which rows use phi, which the chart) stays fixed
+  focal too long by ~noise^2 (reports/collections/angular-focal-bias.md): a different
+  objective, not the pixel-equivalent one. The gating (which rows use phi, which the chart) stays fixed
   for a solve so the cost stays smooth.
 
 The 7-DoF similarity gauge is unchanged: intrinsics add no gauge freedom for a general scene.
@@ -305,7 +305,11 @@ class SelfCalibrating:
         dP = uv_D_params(cam, ray_from_angular(ang[:, 0], ang[:, 1]))[:, :, free] * scale
         dt = theta_rows(Xc, False)[0] - ang[:, 0]
         out = np.zeros((len(idx), 1 if inner.name == "polar" else 2, len(free)))
-        t = np.arange(len(idx)) if inner.name == "polar" else np.flatnonzero(~inner.use_phi[idx])
+        if inner.name == "polar":
+            t = np.arange(len(idx))
+        else:  # theta-only rows; the chart rows' Jacobian is res_D_intrinsics'
+            t = np.flatnonzero(~inner.use_phi[idx]
+                               & ~(inner.use_chart & np.isin(idx, inner.chart_idx)))
         if len(t):  # w (theta_pred - theta_obs): theta_obs_D_k = -A0 dP, and w moves
             dw = theta_weight_D_k(cam, ang[t], A[t], dP[t], free, scale)
             out[t, 0] = inner.w_theta[idx[t], None] * np.einsum("ni,niq->nq", A[t, 0, :], dP[t]) \
