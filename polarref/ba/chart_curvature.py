@@ -97,9 +97,11 @@ class ChartLens:
     """One camera's chart map ``uv(e)`` at chart points ``e`` (..., 2), ready to differentiate.
 
     Attributes:
+        cam: the camera.
         e: the chart points (..., 2).
         rho: (rho, rho', rho'') of u = |e|^2, each (..., 1).
-        x: the undistorted normalized point ``rho e`` (..., 2) (tan kinds) or the distorted one.
+        x: ``rho e`` (..., 2): the undistorted normalized point (tan kinds), or the distorted
+            one (angle kinds, where D is the identity).
         lens: (L, L', L'') of s = |x|^2, each (..., 1); (1, 0, 0) for the angle kinds.
         tangential: (p1, p2); zero but for OPENCV.
         focal: (fx, fy) (2,).
