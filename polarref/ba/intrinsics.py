@@ -16,8 +16,15 @@ Residual Jacobians with respect to the intrinsics ``k`` (analytic, never finite 
   ``project(ray(ang), k) = uv_obs``, so ``ang_obs_D_k = -A uv_D_k(ray_obs)`` with
   ``A = ang_D_uv`` at the observed pixel (implicit function theorem), and the residual
   ``W (ang_pred - ang_obs)`` gets ``+W A uv_D_k(ray_obs)``. The same holds for the axis
-  chart with ``B = e_D_uv``. The whitening W (and theta weights) are computed once at the
-  starting intrinsics and held constant during a solve, like IRLS weights.
+  chart with ``B = e_D_uv``.
+* the whitening moves too: ``W = A^-1 = uv_D_ang`` at the observed angles (``B^-1`` on the
+  chart rows, ``1 / |theta_D_uv|`` on the theta rows) is re-evaluated at the current intrinsics,
+  and its derivative ``dW/dk (ang_pred - ang_obs)`` joins the Jacobian (chart_curvature.py:
+  the projection's second derivatives). Held at the starting intrinsics instead (as before
+  issue 32), the angle-unit cost fell as the focal length grew and the solves settled on a
+  focal too long by ~noise^2 (reports/collections/angular-focal-bias.md): a different
+  objective, not the pixel-equivalent one. The gating (which rows use phi, which the chart) stays fixed
+  for a solve so the cost stays smooth.
 
 The 7-DoF similarity gauge is unchanged: intrinsics add no gauge freedom for a general scene.
 """
@@ -30,7 +37,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from polarref.ba.angular_obs import axis_chart_rows
+from polarref.ba.angular_obs import axis_chart_rows, phi_rows, theta_rows, wrap
+from polarref.ba.chart_curvature import (ChartLens, angle_whitening_D_k, chart_whitening_D_k,
+                                         theta_weight_D_k)
 from polarref.ba.options import IntrinsicsResult  # noqa: F401 (re-exported: its record lives with BASummary)
 from polarref.ba.parameterization import BoundedPoints, Staged
 from polarref.ba.parameterization import make_param
@@ -216,23 +225,36 @@ class SelfCalibrating:
             self.ang, self.A = np.full((M, 2), np.nan), np.full((M, 2, 2), np.nan)
             for cam, idx in zip(cams, self.obs_of_group):
                 self.ang[idx], self.A[idx] = cam.to_angular_with_jacobian(p.obs_uv[idx])
-            if inner.name == "polar":
-                inner.theta_obs = self.ang[:, 0]
-            else:
-                inner.obs_ang = np.stack([self.ang[:, 0], np.nan_to_num(self.ang[:, 1])], 1)
-                if len(inner.chart_idx):
-                    ci = inner.chart_idx
-                    e = np.empty((len(ci), 2))
-                    self.B = np.empty((len(ci), 2, 2))
-                    cg = self.blocks.groups[p.obs_cam[ci]]
-                    for g, cam in enumerate(cams):
-                        sel = np.flatnonzero(cg == g)
-                        ray, dray = cam.unproject_with_jacobian(p.obs_uv[ci[sel]])
-                        e[sel], Je = axis_chart_rows(ray, True)
-                        self.B[sel] = Je @ dray
-                    inner.chart_obs = e
-                inner.refresh_kernel_rows()
+            self._rewhiten(cams)
         return cams
+
+    def _rewhiten(self, cams: list[Camera]) -> None:
+        """The inner form's observed angles and whitening at the current intrinsics, with its
+        own formulas (polar.py, angular.py); the gating (phi_ok, chart_idx) stays as built."""
+        inner, p = self.inner, self.real
+        if inner.name == "polar":
+            inner.theta_obs = np.ascontiguousarray(self.ang[:, 0])
+            inner.w_theta = 1.0 / np.linalg.norm(self.A[:, 0, :], axis=1)
+            return
+        inner.obs_ang = np.stack([self.ang[:, 0], np.nan_to_num(self.ang[:, 1])], 1)
+        inner.whiten = np.linalg.inv(np.where(inner.phi_ok[:, None, None], self.A, np.eye(2)))
+        inner.w_theta = 1.0 / np.linalg.norm(np.nan_to_num(self.A[:, 0, :]), axis=1).clip(1e-300)
+        if len(inner.chart_idx):
+            # the chart point of the observed angles and W = uv_D_e there, exact (chart_curvature)
+            # where angular_obs.axis_chart_rows' near-axis branch (t < 1e-3) truncates the value
+            # to (x, y) / z while its Jacobian keeps the t^2 term: the two differ at O(t^2),
+            # < 4e-7 relative, which is nothing for the residual but O(1) in the whitening's
+            # intrinsics derivative on those rows
+            ci = inner.chart_idx
+            th, ph = self.ang[ci, 0], np.nan_to_num(self.ang[ci, 1])
+            inner.chart_obs = th[:, None] * np.stack([np.cos(ph), np.sin(ph)], 1)
+            inner.chart_whiten = np.empty((len(ci), 2, 2))
+            cg = self.blocks.groups[p.obs_cam[ci]]
+            for g, cam in enumerate(cams):
+                sel = np.flatnonzero(cg == g)
+                inner.chart_whiten[sel] = ChartLens.at(cam, inner.chart_obs[sel]).jacobian()
+            self.B = np.linalg.inv(inner.chart_whiten)
+        inner.refresh_kernel_rows()
 
     def camera_points(self, R, C, pts) -> np.ndarray:
         """(M, 3) camera-frame points/rays of the inner parameterization."""
@@ -254,22 +276,12 @@ class SelfCalibrating:
             if inner.name != "angular":  # pixel rows
                 out[idx, :2, :q] = uv_D_params(cam, Xc[idx])[:, :, f] * s
             if inner.name in ("polar", "angular"):
-                ray = ray_from_angular(self.ang[idx, 0], np.nan_to_num(self.ang[idx, 1]))
-                dP = uv_D_params(cam, ray)[:, :, f] * s  # (n, 2, q) at the observed rays
-                A = self.A[idx]
-                G0 = np.einsum("ni,niq->nq", A[:, 0, :], dP)  # -theta_obs_D_k
-                if inner.name == "polar":
-                    out[idx, 2, :q] = inner.w_theta[idx, None] * G0
-                    continue
-                G1 = np.einsum("ni,niq->nq", np.nan_to_num(A[:, 1, :]), dP)
-                W = inner.whiten[idx]
-                use = inner.use_phi[idx][:, None]
-                out[idx, 0, :q] = np.where(use, W[:, 0, :1] * G0 + W[:, 0, 1:] * G1,
-                                           inner.w_theta[idx, None] * G0)
-                out[idx, 1, :q] = np.where(use, W[:, 1, :1] * G0 + W[:, 1, 1:] * G1, 0.0)
+                rows = slice(2, 3) if inner.name == "polar" else slice(0, 2)
+                out[idx, rows, :q] = self._angle_rows_D_k(cam, idx, f, s, Xc[idx])
         if inner.name == "angular" and inner.use_chart:
             ci = inner.chart_idx
             cg = b.groups[self.real.obs_cam[ci]]
+            e_pred = axis_chart_rows(Xc[ci], False)[0]
             for g, cam in enumerate(cams):
                 sel = np.flatnonzero(cg == g)
                 q = len(b.free[g])
@@ -277,8 +289,37 @@ class SelfCalibrating:
                     continue
                 ray = ray_from_angular(self.ang[ci[sel], 0], np.nan_to_num(self.ang[ci[sel], 1]))
                 dP = uv_D_params(cam, ray)[:, :, b.free[g]] * b.scale[g]
-                out[ci[sel], :, :q] = inner.chart_whiten[sel] @ (self.B[sel] @ dP)
+                delta = e_pred[sel] - inner.chart_obs[sel]
+                out[ci[sel], :, :q] = dP + chart_whitening_D_k(
+                    cam, inner.chart_obs[sel], self.B[sel], dP, delta, b.free[g], b.scale[g])
         # free values of one group are laid out chunk after chunk: slot j = columns 3j:3j+3
+        return out
+
+    def _angle_rows_D_k(self, cam: Camera, idx, free, scale, Xc) -> np.ndarray:
+        """Jacobian (n, r, q) of the angle rows of observations ``idx`` (r = 2: the angular
+        form's (theta, phi) or theta-only rows; r = 1: the polar form's theta row) w.r.t. the
+        free scaled intrinsics: the observed angles' motion plus the whitening's."""
+        inner = self.inner
+        ang = np.stack([self.ang[idx, 0], np.nan_to_num(self.ang[idx, 1])], 1)
+        A = self.A[idx]
+        dP = uv_D_params(cam, ray_from_angular(ang[:, 0], ang[:, 1]))[:, :, free] * scale
+        dt = theta_rows(Xc, False)[0] - ang[:, 0]
+        out = np.zeros((len(idx), 1 if inner.name == "polar" else 2, len(free)))
+        if inner.name == "polar":
+            t = np.arange(len(idx))
+        else:  # theta-only rows; the chart rows' Jacobian is res_D_intrinsics'
+            t = np.flatnonzero(~inner.use_phi[idx]
+                               & ~(inner.use_chart & np.isin(idx, inner.chart_idx)))
+        if len(t):  # w (theta_pred - theta_obs): theta_obs_D_k = -A0 dP, and w moves
+            dw = theta_weight_D_k(cam, ang[t], A[t], dP[t], free, scale)
+            out[t, 0] = inner.w_theta[idx[t], None] * np.einsum("ni,niq->nq", A[t, 0, :], dP[t]) \
+                + dt[t, None] * np.nan_to_num(dw)
+        if inner.name == "polar":
+            return out
+        u = np.flatnonzero(inner.use_phi[idx])
+        if len(u):  # W (ang_pred - ang_obs): W ang_obs_D_k = -W A dP = -dP, and W moves
+            delta = np.stack([dt[u], wrap(phi_rows(Xc[u], False)[0] - ang[u, 1])], 1)
+            out[u] = dP[u] + angle_whitening_D_k(cam, ang[u], A[u], dP[u], delta, free, scale)
         return out
 
     # -- the solver's interface ---------------------------------------------------------------

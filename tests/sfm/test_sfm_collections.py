@@ -103,20 +103,11 @@ def test_principal_point_off_the_centre_is_refined(comet, tmp_path):
     assert abs(cam.refined[0] / f_true - 1) < 0.01
 
 
-# Cause found (not mended: polarref/ba/intrinsics.py): the angular whitening W = A^-1 is computed at
-# each solve's starting intrinsics and held, so d(W)/d(focal) is missing from the Jacobian; W grows
-# with f, the cost in angle units falls as f grows, and the solves settle on a focal too long by
-# ~cost / curvature. Synthetic 12 cameras, focal refined from 5 % off, 4 solves (ba.synthetic seed 3):
-# angular +0.013 / +0.061 / +0.264 % at 0.25 / 0.5 / 1 px noise (~noise^2), Euclidean -0.005 /
-# -0.009 / -0.019 %; the same at every solve after the first (a fixed point, not convergence).
-ANGULAR_GAP = pytest.mark.xfail(strict=True, reason="issue 32 not met for the angular form: its self-calibrated "
-                                "focal length ends 1.49 % off (whitening held at the starting intrinsics: a "
-                                "bias ~ noise^2, see above); the other forms are within 1 %")
-
-
 @pytest.mark.slow  # three full runs (~15-60 s each on 2 loaded cores); PARAMS[0] runs above
-@pytest.mark.parametrize("ba", [pytest.param(b, marks=ANGULAR_GAP) if b == "angular" else b for b in PARAMS[1:]])
+@pytest.mark.parametrize("ba", PARAMS[1:])
 def test_unknown_focal_every_form(comet, tmp_path, ba):
+    # the angular form ended 1.49 % off while its whitening was held at the starting intrinsics
+    # (a focal bias ~ noise^2); it follows them since issue 32 (ba/intrinsics.py)
     res, f_true, cam = _unknown_focal(comet, tmp_path, ba, 12)
     assert res.report.metrics.registered_images == 12
     assert abs(cam.refined[0] / f_true - 1) < 0.01
