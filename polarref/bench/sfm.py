@@ -37,15 +37,16 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref.bench.records import (BenchSfMSettings, FailedCell, MethodSettings, PeakMemory, SfMBench, SfMCell,
-                                    flatten_settings, read_cell, variant_label, write)
-from polarref.bench.sfm_report import STAGES, write_outputs  # noqa: F401 (STAGES re-exported)
+from polarref.bench.records import (STAGES, BenchSfMSettings, FailedCell, MethodSettings, PeakMemory, SfMBench,
+                                    SfMCell, flatten_settings, read_cell, variant_label, write)
+from polarref.bench.sfm_report import write_outputs
 from polarref.core import records
 from polarref.core.errors import PolarrefError
 from polarref.core.provenance import collect_record
 from polarref.core.status import RunStatus
 from polarref.model import Reconstruction
 from polarref.model.colmap import from_pycolmap, read_model
+from polarref.model.run import MethodRun
 from polarref.sfm.stages import StageClock, StageCost
 
 log = logging.getLogger(__name__)
@@ -217,14 +218,15 @@ def run_cell(variant: Variant, root: Path, settings: BenchSfMSettings, work: Pat
     wall = time.perf_counter() - t0
     m = M.evaluate(got.rec, gt=got.gt, num_images=got.num_images)
     stages_s = {s.stage: float(s.wall_s) for s in got.stages if s.stage in (*STAGES[variant.method], "ba")}
+    peak = peak_memory_mb()
+    run = MethodRun(variant.method, status=RunStatus.OK, stage_runtime_s=stages_s, wall_s=wall,
+                    peak_rss_mb=peak.ru_maxrss_mb, registered=m.registered_images)
     return SfMCell(
-        method=variant.method, views=got.num_images, status=RunStatus.OK, stages_s=stages_s,
-        total_s=float(sum(stages_s.get(s, 0.0) for s in STAGES[variant.method])), wall_s=wall,
-        peak_memory_mb=peak_memory_mb(),
+        run=run, views=got.num_images, vmhwm_mb=peak.vmhwm_mb,
         # CPU seconds of the whole cell process and its workers (imports and scoring included):
         # on a loaded machine a steadier figure than wall time
         cpu_s=_cpu_seconds(),
-        registered_images=m.registered_images, tie_points=m.tie_points, observations=m.reprojected_px,
+        tie_points=m.tie_points, observations=m.reprojected_px,
         mean_track_length=m.mean_track_length, mean_reprojection_error_px=m.mean_reprojection_error_px,
         rotation_error_deg_mean=None if m.gt is None else m.gt.rotation_error_deg_mean,
         center_error_rel_mean=None if m.gt is None else m.gt.center_error_rel_mean,
@@ -312,9 +314,10 @@ def _one(out: Path, variant: Variant, n: int, repeat: int, settings: BenchSfMSet
         cell = read_cell(path)
     except (PolarrefError, records.RecordError) as exc:
         _log_line(out, f"{name}: FAILED {exc}")
-        return FailedCell(variant.method, n, str(exc), variant.parallel, repeat)
-    _log_line(out, f"{name}: done, total {cell.total_s:.1f} s, peak {cell.peak_memory_mb.ru_maxrss_mb:.0f} MiB, "
-                   f"{cell.registered_images} registered, {cell.tie_points_2v} tie points (>= 2 views)")
+        return FailedCell(MethodRun(variant.method, status=RunStatus.FAILED, reason=str(exc)), n, variant.parallel,
+                          repeat)
+    _log_line(out, f"{name}: done, total {cell.total_s:.1f} s, peak {cell.run.peak_rss_mb:.0f} MiB, "
+                   f"{cell.run.registered} registered, {cell.tie_points_2v} tie points (>= 2 views)")
     return cell
 
 
