@@ -381,14 +381,14 @@ def _roofline(base, w: _Work) -> Roofline:
     def rate(flops_per: float | None, stage: str, builds: bool = False) -> Stats | None:
         if flops_per is None:
             return None
-        return Stats.of([flops_per * count(x, builds) / x.time_in[stage] / 1e9
-                         for x in runs if x.time_in.get(stage, 0) > 0 and x.iterations])
+        return Stats.of([flops_per * count(x, builds) / x.run.stage_runtime_s[stage] / 1e9
+                         for x in runs if x.run.stage_runtime_s.get(stage, 0) > 0 and x.iterations])
 
     stages = ("evaluate", "normal_equations", "schur", "solve")
     return Roofline("euclidean", runs[0].linear_solver, FlopCounts(f.build, f.schur, f.factorisation),
                     f.num_unknowns, StageRates(rate(f.build, "normal_equations", builds=True),
                                                rate(f.schur, "schur"), rate(f.factorisation, "solve")),
-                    {k: Stats.of([x.time_in.get(k, 0.0) for x in runs]) for k in stages})
+                    {k: Stats.of([x.run.stage_runtime_s.get(k, 0.0) for x in runs]) for k in stages})
 
 
 def _ceres_own_cost(by: dict[str, _Work], target: float, repeat: int) -> OwnCost | None:

@@ -108,10 +108,6 @@ class SolveRun:
         return float(self.run.wall_s)
 
     @property
-    def time_in(self) -> dict[str, float]:
-        return self.run.stage_runtime_s
-
-    @property
     def peak_rss_mib(self) -> float | None:
         return self.run.peak_rss_mb
 
@@ -128,7 +124,7 @@ class SolveRun:
     def to_file(self) -> _SolveFile:
         return _SolveFile(self.final_cost, self.wall_s, self.iterations, self.accepted, self.rejected,
                           self.termination, self.final_rms_px, self.initial_cost, self.linear_solver,
-                          self.objective_final, self.setup_s, dict(self.time_in), self.reported_cost,
+                          self.objective_final, self.setup_s, dict(self.run.stage_runtime_s), self.reported_cost,
                           self.behind_camera, self.trace_cost_shift, self.peak_rss_mib, self.name)
 
     @staticmethod

@@ -39,7 +39,7 @@ def test_a_solve_round_trips_and_leaves_its_trace_out():
                           "linear_solver", "time_in", "peak_rss_mib"]
     back = from_json(SolveRun, json.loads(json.dumps(data)))
     assert back == s.without_trace()
-    assert (back.wall_s, back.time_in, back.peak_rss_mib, back.name) == (0.75, {"schur": 0.25}, 40.0, None)
+    assert (back.wall_s, back.run.stage_runtime_s, back.peak_rss_mib, back.name) == (0.75, {"schur": 0.25}, 40.0, None)
     # scipy's runs were stored with the peer's names for the counts and its name
     scipy = from_json(SolveRun, {"final_cost": 1.0, "wall_s": 2.0, "iterations": 5, "accepted_iterations": 4,
                                  "name": "scipy-trf"})
