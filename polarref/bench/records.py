@@ -280,9 +280,8 @@ class SfMBench:
 
     def to_json(self) -> dict:
         """bench.json's layout: the cells (and failed cells) in their files' layout, the rest as it is."""
-        out = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
-        plain = records.to_dict(dataclasses.replace(self, cells=[], failed=[]))
-        return {k: ([c.to_json() for c in v] if k in ("cells", "failed") else plain[k]) for k, v in out.items()}
+        data = records.to_dict(dataclasses.replace(self, cells=[], failed=[]))
+        return dict(data, cells=[c.to_json() for c in self.cells], failed=[f.to_json() for f in self.failed])
 
     @staticmethod
     def from_json(data, label: str = "bench.json") -> SfMBench:
