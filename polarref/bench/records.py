@@ -1,8 +1,11 @@
 """The records of ``polarref bench sfm``: one cell per (method, views), and the bench they add up to.
 
-Their JSON layout is the one the committed ``reports/bench-sfm`` files have (``cells/<method>-v<N>.json``
-and ``bench.json``); they are read back strictly (:mod:`polarref.core.records`), so a stale or
-hand-edited cell fails with a line naming the file and the key.
+A cell is the method's :class:`polarref.model.run.MethodRun` plus what only the bench measures;
+a failed cell a FAILED MethodRun. Their JSON layout is the one the committed ``reports/bench-sfm``
+files have (``cells/<method>-v<N>.json`` and ``bench.json``), written and read in one place per
+record (``to_json`` / ``from_json`` through a private file record); they are read back strictly
+(:mod:`polarref.core.records`), so a stale or hand-edited cell fails with a line naming the file
+and the key.
 """
 
 from __future__ import annotations
