@@ -3,6 +3,9 @@
     python scripts/diff_reports.py A/metrics.json B/metrics.json
     python scripts/diff_reports.py REPORTS_A REPORTS_B      # every *.json both folders hold
 
+``--json OUT`` also writes the outcome (every difference, the counts, the commit each side's
+result files name, and this run's provenance) as a record to commit beside a claim of "no change".
+
 Exit 0 when every figure is identical, 1 when any differs (each difference printed as
 ``path: a != b``), 2 for a usage error (missing file, not JSON). Floats compare exactly by
 default: every run is seeded and single-threaded, so a behaviour-preserving change reproduces
@@ -24,7 +27,14 @@ import json
 import math
 import re
 import sys
+from dataclasses import dataclass
 from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from polarref.core import records  # noqa: E402
+from polarref.core.provenance import Provenance, collect_record  # noqa: E402
 
 PROVENANCE_KEYS = {"environment", "provenance", "created", "command", "git_commit", "git_dirty", "machine",
                    "versions", "platform", "cpu_model", "cpu_count", "threads", "finished_utc", "python"}
@@ -129,12 +139,49 @@ def compare(a: Path, b: Path, rtol: float = 0.0) -> Diff:
     return diff
 
 
+@dataclass(frozen=True)
+class SideCommit:
+    """The code a result file says made it (``environment.git_commit`` / ``git_dirty``)."""
+
+    file: str
+    git_commit: str
+    git_dirty: bool | None
+
+
+@dataclass(frozen=True)
+class DiffRecord:
+    """``--json``: the outcome of one comparison and where it was made."""
+
+    a: str
+    b: str
+    differences: list[str]
+    compared: int
+    ignored: int
+    a_commits: list[SideCommit]
+    b_commits: list[SideCommit]
+    environment: Provenance
+
+
+def _commits(root: Path) -> list[SideCommit]:
+    """Every result file's recorded commit under ``root`` (a file: itself)."""
+    files = [root] if root.is_file() else sorted(root / rel for rel in _files(root))
+    out = []
+    for f in files:
+        data = _load(f)
+        env = data.get("environment") if isinstance(data, dict) else None
+        if isinstance(env, dict) and "git_commit" in env:
+            out.append(SideCommit(str(f), str(env["git_commit"] or ""), env.get("git_dirty")))
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("a", type=Path, help="metrics.json (or any result JSON) or a report folder")
     ap.add_argument("b", type=Path, help="the same kind as A")
     ap.add_argument("--rtol", type=float, default=0.0,
                     help="relative tolerance for floats (default 0: bit for bit; e.g. 1e-9 across machines)")
+    ap.add_argument("--json", type=Path, default=None, metavar="OUT",
+                    help="also write the outcome with both sides' commits and this run's provenance to OUT")
     args = ap.parse_args(argv)
     for p in (args.a, args.b):
         if not p.exists():
@@ -152,6 +199,9 @@ def main(argv: list[str] | None = None) -> int:
         print(line)
     print(f"{len(diff.differences)} difference(s) in {diff.compared} figures compared "
           f"({diff.ignored} runtime/provenance entries left out)")
+    if args.json is not None:
+        records.save(DiffRecord(str(args.a), str(args.b), diff.differences, diff.compared, diff.ignored,
+                                _commits(args.a), _commits(args.b), collect_record()), args.json)
     return 1 if diff.differences else 0
 
 

@@ -102,12 +102,12 @@ def _ours_solver(base, options: BAOptions, param: str) -> _Solver:
     def fn(limit: int | None, trace: bool = True) -> SolveRun:  # our trace costs nothing: always kept
         opts = dataclasses.replace(options, param=param, **({} if limit is None else {"max_iterations": limit}))
         s = solve(base.copy(), opts, prepared=True)
-        return SolveRun(final_cost=s.final_pixel_cost, wall_s=s.wall_s, iterations=s.iterations,
-                        accepted=s.accepted_iterations, rejected=s.iterations - s.accepted_iterations,
-                        termination=s.termination, final_rms_px=s.final_rms_px,
-                        initial_cost=s.initial_pixel_cost, linear_solver=s.linear_solver,
-                        objective_final=s.final_cost, setup_s=s.setup_s, time_in=dict(s.time_in),
-                        trace=tuple(TracePoint(r.iteration, r.accepted, r.wall_s, r.cost) for r in s.trace))
+        return SolveRun.measured(final_cost=s.final_pixel_cost, wall_s=s.wall_s, iterations=s.iterations,
+                                 accepted=s.accepted_iterations, rejected=s.iterations - s.accepted_iterations,
+                                 termination=s.termination, final_rms_px=s.final_rms_px,
+                                 initial_cost=s.initial_pixel_cost, linear_solver=s.linear_solver,
+                                 objective_final=s.final_cost, setup_s=s.setup_s, time_in=dict(s.time_in),
+                                 trace=tuple(TracePoint(r.iteration, r.accepted, r.wall_s, r.cost) for r in s.trace))
 
     settings = dataclasses.asdict(dataclasses.replace(options, param=param))
     settings.update(threads=options.blas_threads, threads_kind="BLAS (threadpoolctl); the solver itself is one "
@@ -125,13 +125,13 @@ def _ceres_solver(base, options: BAOptions, which: str, linear_solver: str, thre
         r = run_pycolmap(base.copy(), options, cs if limit is None else cs.with_iterations(limit),
                          trace=trace)
         shift = r.final_cost - r.reported_cost   # Ceres' own cost onto the recomputed one (docstring)
-        return SolveRun(final_cost=r.final_cost, wall_s=r.wall_s, iterations=r.iterations,
-                        accepted=r.accepted_iterations, rejected=r.rejected_iterations,
-                        termination=r.termination, final_rms_px=r.final_rms_px, initial_cost=r.initial_cost,
-                        reported_cost=r.reported_cost, behind_camera=r.behind_camera,
-                        linear_solver=str(r.settings.get("linear_solver_used", "")),
-                        trace_cost_shift=shift if trace else None, settings_used=dict(r.settings),
-                        trace=tuple(TracePoint(i, ok, t, c + shift) for i, ok, t, c in r.trace if i > 0))
+        return SolveRun.measured(final_cost=r.final_cost, wall_s=r.wall_s, iterations=r.iterations,
+                                 accepted=r.accepted_iterations, rejected=r.rejected_iterations,
+                                 termination=r.termination, final_rms_px=r.final_rms_px, initial_cost=r.initial_cost,
+                                 reported_cost=r.reported_cost, behind_camera=r.behind_camera,
+                                 linear_solver=str(r.settings.get("linear_solver_used", "")),
+                                 trace_cost_shift=shift if trace else None, settings_used=dict(r.settings),
+                                 trace=tuple(TracePoint(i, ok, t, c + shift) for i, ok, t, c in r.trace if i > 0))
 
     return _Solver(cs.name, SolverKind.CERES, dataclasses.asdict(cs), fn)
 
@@ -205,7 +205,7 @@ def _full_run(s: _Solver) -> SolveRun:
     full, peak = forked(lambda: s.fn(None, trace=True))
     if full.settings_used is not None:
         s.settings = full.settings_used
-    return dataclasses.replace(full, peak_rss_mib=peak, settings_used=None)
+    return dataclasses.replace(full.with_peak(peak), settings_used=None)
 
 
 def _tau_targets(initial: float, best: float) -> dict[str, TauTarget]:
@@ -289,9 +289,9 @@ def _scipy_row(base, options: BAOptions, scipy_max_obs: int, target: float) -> S
     with threadpool_limits(limits=options.blas_threads, user_api="blas"):
         sp = run_scipy(base.copy(), options)
     ok = sp.final_cost <= target
-    run = SolveRun(final_cost=sp.final_cost, wall_s=sp.wall_s, iterations=sp.iterations, termination=sp.termination,
-                   final_rms_px=sp.final_rms_px, initial_cost=sp.initial_cost, reported_cost=sp.reported_cost,
-                   behind_camera=sp.behind_camera, name=sp.name)
+    run = SolveRun.measured(final_cost=sp.final_cost, wall_s=sp.wall_s, iterations=sp.iterations,
+                            termination=sp.termination, final_rms_px=sp.final_rms_px, initial_cost=sp.initial_cost,
+                            reported_cost=sp.reported_cost, behind_camera=sp.behind_camera, name=sp.name)
     return SolverRow("scipy", SolverKind.SCIPY, {
         "method": "trf", "tr_solver": "lsmr", "ftol": options.function_tolerance, "xtol": 1e-10, "gtol": 1e-10,
         "max_nfev": options.max_iterations, "threads": options.blas_threads},
@@ -381,14 +381,14 @@ def _roofline(base, w: _Work) -> Roofline:
     def rate(flops_per: float | None, stage: str, builds: bool = False) -> Stats | None:
         if flops_per is None:
             return None
-        return Stats.of([flops_per * count(x, builds) / x.time_in[stage] / 1e9
-                         for x in runs if x.time_in.get(stage, 0) > 0 and x.iterations])
+        return Stats.of([flops_per * count(x, builds) / x.run.stage_runtime_s[stage] / 1e9
+                         for x in runs if x.run.stage_runtime_s.get(stage, 0) > 0 and x.iterations])
 
     stages = ("evaluate", "normal_equations", "schur", "solve")
     return Roofline("euclidean", runs[0].linear_solver, FlopCounts(f.build, f.schur, f.factorisation),
                     f.num_unknowns, StageRates(rate(f.build, "normal_equations", builds=True),
                                                rate(f.schur, "schur"), rate(f.factorisation, "solve")),
-                    {k: Stats.of([x.time_in.get(k, 0.0) for x in runs]) for k in stages})
+                    {k: Stats.of([x.run.stage_runtime_s.get(k, 0.0) for x in runs]) for k in stages})
 
 
 def _ceres_own_cost(by: dict[str, _Work], target: float, repeat: int) -> OwnCost | None:

@@ -26,6 +26,8 @@ import numpy as np
 
 from polarref.core.provenance import Provenance
 from polarref.core.records import RecordError
+from polarref.core.status import RunStatus
+from polarref.model.run import MethodRun
 
 # one solver option as stored: tolerances, counts, names, flags, ``refine`` groups, unset
 Setting = str | int | float | bool | list[str] | None
@@ -66,10 +68,18 @@ class TracePoint:
 
 @dataclass(frozen=True)
 class SolveRun:
-    """One complete solve of one solver (ours, Ceres or scipy) on the problem."""
+    """One complete solve of one solver (ours, Ceres or scipy) on the problem.
 
+    ``run`` is the solve as the one record of a run (:class:`polarref.model.run.MethodRun`):
+    ``method`` the solver's name where the solve records it (scipy's runs: their peer's; else ""),
+    ``status`` OK (a solve that did not finish is a row's ``error``), ``wall_s``,
+    ``stage_runtime_s`` (ours: seconds per solver stage) and ``peak_rss_mb`` (first full run:
+    memory the solve added, forked child; MiB). The other fields are the solver's own counts.
+    Build one with :meth:`measured`; bench.json keeps the flat layout (:class:`_SolveFile`).
+    """
+
+    run: MethodRun
     final_cost: float                  # 1/2 sum of squared pixel residuals, recomputed
-    wall_s: float
     iterations: int                    # LM steps, accepted + rejected
     accepted: int | None = None        # None: the solver does not say (scipy)
     rejected: int | None = None
@@ -79,17 +89,75 @@ class SolveRun:
     linear_solver: str = ""
     objective_final: float | None = None   # ours: the form's own objective at the end
     setup_s: float | None = None           # ours: preparation before the first step
-    time_in: dict[str, float] = field(default_factory=dict)   # ours: seconds per solver stage
     reported_cost: float | None = None     # peers: their own final cost
     behind_camera: int | None = None       # peers: observations behind their camera at the end
     trace_cost_shift: float | None = None  # Ceres: recomputed - reported final cost
-    peak_rss_mib: float | None = None      # first full run: memory the solve added (forked child)
-    name: str | None = None                # scipy's runs carry their peer's name
     trace: tuple[TracePoint, ...] = field(default=(), metadata={"stored": False})
     settings_used: dict[str, Setting] | None = field(default=None, metadata={"stored": False})
 
+    @staticmethod
+    def measured(*, wall_s: float, time_in: dict[str, float] | None = None, peak_rss_mib: float | None = None,
+                 name: str | None = None, **counts) -> SolveRun:
+        """A finished solve from what the solver measured (``counts``: the other fields by name)."""
+        run = MethodRun(name or "", status=RunStatus.OK, stage_runtime_s=dict(time_in or {}), wall_s=float(wall_s),
+                        peak_rss_mb=peak_rss_mib)
+        return SolveRun(run, **counts)
+
+    @property
+    def wall_s(self) -> float:
+        return float(self.run.wall_s)
+
+    @property
+    def peak_rss_mib(self) -> float | None:
+        return self.run.peak_rss_mb
+
+    @property
+    def name(self) -> str | None:
+        return self.run.method or None
+
+    def with_peak(self, peak_rss_mib: float | None) -> SolveRun:
+        return dataclasses.replace(self, run=dataclasses.replace(self.run, peak_rss_mb=peak_rss_mib))
+
     def without_trace(self) -> SolveRun:
         return dataclasses.replace(self, trace=(), settings_used=None)
+
+    def to_file(self) -> _SolveFile:
+        return _SolveFile(self.final_cost, self.wall_s, self.iterations, self.accepted, self.rejected,
+                          self.termination, self.final_rms_px, self.initial_cost, self.linear_solver,
+                          self.objective_final, self.setup_s, dict(self.run.stage_runtime_s), self.reported_cost,
+                          self.behind_camera, self.trace_cost_shift, self.peak_rss_mib, self.name)
+
+    @staticmethod
+    def from_file(f: _SolveFile) -> SolveRun:
+        return SolveRun.measured(
+            wall_s=f.wall_s, time_in=f.time_in, peak_rss_mib=f.peak_rss_mib, name=f.name, final_cost=f.final_cost,
+            iterations=f.iterations, accepted=f.accepted, rejected=f.rejected, termination=f.termination,
+            final_rms_px=f.final_rms_px, initial_cost=f.initial_cost, linear_solver=f.linear_solver,
+            objective_final=f.objective_final, setup_s=f.setup_s, reported_cost=f.reported_cost,
+            behind_camera=f.behind_camera, trace_cost_shift=f.trace_cost_shift)
+
+
+@dataclass(frozen=True)
+class _SolveFile:
+    """A solve as bench.json stores it (flat, in this order): read and written only through SolveRun."""
+
+    final_cost: float
+    wall_s: float
+    iterations: int
+    accepted: int | None = None
+    rejected: int | None = None
+    termination: str = ""
+    final_rms_px: float | None = None
+    initial_cost: float | None = None
+    linear_solver: str = ""
+    objective_final: float | None = None
+    setup_s: float | None = None
+    time_in: dict[str, float] = field(default_factory=dict)
+    reported_cost: float | None = None
+    behind_camera: int | None = None
+    trace_cost_shift: float | None = None
+    peak_rss_mib: float | None = None
+    name: str | None = None
 
 
 @dataclass(frozen=True)
@@ -305,6 +373,8 @@ def to_json(obj):
     empty) left out, as the bench wrote them before the records were typed."""
     if isinstance(obj, enum.Enum):
         return obj.value
+    if isinstance(obj, SolveRun):
+        return to_json(obj.to_file())
     if dataclasses.is_dataclass(obj):
         out = {}
         for f in dataclasses.fields(obj):
@@ -336,10 +406,12 @@ def _from_json(tp, value, where: str):
             except RecordError:
                 continue
         raise RecordError(f"{where}: {value!r} fits none of {args}"[:300])
+    if tp is SolveRun:
+        return SolveRun.from_file(_from_json(_SolveFile, value, where))
     if dataclasses.is_dataclass(tp):
         if not isinstance(value, dict):
             raise RecordError(f"{where} should be an object")
-        if tp is SolveRun:   # scipy's runs were stored as the peer's result
+        if tp is _SolveFile:   # scipy's runs were stored as the peer's result
             value = {{"accepted_iterations": "accepted", "rejected_iterations": "rejected"}.get(k, k): v
                      for k, v in value.items() if k not in ("settings", "trace")}
         if tp is Provenance:

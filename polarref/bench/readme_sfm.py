@@ -12,9 +12,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from polarref.bench.records import SfMBench, SfMRow
+from polarref.bench.records import SfMBench, SfMRow, read_bench
 from polarref.bench.sfm_report import TARGET_VIEWS
-from polarref.core import records
 from polarref.core.atomic import atomic_write
 from polarref.core.markers import replace_block
 
@@ -63,7 +62,7 @@ def level_line(bench: SfMBench, where: str) -> str:
 
 def findings_block(level_dir: Path) -> str:
     where = "/".join(level_dir.parts[-3:]) if len(level_dir.parts) >= 3 else str(level_dir)
-    return level_line(records.load(SfMBench, level_dir / "bench.json"), where)
+    return level_line(read_bench(level_dir / "bench.json"), where)
 
 
 def update_readme(readme: Path, level_dir: Path) -> Path:

@@ -1,21 +1,25 @@
 """The records of ``polarref bench sfm``: one cell per (method, views), and the bench they add up to.
 
-Their JSON layout is the one the committed ``reports/bench-sfm`` files have (``cells/<method>-v<N>.json``
-and ``bench.json``); they are read back strictly (:mod:`polarref.core.records`), so a stale or
-hand-edited cell fails with a line naming the file and the key.
+A cell is the method's :class:`polarref.model.run.MethodRun` plus what only the bench measures;
+a failed cell a FAILED MethodRun. Their JSON layout is the one the committed ``reports/bench-sfm``
+files have (``cells/<method>-v<N>.json`` and ``bench.json``), written and read in one place per
+record (``to_json`` / ``from_json`` through a private file record); they are read back strictly
+(:mod:`polarref.core.records`), so a stale or hand-edited cell fails with a line naming the file
+and the key.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from polarref.core import records
 from polarref.core.atomic import atomic_write
 from polarref.core.provenance import Provenance
 from polarref.core.status import RunStatus
+from polarref.model.run import MethodRun
 from polarref.sfm.stages import StageCost
 from synth.config import SceneConfig
 
@@ -62,19 +66,26 @@ class MethodSettings:
     options: tuple[Setting, ...] = ()   # every option of the method (ours: SfMConfig; pycolmap: its option objects)
 
 
+# the stages each method's wall time is split into (the cells' total, bench.json and the tables)
+STAGES = {"ours": ("features", "matching", "verification", "tracks", "mapping"),
+          "pycolmap": ("features", "matching", "mapping")}
+
+
 @dataclass(frozen=True)
 class SfMCell:
-    """One method variant on one view count, one repeat, run in its own process."""
+    """One method variant on one view count, one repeat, run in its own process.
 
-    method: str                           # ours | pycolmap
+    ``run`` is the method's run as every comparison records it (:class:`polarref.model.run.MethodRun`):
+    ``method`` ours | pycolmap, ``status``, ``stage_runtime_s`` (the method's STAGES, ours also
+    "ba", part of mapping), ``wall_s``, ``peak_rss_mb`` (ru_maxrss of the cell process) and
+    ``registered`` (images, as the metrics count them). The other fields are what only the bench
+    measures. On disk a cell keeps the flat layout of the committed cells (:meth:`to_json`).
+    """
+
+    run: MethodRun
     views: int
-    status: RunStatus
-    stages_s: dict[str, float]            # sfm_report.STAGES[method], ours also "ba" (part of mapping)
-    total_s: float                        # sum of the method's STAGES
-    wall_s: float
-    peak_memory_mb: PeakMemory
+    vmhwm_mb: float | None                # /proc VmHWM of the cell process (None: unknown)
     cpu_s: float | None                   # CPU seconds of the whole cell process (steadier when loaded)
-    registered_images: int
     tie_points: int                       # 3D points of the model (as the metrics count them)
     observations: int
     mean_track_length: float | None
@@ -86,7 +97,7 @@ class SfMCell:
     bench_settings: BenchSfMSettings
     method_settings: MethodSettings
     scene_root: str
-    environment: Provenance
+    environment: Provenance               # the cell process's provenance
     parallel: int = 1                     # ours: workers; pycolmap: threads (the cell's column)
     repeat: int = 1                       # 1..R: repeats run interleaved with the other cells
     tie_points_2v: int | None = None      # 3D points seen by >= 2 registered images (one rule for both)
@@ -96,7 +107,71 @@ class SfMCell:
 
     @property
     def label(self) -> str:
-        return variant_label(self.method, self.parallel)
+        return variant_label(self.run.method, self.parallel)
+
+    @property
+    def total_s(self) -> float:
+        """The sum of the method's STAGES ("ba" is part of "mapping")."""
+        return float(sum(self.run.stage_runtime_s.get(s, 0.0) for s in STAGES[self.run.method]))
+
+    def to_json(self) -> dict:
+        """The cell file's layout (``cells/<variant>-v<N>-r<k>.json``)."""
+        r = self.run
+        return records.to_dict(_CellFile(
+            r.method, self.views, r.status, r.stage_runtime_s, self.total_s, r.wall_s,
+            PeakMemory(r.peak_rss_mb, self.vmhwm_mb), self.cpu_s, r.registered, self.tie_points, self.observations,
+            self.mean_track_length, self.mean_reprojection_error_px, self.rotation_error_deg_mean,
+            self.center_error_rel_mean, self.pairs, self.pairs_sha256, self.bench_settings, self.method_settings,
+            self.scene_root, self.environment, self.parallel, self.repeat, self.tie_points_2v, self.tie_points_3v,
+            self.stages, self.load_average))
+
+    @staticmethod
+    def from_json(data, label: str = "bench cell") -> SfMCell:
+        """A cell from its file's JSON, strictly; cells of the first layout are read in today's."""
+        f = records.from_dict(_CellFile, _upgrade_cell_json(data), label=label)
+        run = MethodRun(f.method, status=f.status, stage_runtime_s=f.stages_s, wall_s=f.wall_s,
+                        peak_rss_mb=f.peak_memory_mb.ru_maxrss_mb, registered=f.registered_images)
+        cell = SfMCell(run, f.views, f.peak_memory_mb.vmhwm_mb, f.cpu_s, f.tie_points, f.observations,
+                       f.mean_track_length, f.mean_reprojection_error_px, f.rotation_error_deg_mean,
+                       f.center_error_rel_mean, f.pairs, f.pairs_sha256, f.bench_settings, f.method_settings,
+                       f.scene_root, f.environment, f.parallel, f.repeat, f.tie_points_2v, f.tie_points_3v,
+                       f.stages, f.load_average)
+        if cell.total_s != f.total_s:
+            raise records.RecordError(f"{label}: total_s {f.total_s} is not the sum of its stages ({cell.total_s})")
+        return cell
+
+
+@dataclass(frozen=True)
+class _CellFile:
+    """The flat JSON layout of a cell file (the committed cells'): read and written only by SfMCell."""
+
+    method: str
+    views: int
+    status: RunStatus
+    stages_s: dict[str, float]
+    total_s: float
+    wall_s: float
+    peak_memory_mb: PeakMemory
+    cpu_s: float | None
+    registered_images: int
+    tie_points: int
+    observations: int
+    mean_track_length: float | None
+    mean_reprojection_error_px: float | None
+    rotation_error_deg_mean: float | None
+    center_error_rel_mean: float | None
+    pairs: int
+    pairs_sha256: str
+    bench_settings: BenchSfMSettings
+    method_settings: MethodSettings
+    scene_root: str
+    environment: Provenance
+    parallel: int = 1
+    repeat: int = 1
+    tie_points_2v: int | None = None
+    tie_points_3v: int | None = None
+    stages: tuple[StageCost, ...] = ()
+    load_average: tuple[float, ...] = ()
 
 
 def variant_label(method: str, parallel: int) -> str:
@@ -106,6 +181,26 @@ def variant_label(method: str, parallel: int) -> str:
 
 @dataclass(frozen=True)
 class FailedCell:
+    """A cell whose process failed: its run (status FAILED, ``reason`` the error) and where it sat."""
+
+    run: MethodRun
+    views: int
+    parallel: int = 1
+    repeat: int = 1
+
+    def to_json(self) -> dict:
+        return records.to_dict(_FailedFile(self.run.method, self.views, self.run.reason, self.parallel, self.repeat))
+
+    @staticmethod
+    def from_json(data, label: str = "failed cell") -> FailedCell:
+        f = records.from_dict(_FailedFile, data, label=label)
+        return FailedCell(MethodRun(f.method, status=RunStatus.FAILED, reason=f.error), f.views, f.parallel, f.repeat)
+
+
+@dataclass(frozen=True)
+class _FailedFile:
+    """The JSON layout of a failed cell in bench.json."""
+
     method: str
     views: int
     error: str
@@ -186,6 +281,20 @@ class SfMBench:
     checks: SfMChecks = SfMChecks()
     load_average: tuple[float, ...] = ()   # when bench.json was written
 
+    def to_json(self) -> dict:
+        """bench.json's layout: the cells (and failed cells) in their files' layout, the rest as it is."""
+        data = records.to_dict(dataclasses.replace(self, cells=[], failed=[]))
+        return dict(data, cells=[c.to_json() for c in self.cells], failed=[f.to_json() for f in self.failed])
+
+    @staticmethod
+    def from_json(data, label: str = "bench.json") -> SfMBench:
+        if not isinstance(data, dict):
+            raise records.RecordError(f"{label}: should be an object")
+        cells = [SfMCell.from_json(c, f"{label} cells[{i}]") for i, c in enumerate(data.get("cells", []))]
+        failed = [FailedCell.from_json(c, f"{label} failed[{i}]") for i, c in enumerate(data.get("failed", []))]
+        rest = records.from_dict(SfMBench, dict(data, cells=[], failed=[]), label=label)
+        return dataclasses.replace(rest, cells=cells, failed=failed)
+
 
 @dataclass(frozen=True)
 class TaskOverhead:
@@ -222,12 +331,12 @@ def json_default(obj):
     return str(obj)
 
 
-def dumps(record) -> str:
+def dumps(record: SfMCell | SfMBench) -> str:
     """The record's JSON as the bench has always written it (indent 1, option objects as text)."""
-    return json.dumps(records.to_dict(record), indent=1, default=json_default)
+    return json.dumps(record.to_json(), indent=1, default=json_default)
 
 
-def write(record, path: Path) -> None:
+def write(record: SfMCell | SfMBench, path: Path) -> None:
     atomic_write(path, dumps(record))
 
 
@@ -269,5 +378,9 @@ def flatten_settings(value) -> tuple[Setting, ...]:
 def read_cell(path: Path) -> SfMCell:
     """The cell at ``path``, strictly (RecordError naming the file and the key); cells of the first
     layout (before equal budgets, thread columns and typed settings) are read in today's."""
-    data = _upgrade_cell_json(records.read_json(path))
-    return records.from_dict(SfMCell, data, label=str(path))
+    return SfMCell.from_json(records.read_json(path), label=str(path))
+
+
+def read_bench(path: Path) -> SfMBench:
+    """``bench.json`` at ``path``, strictly (RecordError naming the file and the key)."""
+    return SfMBench.from_json(records.read_json(path), label=str(path))

@@ -37,15 +37,17 @@ from pathlib import Path
 
 import numpy as np
 
-from polarref.bench.records import (BenchSfMSettings, FailedCell, MethodSettings, PeakMemory, SfMBench, SfMCell,
-                                    flatten_settings, read_cell, variant_label, write)
-from polarref.bench.sfm_report import STAGES, write_outputs  # noqa: F401 (STAGES re-exported)
+from polarref.bench.records import (STAGES, BenchSfMSettings, FailedCell, MethodSettings, PeakMemory, SfMBench,
+                                    SfMCell, flatten_settings, read_cell, variant_label, write)
+from polarref.bench.sfm_report import write_outputs
 from polarref.core import records
 from polarref.core.errors import PolarrefError
 from polarref.core.provenance import collect_record
 from polarref.core.status import RunStatus
 from polarref.model import Reconstruction
-from polarref.model.colmap import from_pycolmap, read_model
+from polarref.io.scene_folder import Scene, discover
+from polarref.model.colmap import from_pycolmap
+from polarref.model.run import MethodRun
 from polarref.sfm.stages import StageClock, StageCost
 
 log = logging.getLogger(__name__)
@@ -73,8 +75,7 @@ class _MethodOutput:
 
     stages: tuple[StageCost, ...]
     rec: Reconstruction
-    gt: Reconstruction
-    num_images: int
+    scene: Scene          # the images the method saw and the ground truth it is scored against
     pairs: int
     pairs_sha256: str
     settings: MethodSettings
@@ -127,13 +128,14 @@ def peak_memory_mb() -> PeakMemory:
 
 
 # ---- one cell (child process) ------------------------------------------------------------------
-def _scene(root: Path):
-    from polarref.sfm import features as F
+def open_scene(root: Path) -> Scene:
+    """The rendered scene at ``root`` as the one Scene record: its images (sorted names), the
+    fixed camera of the render and the ground truth (``root/gt``)."""
     from synth.scene import load_scene
 
-    loaded = load_scene(root)
-    names = [p.name for p in F.list_images(root / "images")]
-    return names, loaded.polarref_camera(), read_model(loaded.gt_dir)
+    found = discover(root)
+    return dataclasses.replace(found, name=root.name, kind="synthetic", camera=load_scene(root).polarref_camera(),
+                               gt=found.read_ground_truth())
 
 
 def _ours_config(settings: BenchSfMSettings, parallel: int = 1):
@@ -150,21 +152,23 @@ def _run_ours(root: Path, settings: BenchSfMSettings, parallel: int) -> _MethodO
     """Our pipeline in this process, its front end on ``parallel`` threads (polarref.sfm.frontend)."""
     from polarref.sfm.pipeline import run_sfm
 
-    names, camera, gt = _scene(root)
+    scene = open_scene(root)
+    names = scene.image_names
     config = _ours_config(settings, parallel)
-    res = run_sfm(root / "images", None, config, camera=camera, gt=gt)
+    res = run_sfm(scene.image_dir, None, config, camera=scene.camera, gt=scene.gt)
     pairs = pairs_for(len(names), settings)
     ms = MethodSettings("ours", parallel, parallel, config.features.max_num_features, config.features.max_image_size,
                         False, f"{settings.pairing}, overlap {settings.overlap}",
                         flatten_settings(dataclasses.asdict(config)))
-    return _MethodOutput(res.stages, res.reconstruction, gt, len(names), len(pairs), _pairs_digest(names, pairs), ms)
+    return _MethodOutput(res.stages, res.reconstruction, scene, len(pairs), _pairs_digest(names, pairs), ms)
 
 
 def _run_pycolmap(root: Path, settings: BenchSfMSettings, parallel: int, work: Path) -> _MethodOutput:
     from polarref.peers.colmap_sfm import (ColmapSfMOptions, extract_sift, incremental_options, match_sift,
                                            run_mapper, sift_options)
 
-    names, camera, gt = _scene(root)
+    scene = open_scene(root)
+    names = scene.image_names
     pairs = pairs_for(len(names), settings)
     opts = ColmapSfMOptions(seed=settings.seed, num_threads=parallel, max_num_features=settings.max_num_features)
     db = work / "database.db"
@@ -173,13 +177,13 @@ def _run_pycolmap(root: Path, settings: BenchSfMSettings, parallel: int, work: P
     # The same extraction and imported-pair matching as the twin comparison (one code path).
     clock = StageClock()
     clock.start("features")
-    extract_sift(root / "images", camera, db, opts, image_names=names, overwrite=True)
+    extract_sift(scene.image_dir, scene.camera, db, opts, image_names=names, overwrite=True)
     clock.stop()
     clock.start("matching")
     match_sift(db, opts, pairs_txt)
     clock.stop()
     clock.start("mapping")
-    run = run_mapper(db, root / "images", work / "sparse", "incremental", opts)
+    run = run_mapper(db, scene.image_dir, work / "sparse", "incremental", opts)
     clock.stop()
     if run.reconstruction is None:
         raise PolarrefError("pycolmap incremental mapping registered no images")
@@ -192,7 +196,7 @@ def _run_pycolmap(root: Path, settings: BenchSfMSettings, parallel: int, work: P
                                           "incremental_options": mapper.todict(),
                                           "extraction_options": extraction.todict(),
                                           "matching_options": matching.todict()}))
-    return _MethodOutput(tuple(clock.stages), from_pycolmap(run.reconstruction), gt, len(names), len(pairs),
+    return _MethodOutput(tuple(clock.stages), from_pycolmap(run.reconstruction), scene, len(pairs),
                          _pairs_digest(names, pairs), ms)
 
 
@@ -215,16 +219,17 @@ def run_cell(variant: Variant, root: Path, settings: BenchSfMSettings, work: Pat
     got = (_run_ours(root, settings, variant.parallel) if variant.method == "ours"
            else _run_pycolmap(root, settings, variant.parallel, work))
     wall = time.perf_counter() - t0
-    m = M.evaluate(got.rec, gt=got.gt, num_images=got.num_images)
+    m = M.evaluate(got.rec, gt=got.scene.gt, num_images=len(got.scene.image_names))
     stages_s = {s.stage: float(s.wall_s) for s in got.stages if s.stage in (*STAGES[variant.method], "ba")}
+    peak = peak_memory_mb()
+    run = MethodRun(variant.method, status=RunStatus.OK, stage_runtime_s=stages_s, wall_s=wall,
+                    peak_rss_mb=peak.ru_maxrss_mb, registered=m.registered_images)
     return SfMCell(
-        method=variant.method, views=got.num_images, status=RunStatus.OK, stages_s=stages_s,
-        total_s=float(sum(stages_s.get(s, 0.0) for s in STAGES[variant.method])), wall_s=wall,
-        peak_memory_mb=peak_memory_mb(),
+        run=run, views=len(got.scene.image_names), vmhwm_mb=peak.vmhwm_mb,
         # CPU seconds of the whole cell process and its workers (imports and scoring included):
         # on a loaded machine a steadier figure than wall time
         cpu_s=_cpu_seconds(),
-        registered_images=m.registered_images, tie_points=m.tie_points, observations=m.reprojected_px,
+        tie_points=m.tie_points, observations=m.reprojected_px,
         mean_track_length=m.mean_track_length, mean_reprojection_error_px=m.mean_reprojection_error_px,
         rotation_error_deg_mean=None if m.gt is None else m.gt.rotation_error_deg_mean,
         center_error_rel_mean=None if m.gt is None else m.gt.center_error_rel_mean,
@@ -312,9 +317,10 @@ def _one(out: Path, variant: Variant, n: int, repeat: int, settings: BenchSfMSet
         cell = read_cell(path)
     except (PolarrefError, records.RecordError) as exc:
         _log_line(out, f"{name}: FAILED {exc}")
-        return FailedCell(variant.method, n, str(exc), variant.parallel, repeat)
-    _log_line(out, f"{name}: done, total {cell.total_s:.1f} s, peak {cell.peak_memory_mb.ru_maxrss_mb:.0f} MiB, "
-                   f"{cell.registered_images} registered, {cell.tie_points_2v} tie points (>= 2 views)")
+        return FailedCell(MethodRun(variant.method, status=RunStatus.FAILED, reason=str(exc)), n, variant.parallel,
+                          repeat)
+    _log_line(out, f"{name}: done, total {cell.total_s:.1f} s, peak {cell.run.peak_rss_mb:.0f} MiB, "
+                   f"{cell.run.registered} registered, {cell.tie_points_2v} tie points (>= 2 views)")
     return cell
 
 

@@ -13,15 +13,10 @@ from typing import Callable
 
 import numpy as np
 
-from polarref.bench.records import (BenchSfMSettings, FailedCell, MemoryFit, SfMBench, SfMCell, SfMChecks, SfMRow,
-                                    Spread, json_default, variant_label, write)  # noqa: F401 (json_default re-exported)
+from polarref.bench.records import (STAGES, BenchSfMSettings, FailedCell, MemoryFit, SfMBench, SfMCell,  # noqa: F401
+                                    SfMChecks, SfMRow, Spread, json_default, variant_label, write)  # (STAGES, json_default re-exported)
 from polarref.core.atomic import atomic_open, atomic_write
 from polarref.core.provenance import collect_record
-from polarref.core.status import RunStatus
-
-# the stages each method's wall time is split into (bench.json and the tables)
-STAGES = {"ours": ("features", "matching", "verification", "tracks", "mapping"),
-          "pycolmap": ("features", "matching", "mapping")}
 
 
 TARGET_VIEWS = 168            # issue 34: ours <= 1.0x pycolmap's total time on the 168-view comet, both on 2 cores
@@ -70,20 +65,22 @@ def _stage_peak(c: SfMCell) -> dict[str, float]:
 def _cell_peak(c: SfMCell) -> float:
     """The cell process's peak: its ru_maxrss, or its largest stage peak where that is higher (cells
     of commit 836fa6a reset the kernel's peak mark, and with it ru_maxrss, at each stage)."""
-    return max([c.peak_memory_mb.ru_maxrss_mb] + [s.peak_rss_mb for s in c.stages if s.peak_rss_mb is not None])
+    return max([c.run.peak_rss_mb] + [s.peak_rss_mb for s in c.stages if s.peak_rss_mb is not None])
 
 
 def _row(group: list[SfMCell]) -> SfMRow:
     c0 = group[0]
-    stages = [s for s in (*STAGES[c0.method], "ba") if any(s in c.stages_s for c in group)]
+    method = c0.run.method
+    stages = [s for s in (*STAGES[method], "ba") if any(s in c.run.stage_runtime_s for c in group)]
     peaks: dict[str, float] = {}
     for c in group:
         for stage, mb in _stage_peak(c).items():
             peaks[stage] = max(peaks.get(stage, 0.0), mb)
     rot = spread(c.rotation_error_deg_mean for c in group)
-    return SfMRow(c0.label, c0.method, c0.parallel, c0.views, spread(c.total_s for c in group),
-                  spread(c.cpu_s for c in group), {s: spread(c.stages_s.get(s, 0.0) for c in group) for s in stages},
-                  peaks, max(_cell_peak(c) for c in group), c0.registered_images,
+    return SfMRow(c0.label, method, c0.parallel, c0.views, spread(c.total_s for c in group),
+                  spread(c.cpu_s for c in group),
+                  {s: spread(c.run.stage_runtime_s.get(s, 0.0) for c in group) for s in stages},
+                  peaks, max(_cell_peak(c) for c in group), c0.run.registered,
                   c0.tie_points_2v, c0.tie_points_3v, None if rot is None else rot.median,
                   spread(c.load_average[0] for c in group if c.load_average))
 
@@ -91,7 +88,7 @@ def _row(group: list[SfMCell]) -> SfMRow:
 def rows_of(cells: list[SfMCell]) -> list[SfMRow]:
     groups: dict[tuple[int, str], list[SfMCell]] = {}
     for c in cells:
-        if c.status == RunStatus.OK:
+        if c.run.ok:
             groups.setdefault((c.views, c.label), []).append(c)
     return [_row(sorted(g, key=lambda c: c.repeat)) for _, g in sorted(groups.items())]
 
@@ -123,7 +120,7 @@ def _checks_168(by: dict[tuple[int, str], SfMRow], cells: list[SfMCell]) -> SfMC
     tie3 = o.tie_points_3v / max(p.tie_points_3v, 1) if o.tie_points_3v is not None and p.tie_points_3v else None
     speedup = {m: one.total_s.median / two.total_s.median
                for m, one, two in (("ours", o1, o2), ("pycolmap", p1, p2)) if one and two}
-    sha = {c.pairs_sha256 for c in cells if c.views == TARGET_VIEWS and c.status == RunStatus.OK}
+    sha = {c.pairs_sha256 for c in cells if c.views == TARGET_VIEWS and c.run.ok}
     return SfMChecks(
         time_ratio_168=time_ratio, time_ratio_168_ok=None if time_ratio is None else time_ratio <= TARGET_TIME_RATIO,
         time_ratio_168_1core=o1.total_s.median / p1.total_s.median if o1 and p1 else None,
@@ -211,8 +208,8 @@ def markdown(bench: SfMBench) -> str:
                      f"{_fmt(r.tie_points_3v, 'd')} | {_fmt(r.rotation_error_deg, '.3f')} | {_sp(r.total_s)} | "
                      f"{times} | {_sp(r.cpu_s)} | {peaks or 'n/a'} | {r.peak_mb:.0f} | {_sp(r.load_average_1min, '.2f')} |")
     for f in bench.failed:
-        lines.append(f"| {variant_label(f.method, f.parallel)} | {f.views} | failed (repeat {f.repeat}): "
-                     f"{f.error} | | | | | | | | | |")
+        lines.append(f"| {variant_label(f.run.method, f.parallel)} | {f.views} | failed (repeat {f.repeat}): "
+                     f"{f.run.reason} | | | | | | | | | |")
     lines += ["", "Growth exponent k (time ~ views^k, least squares over the view counts):", "",
               "| variant | stage | k |", "|---|---|---|"]
     for label, g in bench.growth_exponents.items():

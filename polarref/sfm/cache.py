@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import logging
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -63,7 +64,8 @@ def cache_dir_for(config) -> Path:
     return d
 
 
-def save_matches(path: Path, m: dict[tuple[int, int], np.ndarray], g: dict[tuple[int, int], TwoViewGeometry]) -> None:
+def save_matches(path: Path, m: Mapping[tuple[int, int], np.ndarray],
+                 g: Mapping[tuple[int, int], TwoViewGeometry]) -> None:
     arrays = {}
     for (i, j), v in m.items():
         arrays[f"m_{i}_{j}"] = v

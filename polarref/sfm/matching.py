@@ -7,8 +7,9 @@ mutual check. Exact, no approximate nearest-neighbour search.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Literal
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import Generic, Literal, TypeVar
 
 import numpy as np
 
@@ -17,6 +18,42 @@ from polarref.core.progress import track
 
 CHUNK_ELEMENTS = 1 << 19  # similarity entries per row block (2 MiB of float32)
 SINGLE_THREAD_BELOW = 3000 * 3000  # pairs with fewer similarity entries match with single-threaded BLAS
+
+Pair = tuple[int, int]   # image indices (i, j), i < j
+V = TypeVar("V")
+
+
+@dataclass(frozen=True, eq=False)
+class ByPair(Mapping[Pair, V], Generic[V]):
+    """One value per image pair, in the order the pairs were given; read as a mapping pair -> value.
+
+    A record rather than a dict so a stage's result says what it holds and cannot be edited
+    downstream; lookups by pair go through an index built once (``by_pair[(i, j)]``).
+    """
+
+    pairs: tuple[Pair, ...]
+    entries: tuple[V, ...]        # entries[k] belongs to pairs[k]
+    _index: dict[Pair, int] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if len(self.pairs) != len(self.entries):
+            raise ValueError(f"{len(self.pairs)} pairs but {len(self.entries)} entries")
+        object.__setattr__(self, "_index", {p: k for k, p in enumerate(self.pairs)})
+
+    def __getitem__(self, pair: Pair) -> V:
+        return self.entries[self._index[pair]]
+
+    def __iter__(self) -> Iterator[Pair]:
+        return iter(self.pairs)
+
+    def __len__(self) -> int:
+        return len(self.pairs)
+
+
+@dataclass(frozen=True, eq=False)
+class PairMatches(ByPair[np.ndarray]):
+    """Putative matches of image pairs: ``entries[k]`` is an (M_k, 2) int32 array of keypoint
+    indices into images ``pairs[k] = (i, j)``, sorted by the index in i."""
 
 
 @dataclass(frozen=True)
@@ -110,9 +147,12 @@ def match_descriptors(desc1: np.ndarray, desc2: np.ndarray, config: MatchConfig)
     return np.stack([np.flatnonzero(keep), best[keep]], 1).astype(np.int32)
 
 
-def match_pairs(descriptors: list[np.ndarray], pairs: list[tuple[int, int]],
-                config: MatchConfig) -> dict[tuple[int, int], np.ndarray]:
-    """Putative matches for each pair: {(i, j): (M, 2) int32}.
+def match_pairs(descriptors: list[np.ndarray], pairs: list[Pair], config: MatchConfig) -> PairMatches:
+    """Putative matches of each pair, in the order of ``pairs``.
+
+    Args:
+        descriptors: per image a (K_i, D) unit-norm float32 array.
+        pairs: image index pairs (i, j), i < j.
 
     BLAS runs single-threaded for pairs below ``SINGLE_THREAD_BELOW`` similarity entries: there
     OpenBLAS's thread hand-offs cost more than they bring (measured on the shared 2-core machine,
@@ -134,4 +174,4 @@ def match_pairs(descriptors: list[np.ndarray], pairs: list[tuple[int, int]],
             done[(i, j)] = match_descriptors(descriptors[i], descriptors[j], config)
     finally:
         limits.restore_original_limits()
-    return {p: done[p] for p in pairs}
+    return PairMatches(tuple(pairs), tuple(done[p] for p in pairs))

@@ -13,6 +13,7 @@ import logging
 import os
 import tempfile
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -59,8 +60,8 @@ class Matches:
 
     names: list[str]
     features: list[F.Features]
-    putative: dict[tuple[int, int], np.ndarray]   # (i, j) -> (M, 2) int32
-    geometries: dict[tuple[int, int], TwoViewGeometry]
+    putative: Mapping[tuple[int, int], np.ndarray]   # (i, j) -> (M, 2) int32 (sfm.matching.PairMatches)
+    geometries: Mapping[tuple[int, int], TwoViewGeometry]   # sfm.verification.VerifiedPairs
 
 
 # ---- camera -----------------------------------------------------------------------------------

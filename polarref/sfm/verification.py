@@ -8,12 +8,14 @@ returns the best minimal-sample model, 2.5 deg off on a test where the optimum i
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
 from polarref.core.geometry import Rigid3
 from polarref.core.progress import track
+from polarref.sfm.matching import ByPair, Pair
 
 
 @dataclass(frozen=True)
@@ -94,10 +96,20 @@ def verify_pair(xy1: np.ndarray, xy2: np.ndarray, matches: np.ndarray, focal: fl
     return TwoViewGeometry((0, 0), matches[inl], Rigid3(R, t.ravel()), len(matches))
 
 
-def verify_pairs(xy: list[np.ndarray], matches: dict[tuple[int, int], np.ndarray], focal: float,
-                 config: VerifyConfig) -> dict[tuple[int, int], TwoViewGeometry]:
-    """Verify every matched pair; {(i, j): TwoViewGeometry} for the ones that pass."""
-    out: dict[tuple[int, int], TwoViewGeometry] = {}
+@dataclass(frozen=True, eq=False)
+class VerifiedPairs(ByPair[TwoViewGeometry]):
+    """The pairs that passed verification, in the order they were matched, with their geometry."""
+
+
+def verify_pairs(xy: list[np.ndarray], matches: Mapping[Pair, np.ndarray], focal: float,
+                 config: VerifyConfig) -> VerifiedPairs:
+    """Verify every matched pair; the ones that pass, in the order of ``matches``.
+
+    Args:
+        xy: per image the (K_i, 2) normalized keypoint coordinates (None for images in no pair).
+        matches: pair (i, j) -> (M, 2) int keypoint indices (:class:`polarref.sfm.matching.PairMatches`).
+    """
+    out: dict[Pair, TwoViewGeometry] = {}
     guessed = set(config.uncalibrated_images)
     for (i, j), m in track(list(matches.items()), desc="verification"):
         g = verify_pair(xy[i], xy[j], m, focal, config, config.seed + 7919 * i + j,
@@ -105,4 +117,4 @@ def verify_pairs(xy: list[np.ndarray], matches: dict[tuple[int, int], np.ndarray
         if g is not None:
             g.pair = (i, j)
             out[(i, j)] = g
-    return out
+    return VerifiedPairs(tuple(out), tuple(out.values()))

@@ -141,8 +141,8 @@ def test_ceres_own_cost_when_the_common_target_is_missed():
             k = len(c) - 1 if limit is None else min(limit, len(c) - 1)
             calls.append((name, limit))
             tr = tuple(TracePoint(i, True, 0.1 * i, c[i]) for i in range(1, k + 1)) if name == "euclidean" else ()
-            return SolveRun(final_cost=c[k], wall_s=0.1 * k + (0.05 if name == "euclidean" else 0.0),
-                            iterations=k, accepted=k, trace=tr)
+            return SolveRun.measured(final_cost=c[k], wall_s=0.1 * k + (0.05 if name == "euclidean" else 0.0),
+                                     iterations=k, accepted=k, trace=tr)
         return fn
 
     solvers = [_Solver(n, SolverKind.OURS if n == "euclidean" else SolverKind.CERES, {}, fn_for(n)) for n in costs]

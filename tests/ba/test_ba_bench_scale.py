@@ -52,7 +52,7 @@ def test_tau_targets_and_trace_times():
     from polarref.bench.ba import TAUS, _tau_targets, _tau_times, _trace_time
     from polarref.bench.ba_records import SolveRun, TracePoint
 
-    run = SolveRun(final_cost=10.0009, wall_s=1.2, iterations=4, trace=tuple(TracePoint(*p) for p in (
+    run = SolveRun.measured(final_cost=10.0009, wall_s=1.2, iterations=4, trace=tuple(TracePoint(*p) for p in (
         (1, True, 0.5, 60.0), (2, False, 0.7, 60.0), (3, True, 0.9, 10.2), (4, True, 1.1, 10.0009))))
     assert _trace_time(run, 60.0) == (0.5, 1) and _trace_time(run, 10.5) == (0.9, 3)
     assert _trace_time(run, 9.0) is None
@@ -62,7 +62,7 @@ def test_tau_targets_and_trace_times():
     assert a["1e-02"].time_s.median == 0.9 and a["1e-02"].iterations == 3      # 10.2 <= 11
     assert a["1e-03"].time_s.median == 1.1 and a["1e-04"].time_s.median == 1.1   # 10.0009 <= 10.01
     assert a["1e-03"].time_s.n == 2
-    short = SolveRun(final_cost=60.0, wall_s=0.6, iterations=1, trace=run.trace[:1])
+    short = SolveRun.measured(final_cost=60.0, wall_s=0.6, iterations=1, trace=run.trace[:1])
     mixed = _tau_times([run, short], targets)     # one run misses it: no time, the first hit's steps kept
     assert mixed["1e-02"].time_s.median is None and mixed["1e-02"].iterations == 3
 

@@ -137,8 +137,10 @@ def test_summary_baseline_fails_the_speed_rule():
     fails the rule, so the check can come out either way."""
     s = B.BenchSfMSettings()
     o, p = _fake_cell("ours", 168, s, parallel=2), _fake_cell("pycolmap", 168, s, parallel=2)
-    o["total_s"], p["total_s"] = 87.9, 48.9
-    cells = [records.coerce(SfMCell, c) for c in (o, p)]
+    for cell, total in ((o, 87.9), (p, 48.9)):   # the whole time in the first stage
+        cell["stages_s"] = {k: (total if k == "features" else 0.0) for k in cell["stages_s"]}
+        cell["total_s"] = total
+    cells = [SfMCell.from_json(c) for c in (o, p)]
     c = summarize(cells, s, collect_record()).checks
     assert c.time_ratio_168 == pytest.approx(1.797, abs=1e-3) and c.time_ratio_168_ok is False
     assert c.time_ratio_168_1core is None  # no 1-core columns: not tested, not made up
@@ -167,10 +169,10 @@ def test_real_cells_on_small_comet(tmp_path):
     by = {c.label: c for c in bench.cells}
     assert set(by) == {"ours-1w", "ours-2w", "pycolmap-1t", "pycolmap-2t"}
     for label, c in by.items():
-        assert c.registered_images == 8
+        assert c.run.registered == 8 and c.run.ok
         assert 0 < c.rotation_error_deg_mean < 1.0
-        assert 30 < c.peak_memory_mb.ru_maxrss_mb < 4000
-        assert c.total_s == pytest.approx(sum(c.stages_s.get(k, 0.0) for k in B.STAGES[c.method]))
+        assert 30 < c.run.peak_rss_mb < 4000
+        assert c.total_s == pytest.approx(sum(c.run.stage_runtime_s.get(k, 0.0) for k in B.STAGES[c.run.method]))
         assert c.method_settings.max_num_features == 2048 and c.method_settings.parallel == c.parallel
         assert {"features", "matching", "mapping"} <= {st.stage for st in c.stages}
         assert all(st.peak_rss_mb is None or 30 < st.peak_rss_mb < 4000 for st in c.stages)
@@ -219,10 +221,11 @@ def test_committed_cells_read_strictly_in_todays_layout(tmp_path):
         cell = read_cell(path)
         assert (cell.total_s, cell.tie_points, cell.rotation_error_deg_mean) == (
             raw["total_s"], raw["tie_points"], raw["rotation_error_deg_mean"])
-        assert cell.total_s == pytest.approx(sum(cell.stages_s.get(k, 0.0) for k in B.STAGES[cell.method]))
-        budget = 4096 if cell.method == "ours" else 8192
+        assert (cell.run.registered, cell.run.peak_rss_mb, cell.run.wall_s) == (
+            raw["registered_images"], raw["peak_memory_mb"]["ru_maxrss_mb"], raw["wall_s"])
+        budget = 4096 if cell.run.method == "ours" else 8192
         assert cell.method_settings.max_num_features == cell.bench_settings.max_num_features == budget
-        assert cell.method_settings.ignore_two_view_tracks is (cell.method == "pycolmap")
+        assert cell.method_settings.ignore_two_view_tracks is (cell.run.method == "pycolmap")
         assert cell.parallel == 1 and cell.tie_points_2v is None
         assert len(cell.method_settings.options) > 40
     old = json.loads(cells[0].read_text())
@@ -238,10 +241,10 @@ def test_cell_peak_is_the_larger_of_maxrss_and_its_stage_peaks():
     c = _fake_cell("ours", 168, B.BenchSfMSettings())
     c["peak_memory_mb"]["ru_maxrss_mb"] = 50.0
     c["stages"][2]["peak_rss_mb"] = 700.0
-    (row,) = rows_of([records.coerce(SfMCell, c)])
+    (row,) = rows_of([SfMCell.from_json(c)])
     assert row.peak_mb == 700.0
     c["peak_memory_mb"]["ru_maxrss_mb"] = 900.0
-    (row,) = rows_of([records.coerce(SfMCell, c)])
+    (row,) = rows_of([SfMCell.from_json(c)])
     assert row.peak_mb == 900.0
 
 
@@ -253,3 +256,38 @@ def test_report_only_rebuilds_from_the_finished_cells(tmp_path, fake_spawn):
     assert len(fake_spawn) == 4  # nothing run
     assert len(bench.cells) == 4 and not bench.failed and (tmp_path / "bench.json").is_file()
     assert "not run (--report-only)" in (tmp_path / "bench.log").read_text()
+
+
+def test_committed_level_cells_and_bench_round_trip_byte_for_byte():
+    """A cell is a MethodRun plus the bench's own fields (issue 29), written in the committed flat
+    layout: every cell and bench.json of reports/bench-sfm/level reads and writes back unchanged, and a
+    cell whose total is not the sum of its stages is refused."""
+    from pathlib import Path
+
+    from polarref.bench.records import SfMBench, dumps, read_bench, read_cell
+
+    level = Path(__file__).parents[2] / "reports" / "bench-sfm" / "level"
+    cells = sorted((level / "cells").glob("*.json"))
+    assert len(cells) >= 12
+    for path in cells:
+        cell = read_cell(path)
+        assert dumps(cell) == path.read_text()
+        raw = json.loads(path.read_text())
+        assert cell.run.status == raw["status"] and cell.run.stage_runtime_s == raw["stages_s"]
+        assert cell.total_s == raw["total_s"]
+    bench = read_bench(level / "bench.json")
+    assert isinstance(bench, SfMBench) and dumps(bench) == (level / "bench.json").read_text()
+    assert len(bench.cells) == len(cells) and all(c.run.ok for c in bench.cells)
+    bad = dict(json.loads(cells[0].read_text()))
+    bad["total_s"] += 1.0
+    with pytest.raises(records.RecordError, match="sum of its stages"):
+        SfMCell.from_json(bad)
+
+
+def test_failed_cells_round_trip_as_failed_method_runs(tmp_path):
+    from polarref.bench.records import FailedCell
+
+    data = {"method": "pycolmap", "views": 168, "error": "bench cell ran past 60 s", "parallel": 2, "repeat": 3}
+    f = FailedCell.from_json(data)
+    assert f.run.status == "failed" and f.run.reason == data["error"] and not f.run.ok
+    assert f.to_json() == data

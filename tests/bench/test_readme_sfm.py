@@ -7,8 +7,7 @@ from pathlib import Path
 import pytest
 
 from polarref.bench.readme_sfm import BEGIN, END, findings_block, level_line, update_readme
-from polarref.bench.records import SfMBench, SfMChecks
-from polarref.core import records
+from polarref.bench.records import SfMChecks, read_bench
 from polarref.core.markers import read_block
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -37,7 +36,7 @@ def test_quoted_ratio_is_the_ratio_of_the_raw_medians():
 
 
 def test_missing_cells_say_not_tested():
-    bench = records.load(SfMBench, LEVEL / "bench.json")
+    bench = read_bench(LEVEL / "bench.json")
     empty = dataclasses.replace(bench, rows=[r for r in bench.rows if r.views != 168], checks=SfMChecks())
     line = level_line(empty, "x")
     assert "not tested" in line and "**" not in line.split("tie points by one rule.")[1]

@@ -6,6 +6,7 @@ import pytest
 
 from polarref.core import records
 from polarref.compare.twins import tables as PT
+from polarref.core.status import RunStatus
 from polarref.peers.colmap_resume import LEDGER, MapperLedger, MapperSegment, _start_point, map_incremental_resumable
 from polarref.peers.colmap_sfm import ColmapSfMOptions, extract_and_match_sift
 
@@ -84,11 +85,11 @@ def test_segments_count_time_up_to_their_last_snapshot():
 
 
 def test_twin_table_says_when_a_model_took_several_segments():
-    kw = dict(status="ok", num_images=631, registered=631, accuracy_px=0.5, efficiency_min=200.0, tie_points=9,
+    kw = dict(status=RunStatus.OK, num_images=631, registered=631, accuracy_px=0.5, efficiency_min=200.0, tie_points=9,
               reprojected_px=99)
     table = PT.TwinTable("rosetta", 631, 10, {
-        "pycolmap-incremental-sift": PT.MethodResult("pycolmap-incremental-sift", segments=3, **kw),
-        "pycolmap-global-sift": PT.MethodResult("pycolmap-global-sift", **kw)}, None)
+        "pycolmap-incremental-sift": PT.TwinRow("pycolmap-incremental-sift", segments=3, **kw),
+        "pycolmap-global-sift": PT.TwinRow("pycolmap-global-sift", **kw)}, None)
     md = PT.render_table(table)
     assert md.count("resumed: 3 segments") == 1 and "resumed: 1" not in md
     back = PT.TwinTable.from_dict(table.to_dict())

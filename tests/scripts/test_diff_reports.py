@@ -6,6 +6,7 @@ import copy
 import importlib.util
 import json
 import re
+import sys
 from pathlib import Path
 
 import pytest
@@ -17,6 +18,7 @@ ROOT = Path(__file__).resolve().parents[2]
 def diff_reports():
     spec = importlib.util.spec_from_file_location("diff_reports", ROOT / "scripts" / "diff_reports.py")
     module = importlib.util.module_from_spec(spec)
+    sys.modules["diff_reports"] = module   # its dataclasses look their module up there
     spec.loader.exec_module(module)
     return module
 
@@ -77,3 +79,16 @@ def test_usage_errors_exit_2(tmp_path, diff_reports, capsys):
     assert diff_reports.main([str(a), str(tmp_path)]) == 2
     err = capsys.readouterr().err
     assert "Traceback" not in err and err.count("error:") == 3
+
+
+def test_json_record_names_both_sides_commits_and_the_differences(tmp_path, diff_reports):
+    env_a = {"git_commit": "a" * 40, "git_dirty": False, "machine": "x"}
+    a = _write(tmp_path / "a" / "metrics.json", {"environment": env_a, "n": 3, "wall_s": 1.0})
+    _write(tmp_path / "b" / "metrics.json", {"environment": dict(env_a, git_commit="b" * 40), "n": 4, "wall_s": 2.0})
+    out = tmp_path / "diff.json"
+    assert diff_reports.main([str(a.parent), str(tmp_path / "b"), "--json", str(out)]) == 1
+    got = json.loads(out.read_text())
+    assert got["differences"] == ["metrics.json.n: 3 != 4"] and got["compared"] == 1
+    assert [c["git_commit"] for c in got["a_commits"]] == ["a" * 40]
+    assert [c["git_commit"] for c in got["b_commits"]] == ["b" * 40]
+    assert got["environment"]["git_commit"] is not None

@@ -243,12 +243,12 @@ def score_model(model_dir: str | Path, gt) -> ReconstructionMetrics:
     return score(read_model(Path(model_dir)), gt, None).metrics
 
 
-def table_row(name: str, stages: list[StageRecord], num_images: int, gt) -> PT.MethodResult:
+def table_row(name: str, stages: list[StageRecord], num_images: int, gt) -> PT.TwinRow:
     """One method's row of the table from its stage records (shared stage first, then its own);
     the stages' times add up to its efficiency."""
     bad = next((r for r in stages if r.status != RunStatus.OK), None)
     if bad is not None:
-        return PT.MethodResult(name, bad.status, f"{bad.stage}: {bad.reason}"[:200], num_images)
+        return PT.TwinRow(name, bad.status, f"{bad.stage}: {bad.reason}"[:200], num_images)
     runs = [r.result or MethodRun(r.stage) for r in stages]
     times: dict[str, float] = {}
     for run in runs:
@@ -258,7 +258,7 @@ def table_row(name: str, stages: list[StageRecord], num_images: int, gt) -> PT.M
     wall = sum(r.counted_wall_s for r in stages)
     peak = max((run.peak_rss_mb or 0.0 for run in runs), default=None)
     m = score_model(runs[-1].model_dir, gt)
-    return PT.MethodResult(
+    return PT.TwinRow(
         name, status=RunStatus.OK, reason="", num_images=num_images, registered=int(m.registered_images),
         accuracy_px=float(m.mean_reprojection_error_px), efficiency_min=wall / 60.0, tie_points=int(m.tie_points),
         reprojected_px=int(m.reprojected_px),
@@ -305,9 +305,9 @@ def run_twin(run: TwinRun) -> PT.TwinTable:
     pairs_file, n_pairs = _pairs(run, scene, out)
     recs = _run_stages(run, scene, out, pairs_file)
     n = len(scene.image_names)
-    methods = {m: table_row(m, recs[m], n, scene.gt) if m in recs else PT.MethodResult(m) for m in PT.METHODS}
+    methods = {m: table_row(m, recs[m], n, scene.gt) if m in recs else PT.TwinRow(m) for m in PT.METHODS}
     keypoints: dict[str, float | None] = {}  # per source (ours' cache, pycolmap's database): read once
-    for m, r in methods.items():
+    for m, r in list(methods.items()):
         if r.status != RunStatus.OK:
             continue
         source = "ours" if m.startswith("ours-") else "pycolmap"
@@ -315,7 +315,7 @@ def run_twin(run: TwinRun) -> PT.TwinTable:
             first = recs[m][0].result
             keypoints[source] = (ours_mean_keypoints(first.feature_file if first else "", out / "cache")
                                  if source == "ours" else mean_keypoints_db(out / "pycolmap" / "database.db"))
-        r.mean_keypoints = keypoints[source]
+        methods[m] = dataclasses.replace(r, mean_keypoints=keypoints[source])
     stage_recs = {rec.stage: rec for rs in recs.values() for rec in rs}
     env = collect_record()
     provenance = PT.TwinProvenance(

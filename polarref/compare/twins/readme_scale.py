@@ -10,7 +10,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from polarref.compare.twins.tables import BASELINE, OURS, PAPER, MethodResult, TwinTable, load_tables, verdicts
+from polarref.core.status import RunStatus
+from polarref.compare.twins.tables import (BASELINE, OURS, PAPER, TwinRow, TwinTable, load_tables, status_text,
+                                           verdicts)
 from polarref.core.atomic import atomic_write
 from polarref.core.markers import replace_block
 
@@ -19,13 +21,13 @@ END = "<!-- /scale-findings -->"
 PEERS = (("pycolmap-incremental-sift", "pycolmap incremental"), ("pycolmap-global-sift", "pycolmap global"))
 
 
-def _ok(m: MethodResult | None) -> bool:
-    return m is not None and m.status == "ok"
+def _ok(m: TwinRow | None) -> bool:
+    return m is not None and m.status == RunStatus.OK
 
 
-def _run(m: MethodResult | None, label: str, images: int) -> str:
+def _run(m: TwinRow | None, label: str, images: int) -> str:
     if not _ok(m):
-        return f"{label}: {m.status if m else 'not run'}" + (f" ({m.reason})" if m and m.reason else "")
+        return f"{label}: {status_text(m)}" + (f" ({m.reason})" if m and m.reason else "")
     seg = f", {m.segments} resumed segments" if m.segments > 1 else ""
     return (f"{label} {m.registered}/{images} views in {m.efficiency_min:.1f} min{seg} ({m.tie_points:,} tie points, "
             f"{m.accuracy_px:.3f} px, {m.rotation_error_deg:.4f} deg)")

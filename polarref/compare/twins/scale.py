@@ -150,9 +150,9 @@ def _judge(parts: list[tuple[str, bool | None]]) -> str:
     return "met"
 
 
-def _measured(r: PT.MethodResult | None) -> bool | None:
+def _measured(r: PT.TwinRow | None) -> bool | None:
     """None: not run (not tested); False: ran and failed or timed out; True: a result."""
-    if r is None or r.status == PT.NOT_RUN:
+    if PT.status_text(r) == PT.NOT_RUN:
         return None
     return r.status == RunStatus.OK
 
@@ -165,7 +165,7 @@ def done_when(table: PT.TwinTable) -> list[str]:
     for k, r in ours:
         ran = _measured(r)
         ok = None if ran is None or (ran and r.registered is None) else (ran and r.registered >= TWIN_REGISTERED_MIN * n)
-        reg.append((f"{k} {r.registered}/{n}" if ran and r.registered is not None else f"{k} {r.status if r else PT.NOT_RUN}", ok))
+        reg.append((f"{k} {r.registered}/{n}" if ran and r.registered is not None else f"{k} {PT.status_text(r)}", ok))
     lines = [f"- ours registers >= {TWIN_REGISTERED_MIN:.0%} of the views: "
              + ", ".join(t for t, _ in reg) + f": **{_judge(reg)}**"]
     if table.twin == "rosetta":
@@ -174,7 +174,7 @@ def done_when(table: PT.TwinTable) -> list[str]:
             ran = _measured(r)
             ok = None if ran is None or (ran and r.tie_points is None) else (ran and r.tie_points >= TWIN_ROSETTA_MIN_TIES)
             ties.append((f"{k} {r.tie_points:,}" if ran and r.tie_points is not None
-                         else f"{k} {r.status if r else PT.NOT_RUN}", ok))
+                         else f"{k} {PT.status_text(r)}", ok))
         lines.append(f"- ours yields >= {TWIN_ROSETTA_MIN_TIES:,} tie points: "
                      + ", ".join(t for t, _ in ties) + f": **{_judge(ties)}**")
     times = []
@@ -183,7 +183,7 @@ def done_when(table: PT.TwinTable) -> list[str]:
         ran = _measured(r)
         ok = None if ran is None or (ran and r.efficiency_min is None) else (ran and r.efficiency_min <= TWIN_RUNTIME_TARGET_MIN)
         times.append((f"{k} {r.efficiency_min:.1f} min" if ran and r.efficiency_min is not None
-                      else f"{k} {r.status if r else PT.NOT_RUN}", ok))
+                      else f"{k} {PT.status_text(r)}", ok))
     lines.append(f"- runtime per method, render excluded, <= {TWIN_RUNTIME_TARGET_MIN:.0f} min: "
                  + ", ".join(t for t, _ in times) + f": **{_judge(times)}**")
     return lines
@@ -255,7 +255,7 @@ def variant_lines(twin_dir: str | os.PathLike) -> list[str]:
 
 
 def has_results(table: PT.TwinTable | None) -> bool:
-    return table is not None and any(r.status != PT.NOT_RUN for r in table.methods.values())
+    return table is not None and any(PT.status_text(r) != PT.NOT_RUN for r in table.methods.values())
 
 
 def render_scale(tables: list[PT.TwinTable], reports_root: str | os.PathLike | None,

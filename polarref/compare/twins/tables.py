@@ -56,12 +56,14 @@ ROW_LABELS = {"accuracy_px": "Accuracy (px)", "efficiency_min": "Efficiency (min
               "tie_points": "#Tie point", "reprojected_px": "#Reprojected px"}
 
 
-@dataclass
-class MethodResult:
-    """One method on one twin. Values are None when not measured (status other than ok)."""
+@dataclass(frozen=True)
+class TwinRow:
+    """The table's view of one method on one twin, built from its stages' MethodRuns
+    (:func:`polarref.compare.twins.pipeline.table_row`). Values are None when not measured
+    (status other than ok); a method that was not asked for is ``SKIPPED`` with no reason."""
 
     name: str
-    status: str = NOT_RUN            # ok | failed | timeout | not run
+    status: RunStatus = RunStatus.SKIPPED
     reason: str = ""
     num_images: int = 0
     registered: int | None = None
@@ -115,7 +117,7 @@ class TwinTable:
     twin: str
     images: int
     pairs: int | None
-    methods: dict[str, MethodResult]      # name -> its row
+    methods: dict[str, TwinRow]           # name -> its row
     provenance: TwinProvenance | None = None
 
     def to_dict(self) -> dict:
@@ -128,6 +130,10 @@ class TwinTable:
             d = {k: v for k, v in d.items() if k != "format"}
             if not d.get("provenance"):
                 d.pop("provenance", None)
+            if isinstance(d.get("methods"), dict):   # tables before RunStatus wrote "not run"
+                d["methods"] = {k: dict(v, status=RunStatus.SKIPPED.value)
+                                if isinstance(v, dict) and v.get("status") == NOT_RUN else v
+                                for k, v in d["methods"].items()}
         return records.from_dict(TwinTable, d, label=label)
 
 
@@ -141,15 +147,18 @@ def _fmt(row: str, v) -> str:
     return f"{int(v):,}"
 
 
-def table_cell(m: MethodResult | None, row: str) -> str:
-    if m is None or m.status == NOT_RUN:
-        return NOT_RUN
-    if m.status != RunStatus.OK:
-        return m.status
+def status_text(m: TwinRow | None) -> str:
+    """The status as the tables print it: "not run" for a method not asked for."""
+    return NOT_RUN if m is None or (m.status == RunStatus.SKIPPED and not m.reason) else m.status.value
+
+
+def table_cell(m: TwinRow | None, row: str) -> str:
+    if m is None or m.status != RunStatus.OK:
+        return status_text(m)
     return _fmt(row, getattr(m, row))
 
 
-def difference(row: str, base: MethodResult | None, ours: MethodResult | None) -> str:
+def difference(row: str, base: TwinRow | None, ours: TwinRow | None) -> str:
     """The paper's "Improving" column: ours vs the Euclidean baseline."""
     if base is None or ours is None or base.status != RunStatus.OK or ours.status != RunStatus.OK:
         return "not tested"
@@ -238,14 +247,14 @@ def render_table(table: TwinTable) -> str:
               "| rotation error (deg) | centre error (% of scene) | peak memory (MB) | keypoints / image |",
               "|---|---|---|---|---|---|---|---|---|---|---|"]
     for name in METHODS:
-        r = m.get(name) or MethodResult(name)
+        r = m.get(name) or TwinRow(name)
         ok = r.status == RunStatus.OK
         reg = f"{r.registered}/{table.images}" if ok and r.registered is not None else "-"
         rot = f"{r.rotation_error_deg:.4f}" if ok and r.rotation_error_deg is not None else "-"
         cen = f"{100 * r.center_error_rel:.4f}" if ok and r.center_error_rel is not None else "-"
         mem = f"{r.peak_rss_mb:,.0f}" if r.peak_rss_mb is not None else "-"
         kp = f"{r.mean_keypoints:,.0f}" if r.mean_keypoints is not None else "not recorded"
-        status = r.status + (f" ({r.reason})" if r.reason else "")
+        status = status_text(r) + (f" ({r.reason})" if r.reason else "")
         if ok and r.segments > 1:
             status += f" (resumed: {r.segments} segments)"
         lines.append(f"| {LABELS[name]} | {status} | {reg} | {table_cell(r, 'accuracy_px')} | {table_cell(r, 'efficiency_min')} "

@@ -9,6 +9,7 @@ from test_report_build import synthetic_metrics
 import numpy as np
 
 from polarref.core import records
+from polarref.core.status import RunStatus
 from polarref.compare import schema
 from polarref.compare.claims import scorecard as claims
 from polarref.compare.claims import controlled as claims_experiments
@@ -334,7 +335,7 @@ def test_the_scene_scorecard_and_the_twin_tables_share_one_single_run_rule(eucli
     res = claims.scene_claims(_metrics(euclid, polar, polar_tp=polar_tp, polar_rp=polar_rp))
 
     def twin_side(name, runtime, tp, rp):
-        return PT.MethodResult(name, "ok", "", 12, 12, 0.3, runtime / 60, tp, rp)
+        return PT.TwinRow(name, RunStatus.OK, "", 12, 12, 0.3, runtime / 60, tp, rp)
 
     twin = PT.TwinTable("rosetta", 12, 30, {PT.BASELINE: twin_side(PT.BASELINE, euclid, 1000, 5000),
                                             PT.OURS: twin_side(PT.OURS, polar, polar_tp, polar_rp)})

@@ -12,10 +12,12 @@ import pytest
 from polarref.compare.twins import scale as PS
 from polarref.compare.twins import readme as PR
 from polarref.compare.twins import tables as PT
+from polarref.core import records
+from polarref.core.status import RunStatus
 
 
 def _ok(name, acc, minutes, ties, obs, ba_s):
-    return PT.MethodResult(name, "ok", "", 631, 631, acc, minutes, ties, obs, 0.01, 1e-4,
+    return PT.TwinRow(name, RunStatus.OK, "", 631, 631, acc, minutes, ties, obs, 0.01, 1e-4,
                            {"features": 100.0, "bundle adjustment": ba_s}, 900.0)
 
 
@@ -26,7 +28,7 @@ def _table(**methods):
 def test_paper_layout_with_a_missing_method_shows_not_run(tmp_path):
     t = _table(**{PT.BASELINE: _ok(PT.BASELINE, 0.400, 50.0, 100_000, 500_000, 600.0),
                   PT.OURS: _ok(PT.OURS, 0.404, 40.0, 100_500, 502_000, 300.0),
-                  "pycolmap-global-sift": PT.MethodResult("pycolmap-global-sift", "failed", "mapping: no model", 631)})
+                  "pycolmap-global-sift": PT.TwinRow("pycolmap-global-sift", RunStatus.FAILED, "mapping: no model", 631)})
     PT.write_table(tmp_path / "rosetta", t)
     md = (tmp_path / "rosetta" / "paper-table.md").read_text()
     rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]]
@@ -48,7 +50,7 @@ def test_paper_layout_with_a_missing_method_shows_not_run(tmp_path):
     assert str(v.c5).startswith("supported (+500 tie points (margin 100), +2,000 reprojected px (margin 500)")
     assert f"C4 (faster): {v.c4}" in md
     back = PT.TwinTable.from_dict(json.loads((tmp_path / "rosetta" / "paper-table.json").read_text()))
-    assert back.methods[PT.OURS].tie_points == 100_500 and back.methods["pycolmap-global-sift"].status == "failed"
+    assert back.methods[PT.OURS].tie_points == 100_500 and back.methods["pycolmap-global-sift"].status == RunStatus.FAILED
 
 
 def test_difference_column_is_not_tested_without_both_sides_and_detects_a_real_change():
@@ -123,7 +125,7 @@ def test_missing_values_are_not_tested():
     no_time = dataclasses.replace(_ok(PT.OURS, 0.4, 40.0, 100_500, 502_000, 300.0), efficiency_min=None)
     v = PT.verdicts(_table(**{PT.BASELINE: base, PT.OURS: no_time}))
     assert v.c4.verdict == "not tested" and v.c4.figures == "" and v.c5.verdict == "supported"
-    failed = PT.MethodResult(PT.OURS, "timeout", "ours-polar: over 14400 s", 631)
+    failed = PT.TwinRow(PT.OURS, RunStatus.TIMEOUT, "ours-polar: over 14400 s", 631)
     assert {k: x.verdict for k, x in PT.verdicts(_table(**{PT.BASELINE: base, PT.OURS: failed})).by_claim()} == {
         "C4": "not tested", "C5": "not tested"}
     assert {k: x.verdict for k, x in PT.verdicts(None).by_claim()} == {"C4": "not tested", "C5": "not tested"}
@@ -171,7 +173,7 @@ def test_twin_comparison_runs_every_method_and_resumes(tmp_path):
     table = run_twin(run)
     for name in PT.METHODS:
         m = table.methods[name]
-        assert m.status == "ok", (name, m.reason)
+        assert m.status == RunStatus.OK, (name, m.reason)
         assert m.registered >= 19 and m.rotation_error_deg < 0.5 and m.tie_points > 1000
         assert m.peak_rss_mb > 50 and m.efficiency_min > 0
     stamps = {p.name: p.stat().st_mtime for p in (tmp_path / "out" / "stages").glob("*.json")}
@@ -236,3 +238,18 @@ def test_committed_tables_read_strictly_and_rewrite_byte_for_byte():
     data["provenance"]["extra"] = 1
     with pytest.raises(records.RecordError, match="extra"):
         PT.TwinTable.from_dict(data)
+
+
+def test_rows_have_a_run_status_and_old_not_run_rows_read_as_skipped():
+    """Rows carry RunStatus (issue 29); a table written with the old "not run" string reads back
+    as SKIPPED and still prints "not run", a skipped stage with a reason prints "skipped"."""
+    t = _table(**{PT.BASELINE: _ok(PT.BASELINE, 0.4, 50.0, 100_000, 500_000, 600.0)})
+    old = t.to_dict()
+    old["methods"][PT.OURS] = {"name": PT.OURS, "status": "not run"}
+    back = PT.TwinTable.from_dict(old)
+    assert back.methods[PT.OURS].status is RunStatus.SKIPPED
+    assert back.methods[PT.BASELINE].status is RunStatus.OK
+    assert PT.table_cell(back.methods[PT.OURS], "tie_points") == PT.NOT_RUN
+    assert PT.status_text(PT.TwinRow(PT.OURS, RunStatus.SKIPPED, "features: failed")) == "skipped"
+    with pytest.raises(records.RecordError):
+        PT.TwinTable.from_dict(dict(old, methods={PT.OURS: {"name": PT.OURS, "status": "done"}}))

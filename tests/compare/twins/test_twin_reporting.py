@@ -25,7 +25,7 @@ from polarref.core.errors import PolarrefError
 
 
 def _ok(name, minutes, ties, obs, registered=631, rot=0.1, images=631):
-    return PT.MethodResult(name, "ok", "", images, registered, 0.4, minutes, ties, obs, rot, 1e-4,
+    return PT.TwinRow(name, RunStatus.OK, "", images, registered, 0.4, minutes, ties, obs, rot, 1e-4,
                            {"features": 60.0, "bundle adjustment": minutes * 30}, 900.0)
 
 
@@ -33,7 +33,7 @@ def _rosetta(**kw) -> PT.TwinTable:
     methods = {PT.BASELINE: _ok(PT.BASELINE, 60.0, 120_000, 600_000, rot=0.12),
                PT.OURS: _ok(PT.OURS, 40.0, 120_500, 602_000, rot=0.10),            # x1.50, more of both
                "pycolmap-incremental-sift": _ok("pycolmap-incremental-sift", 30.0, 50_000, 200_000, 600, 0.40),
-               "pycolmap-global-sift": PT.MethodResult("pycolmap-global-sift", "failed", "mapping: no model", 631)}
+               "pycolmap-global-sift": PT.TwinRow("pycolmap-global-sift", RunStatus.FAILED, "mapping: no model", 631)}
     methods.update(kw)
     return PT.TwinTable("rosetta", 631, 4710, methods)
 
@@ -163,7 +163,7 @@ def test_done_when_lines_are_met_not_met_or_not_tested():
     low = _done(_rosetta(**{PT.OURS: _ok(PT.OURS, 40.0, 120_000, 602_000, registered=624)}))
     assert low["- ours registers >= 99% of the views"] == "not met"
     # A method that did not run is not tested (never a fake pass), unless another already fails.
-    missing = _rosetta(**{"pycolmap-global-sift": PT.MethodResult("pycolmap-global-sift")})
+    missing = _rosetta(**{"pycolmap-global-sift": PT.TwinRow("pycolmap-global-sift")})
     assert _done(missing)["- runtime per method, render excluded, <= 60 min"] == "not tested"
     blank = _done(PT.TwinTable("mappilot", 493, None, {}))
     assert set(blank.values()) == {"not tested"} and len(blank) == 2   # no tie-point target off rosetta
