@@ -292,6 +292,7 @@ def run_campaign(plan: CampaignPlan, cells: Path, work: Path, retry_failed: bool
     written = []
     for twin, seed, method in todo(plan, cells, retry_failed):
         twin_work = work / plan.commit[:12] / plan.twin_dir(twin) / f"seed{seed}"
+        twin_work.mkdir(parents=True, exist_ok=True)
         root, render_s = render_twin(twin, plan.size, seed, work / "renders" / f"{plan.twin_dir(twin)}-seed{seed}")
         scene = prepare(str(root), presets.DEFAULT, seed)
         pairs = choose_pairs(twin, scene, twin_work)
