@@ -83,7 +83,7 @@ def run_block(scene: Path, work: Path, ba: str, label: str):
     glob = [b for b in bas if b.kind == "global"]
     stats = BAStats(sum(b.kind == "local" for b in bas), sum(b.wall_s for b in bas if b.kind == "local"),
                     len(glob), sum(b.wall_s for b in glob), glob[-1].wall_s if glob else 0.0,
-                    glob[-1].summary.iterations if glob else 0)
+                    glob[-1].summary.iterations if glob else 0, bas[0].wall_s if bas else None)
     m = rep.metrics
     return BlockRun(label, ba, len(sc.image_names), len(pair_set.pairs), int(rep.num_verified_pairs or 0),
                     int(rep.num_tracks or 0), int(m.reprojected_px), int(m.registered_images), int(m.tie_points),
@@ -91,6 +91,21 @@ def run_block(scene: Path, work: Path, ba: str, label: str):
                     load0, os.getloadavg(), config.threads, wall,
                     collect_record(seeds={"verification": config.verification.seed},
                                    threads={"frontend": config.threads}))
+
+
+def _matching_note(path: Path) -> str:
+    """The matcher's before/after (scripts/match_speed.py) in one sentence, from its JSON."""
+    if not path.is_file():
+        return ""
+    import json
+
+    d = json.loads(path.read_text())
+    (before, b), (after, f) = d["cpu_s_per_pair"].items()
+    return (f"Matching, the bottleneck of the front end, before/after this branch's mutual check "
+            f"(`scripts/match_speed.py`, {path.name}): {b:.3f} -> {f:.3f} CPU s per pair ({before} -> {after}; "
+            f"x{d['speedup']:.2f}) on the {d['pairs']} pairs of {d['images']} views, {d['mean_keypoints']:.0f} keypoints per "
+            f"view, identical matches: {d['identical_matches']}; commit {d['environment']['git_commit'][:10]}, load "
+            f"{d['load_before'][0]:.1f} -> {d['load_after'][0]:.1f}. The fits above were measured before it.")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -104,6 +119,9 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--lines", type=_range, required=True)
     r.add_argument("--positions", type=_range, required=True)
     r.add_argument("--ba", nargs="+", default=["euclidean", "polar"])
+    n = sub.add_parser("annotate", help="add each run's first BA time from its metrics.json (runs made before it was recorded)")
+    n.add_argument("work", type=Path)
+    n.add_argument("out", type=Path)
     p = sub.add_parser("report")
     p.add_argument("out", type=Path)
     p.add_argument("--twin", default="mappilot")
@@ -113,10 +131,21 @@ def main(argv: list[str] | None = None) -> int:
     from polarref.compare.twins import scaling as S
     from polarref.core import records
 
+    if a.cmd == "annotate":
+        import dataclasses
+        import json
+
+        for f in sorted((a.out / "runs").glob("*.json")):
+            run = records.load(S.BlockRun, f)
+            metrics = json.loads((a.work / run.label / f"sfm-{run.ba}" / "metrics.json").read_text())
+            first = float(metrics["ba"][0]["wall_s"])
+            records.save(dataclasses.replace(run, ba_stats=dataclasses.replace(run.ba_stats, first_s=first)), f)
+        return 0
     if a.cmd == "report":
         runs = [records.load(S.BlockRun, f) for f in sorted((a.out / "runs").glob("*.json"))]
+        note = " ".join(x for x in (a.note, _matching_note(a.out / "matching-before-after.json")) if x)
         for ba in sorted({x.ba for x in runs}):
-            S.write(S.build(a.twin, ba, runs, a.note), a.out)
+            S.write(S.build(a.twin, ba, runs, note), a.out)
         return 0
     block = f"{a.twin}-l{a.lines[0]}-{a.lines[1] - 1}-p{a.positions[0]}-{a.positions[1] - 1}"
     scene = a.work / block / "scene"

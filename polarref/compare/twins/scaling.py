@@ -5,7 +5,8 @@ A sub-block of a UAV twin (:mod:`synth.subblock`: the twin's mesh, camera, GSD a
 is run through our pipeline at a few sizes (``scripts/twin_scaling.py``); each run is a
 :class:`BlockRun`. Per stage, the wall time is fitted as ``a * x^b`` by least squares on logs,
 where ``x`` is the stage's natural size: the views for features, the image pairs for matching and
-verification, the pairs for tracks (their input is the verified matches), the views for mapping and BA. With two sizes
+verification, the pairs for tracks (their input is the verified matches), the views for mapping and BA (less
+its first call, which loads or compiles the numba kernels: a constant per process). With two sizes
 the fit is exact; it is a local exponent, not a law. The pairs at a twin's full size come from its
 pairing rule (:func:`pairs_per_view` times the views: spatial k-nearest plus sequential pairs give
 a bounded number per view), so the extrapolation only needs the views.
@@ -45,6 +46,10 @@ class BAStats:
     global_s: float
     final_global_s: float          # the last global BA (the whole model)
     final_global_iterations: int
+    # the mapper's first BA (two views): almost all of it loads or compiles the numba kernels, a
+    # cost per process, not per view (None: not recorded; `twin_scaling.py annotate` adds it from
+    # the run's metrics.json)
+    first_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -86,9 +91,13 @@ class BlockRun:
         by = {s.stage: s for s in self.stages}
         m = by.get("mapping")
         rate = (m.cpu_s / m.wall_s) if m is not None and m.cpu_s is not None and m.wall_s > 0 else None
+        if stage == "ba first call":
+            return None if self.ba_stats.first_s is None or rate is None else self.ba_stats.first_s * rate
         if stage in ("ba", "mapping (excl. BA)"):
             w, wb = self.wall(stage), self.wall("ba")
-            return None if w is None or rate is None else (w * rate if stage == "ba" else m.cpu_s - (wb or 0.0) * rate)
+            if w is None or rate is None:
+                return None
+            return (w - (self.ba_stats.first_s or 0.0)) * rate if stage == "ba" else m.cpu_s - (wb or 0.0) * rate
         s = by.get(stage)
         return None if s is None or s.cached or s.cpu_s is None else float(s.cpu_s)
 
@@ -156,6 +165,13 @@ def build(twin: str, ba: str, runs: list[BlockRun], note: str = "") -> ScalingRe
             pred[t] = None if b is None else float(a * _twin_size(driver, n, ppv, opv) ** b)
             totals[t] = None if pred[t] is None or totals[t] is None else totals[t] + pred[t]
         fits.append(StageFit(stage, driver, b, a, pts, pred))
+    first = [r.seconds("ba first call") for r in mine if r.seconds("ba first call") is not None]
+    if first:   # once per process: the largest block's, not scaled
+        c = float(first[-1])
+        fits.append(StageFit("ba first call", "once per process", 0.0, c, tuple((r.views, r.seconds("ba first call"))
+                                                                              for r in mine if r.seconds("ba first call") is not None),
+                             {t: c for t in TWIN_VIEWS}))
+        totals = {t: None if v is None else v + c for t, v in totals.items()}
     return ScalingReport(twin, ba, tuple(mine), ppv, opv, tuple(fits), totals, note)
 
 
