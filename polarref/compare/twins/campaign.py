@@ -11,8 +11,8 @@ provenance: the pinned commit, the dirty flag, the host, the load averages befor
 threads and the seeds.
 
 Only a clean checkout of the pinned commit runs cells (:func:`check_checkout`); ``campaign run``
-from any other checkout makes one (``git worktree add --detach``, :func:`ensure_worktree`) and runs
-there, writing the cells back into the calling repository. The table
+makes one (``git worktree add --detach``, :func:`ensure_worktree`, under ``--work``) and runs there,
+writing the cells back into the calling repository. The table
 (:mod:`polarref.compare.twins.campaign_table`) refuses cells of another commit.
 
     python -m polarref.compare.twins.campaign run COMMIT --twins mappilot --seeds 0 1 2 --work DIR
@@ -320,6 +320,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--work", type=Path, required=True, help="renders, caches, models, the worktree (not for git)")
     r.add_argument("--cells", type=Path, default=CELLS)
     r.add_argument("--retry-failed", action="store_true")
+    r.add_argument("--in-worktree", action="store_true", help=argparse.SUPPRESS)   # set for the child
     t = sub.add_parser("table", help="C4/C5 over the seeds from the cells of COMMIT")
     t.add_argument("commit")
     t.add_argument("--cells", type=Path, default=CELLS)
@@ -347,13 +348,15 @@ def main(argv: list[str] | None = None) -> int:
         plan = CampaignPlan(commit, tuple(a.twins), tuple(a.seeds), tuple(a.methods), a.size,
                             pycolmap_threads=a.pycolmap_threads)
         work, cells = a.work.resolve(), a.cells.resolve()
-        if git_state() == (commit, False):
+        if a.in_worktree:
             run_campaign(plan, cells, work, a.retry_failed)
             return 0
+        # Always the campaign's own worktree, never the calling checkout: a checkout someone edits
+        # while the cells run would change the code under them.
         tree = ensure_worktree(REPO_ROOT, commit, work / f"src-{commit[:12]}")
         env = dict(os.environ, PYTHONPATH=str(tree), POLARREF_CACHE=str(work / "cache"))
         argv2 = [sys.executable, "-m", "polarref.compare.twins.campaign", *(argv or sys.argv[1:])]
-        argv2 += ["--work", str(work), "--cells", str(cells)]   # absolute: the child runs in the worktree
+        argv2 += ["--work", str(work), "--cells", str(cells), "--in-worktree"]   # absolute paths
         return subprocess.run(argv2, cwd=tree, env=env).returncode
     except PolarrefError as exc:
         print(f"error: {exc}", file=sys.stderr)
