@@ -29,30 +29,28 @@ import socket
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from polarref.compare.run import jobs as run_jobs
 from polarref.compare.run import presets
 from polarref.compare.run.scenes import prepare
+from polarref.compare.twins import campaign_table
 from polarref.compare.twins import campaign_jobs as J
+from polarref.compare.twins.campaign_records import (METHODS, OURS, PYCOLMAP, CampaignCell, CellProvenance,
+                                                     CellStage, read_cell)
 from polarref.compare.twins.pipeline import PYCOLMAP_FEATURES, PYCOLMAP_SNAPSHOT_EVERY, choose_pairs, score_model
 from polarref.core import isolated as runner
 from polarref.core import records
 from polarref.core.data import REPO_ROOT
 from polarref.core.errors import PolarrefError
-from polarref.core.provenance import Provenance, collect_record, git_state
+from polarref.core.provenance import collect_record, git_state
 from polarref.core.status import RunStatus
 from polarref.io.scene_folder import Scene
-from polarref.model.scores import ReconstructionMetrics
 
 log = logging.getLogger(__name__)
 
-FORMAT = "polarref-twin-campaign-cell/1"
 CELLS = REPO_ROOT / "reports" / "paper-tables" / "campaign"
-OURS = ("ours-euclidean", "ours-polar")
-PYCOLMAP = ("pycolmap-incremental-sift", "pycolmap-global-sift")
-METHODS = OURS + PYCOLMAP
 # Render settings by size; "twin" is the twin as the paper's dataset, the others are the same twin
 # reduced for tests and dry runs (a table never mixes sizes).
 SIZES: dict[str, tuple[tuple[str, int], ...]] = {
@@ -90,69 +88,8 @@ class CampaignPlan:
         return twin if self.size == "twin" else f"{twin}-{self.size}"
 
 
-@dataclass(frozen=True)
-class CellStage:
-    """One stage process of a cell (``shared``: the front end every method of its family reads)."""
-
-    job: str
-    shared: bool
-    status: RunStatus
-    reason: str = ""
-    wall_s: float = 0.0               # the process's wall time (a resumed mapping: its segments summed)
-    reused: bool = False              # finished earlier in this campaign's work folder (another cell ran it)
-    finished_utc: str = ""
-    git_commit: str = ""
-    git_dirty: bool | None = None
-    result: J.StagedRun | None = None
-
-
-@dataclass(frozen=True)
-class CellProvenance:
-    commit: str
-    dirty: bool | None
-    host: str
-    started_utc: str
-    finished_utc: str
-    load_before: tuple[float, float, float]
-    load_after: tuple[float, float, float]
-    threads: dict[str, int]
-    seeds: dict[str, int]
-    environment: Provenance
-
-
-@dataclass(frozen=True)
-class CampaignCell:
-    """One (twin, seed, method) result."""
-
-    twin: str
-    size: str
-    seed: int
-    method: str                       # a METHODS name
-    key: str                          # the file name (pycolmap: with its thread count)
-    views: int
-    pairs: int
-    status: RunStatus
-    reason: str
-    wall_s: float                     # every stage process of the cell, the shared front end included
-    peak_rss_mb: float | None         # the largest stage
-    ba_s: float | None                # ours: the BA inside the mapper
-    render_s: float                   # not counted in wall_s (0: rendered by an earlier session)
-    stages: tuple[CellStage, ...]
-    metrics: ReconstructionMetrics | None
-    provenance: CellProvenance
-    format: str = FORMAT
-
-    @property
-    def minutes(self) -> float:
-        return self.wall_s / 60.0
-
-
 def cell_path(root: Path, plan: CampaignPlan, twin: str, seed: int, method: str) -> Path:
     return Path(root) / plan.commit / plan.twin_dir(twin) / f"seed{seed}" / f"{plan.cell_key(method)}.json"
-
-
-def read_cell(path: Path) -> CampaignCell:
-    return records.load(CampaignCell, path)
 
 
 # ---- where a campaign may run ------------------------------------------------------------------
@@ -336,8 +273,6 @@ def _full_commit(commit: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from polarref.compare.twins import campaign_table
-
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s: %(message)s")
     a = _parser().parse_args(argv)
     try:

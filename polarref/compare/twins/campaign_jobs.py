@@ -15,7 +15,7 @@ import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
-from polarref.bench.records import MethodSettings, flatten_settings
+from polarref.model.settings import MethodSettings, flatten_settings
 from polarref.compare.run import jobs, ours
 from polarref.model.colmap import global_options, incremental_options
 from polarref.model.run import MethodRun

@@ -21,7 +21,7 @@ from polarref.compare.claims import preregistration
 from polarref.compare.claims.controlled import geometric_interval, tost
 from polarref.compare.claims.single_run import SUPPORTED_AT
 from polarref.compare.claims.thresholds import MDE_ALPHA, ALPHA, PAPER_OBS_REL, PAPER_TIE_REL, TIE_MARGIN_REL
-from polarref.compare.twins.campaign import OURS, CampaignCell, read_cell
+from polarref.compare.twins.campaign_records import OURS, CampaignCell, read_cell
 from polarref.core import records
 from polarref.core.atomic import atomic_write
 from polarref.core.errors import PolarrefError

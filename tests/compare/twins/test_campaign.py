@@ -10,9 +10,10 @@ import subprocess
 import pytest
 
 from polarref.compare.twins import campaign as C
+from polarref.compare.twins import campaign_records as R
 from polarref.compare.twins import campaign_table as T
 from polarref.compare.twins.campaign_jobs import StagedRun
-from polarref.bench.records import MethodSettings
+from polarref.model.settings import MethodSettings
 from polarref.core import records
 from polarref.core.errors import PolarrefError
 from polarref.core.provenance import Provenance
@@ -33,11 +34,11 @@ def _env(commit=COMMIT, dirty=False):
 def _cell(method, seed, minutes, ties, obs, ba_s=None, commit=COMMIT, dirty=False, stage_commit=None):
     run = MethodRun(method, model_dir="m", peak_rss_mb=500.0 + seed)
     settings = MethodSettings("ours", 2, 2, 4096, 0, False, "file")
-    stage = C.CellStage(method, False, RunStatus.OK, wall_s=60.0 * minutes, git_commit=stage_commit or commit,
+    stage = R.CellStage(method, False, RunStatus.OK, wall_s=60.0 * minutes, git_commit=stage_commit or commit,
                         git_dirty=dirty, result=StagedRun(run, (StageCost("mapping", 1.0, 1.0, 400.0),), settings))
     metrics = ReconstructionMetrics(20, 20, ties, obs, 0.2, 0.2, 0.2, 3.0)
-    prov = C.CellProvenance(commit, dirty, "host", "t0", "t1", (3.0, 2.0, 1.0), (5.0, 2.0, 1.0), {}, {}, _env(commit, dirty))
-    return C.CampaignCell("mappilot", "tiny", seed, method, method, 20, 50, RunStatus.OK, "", 60.0 * minutes,
+    prov = R.CellProvenance(commit, dirty, "host", "t0", "t1", (3.0, 2.0, 1.0), (5.0, 2.0, 1.0), {}, {}, _env(commit, dirty))
+    return R.CampaignCell("mappilot", "tiny", seed, method, method, 20, 50, RunStatus.OK, "", 60.0 * minutes,
                           500.0 + seed, ba_s, 0.0, (stage,), metrics, prov)
 
 
@@ -181,7 +182,7 @@ def test_a_tiny_campaign_runs_resumes_and_tabulates(tmp_path):
     written = C.run_campaign(plan, cells, tmp_path / "work", state=(head, False))
     assert len(written) == 6
     for p in written:
-        cell = C.read_cell(p)
+        cell = R.read_cell(p)
         assert cell.status == RunStatus.OK, (p, cell.reason)
         assert cell.provenance.commit == head and cell.provenance.dirty is False
         assert cell.metrics.registered_images >= 12 and cell.metrics.gt.rotation_error_deg_mean < 0.5
@@ -189,8 +190,8 @@ def test_a_tiny_campaign_runs_resumes_and_tabulates(tmp_path):
         assert shared.shared and not own.shared and cell.wall_s == pytest.approx(shared.wall_s + own.wall_s)
         assert own.result.settings.max_num_features == 4096 and own.result.settings.parallel == 2
         assert all(s.peak_rss_mb and s.cpu_s is not None for s in shared.result.stages)
-    euc = C.read_cell(C.cell_path(cells, plan, "mappilot", 1, "ours-euclidean"))
-    pol = C.read_cell(C.cell_path(cells, plan, "mappilot", 1, "ours-polar"))
+    euc = R.read_cell(C.cell_path(cells, plan, "mappilot", 1, "ours-euclidean"))
+    pol = R.read_cell(C.cell_path(cells, plan, "mappilot", 1, "ours-polar"))
     assert euc.stages[0].reused is False and pol.stages[0].reused is True   # one front end per (twin, seed)
     assert pol.stages[0].wall_s == euc.stages[0].wall_s                      # counted in both
     assert {s.stage for s in pol.stages[1].result.stages if s.cached} >= {"features", "matching"}
@@ -198,7 +199,21 @@ def test_a_tiny_campaign_runs_resumes_and_tabulates(tmp_path):
     assert C.run_campaign(plan, cells, tmp_path / "work", state=(head, False)) == []
     assert {p: p.stat().st_mtime for p in written} == stamps
     (tw,) = T.build(cells / head).twins
-    ratios = [C.read_cell(C.cell_path(cells, plan, "mappilot", s, "ours-euclidean")).wall_s
-              / C.read_cell(C.cell_path(cells, plan, "mappilot", s, "ours-polar")).wall_s for s in (0, 1)]
+    ratios = [R.read_cell(C.cell_path(cells, plan, "mappilot", s, "ours-euclidean")).wall_s
+              / R.read_cell(C.cell_path(cells, plan, "mappilot", s, "ours-polar")).wall_s for s in (0, 1)]
     assert tw.c4.geometric_mean == pytest.approx(math.sqrt(ratios[0] * ratios[1]), rel=1e-12)
     assert tw.c4.seeds == (0, 1) and len(tw.methods) == 3
+
+
+def test_settings_of_both_pycolmap_mappers_flatten_to_json():
+    """pycolmap's global options hold arrays (the first campaign's global cells failed on them)."""
+    import json
+
+    pytest.importorskip("pycolmap")
+    from polarref.compare.twins.campaign_jobs import _colmap_settings
+    from polarref.peers.colmap_sfm import ColmapSfMOptions
+
+    for mapper, ignore in (("incremental", True), ("global", False)):
+        s = _colmap_settings(ColmapSfMOptions(num_threads=2, max_num_features=4096), mapper, "file: p.txt")
+        assert s.parallel == 2 and s.max_num_features == 4096 and s.ignore_two_view_tracks is ignore
+        assert all(json.loads(x.value) is not None or x.value == "null" for x in s.options) and len(s.options) > 50
