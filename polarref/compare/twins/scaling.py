@@ -200,7 +200,8 @@ def render(rep: ScalingReport) -> str:
              "**Indicative**: measured on a shared 2-core machine under other sessions' load (load averages "
              "below); the cache was empty, so every stage was computed.", "",
              "CPU seconds per stage (wall seconds in brackets; the front end ran on "
-             f"{rep.runs[-1].threads or 'every'} threads):", "",
+             + (f"{rep.runs[-1].threads} threads" if rep.runs[-1].threads else "a thread per core (SfMConfig.threads 0)")
+             + "):", "",
              "| block | views | pairs | verified | observations | registered | tie points | load before / after | "
              + " | ".join(DRIVERS) + " | wall (s) |", "|" + "---|" * (9 + len(DRIVERS))]
     for r in rep.runs:
