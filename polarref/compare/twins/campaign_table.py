@@ -154,7 +154,8 @@ def _summary(cells: list[CampaignCell], twin: str, rr: TwinsRules) -> MethodSumm
     ok = sorted((c for c in cells if c.status == RunStatus.OK and c.metrics is not None), key=lambda c: c.seed)
     bad = tuple(f"seed {c.seed}: {c.status} ({c.reason})" for c in cells if c not in ok)
     mins = tuple(c.minutes for c in ok)
-    target = rr.minutes(twin, cells[0].method)
+    # the targets are the twins' (issue 34): a reduced size has none
+    target = rr.minutes(twin, cells[0].method) if cells[0].size == "twin" else None
     peaks = [c.peak_rss_mb for c in ok if c.peak_rss_mb is not None]
     threads = next((s.result.settings.parallel for c in ok for s in c.stages if s.result is not None), None)
     return MethodSummary(
@@ -225,7 +226,7 @@ def build(commit_dir: Path, rr: TwinsRules | None = None) -> CampaignTable:
         pairs = _paired(by)
         c5 = (count_stats(pairs, "tie_points", PAPER_TIE_REL), count_stats(pairs, "reprojected_px", PAPER_OBS_REL))
         peaks = [m.peak_mb for m in summaries if m.peak_mb is not None]
-        limit = rr.peak(twin)
+        limit = rr.peak(twin) if size == "twin" else None
         twins.append(TwinCampaign(name, mine[0].views, mine[0].pairs, summaries, speedup_stats(pairs, rr), c5,
                                   c5_verdict(c5, len(pairs), rr), max(peaks) if peaks else None,
                                   None if limit is None or not peaks else max(peaks) <= limit))

@@ -82,8 +82,9 @@ def test_c4_c5_over_seeds_match_hand_computed_statistics(tmp_path):
     assert obs.hi == pytest.approx(0.006 + T_95_2 * math.sqrt(0.28) * 0.01 / math.sqrt(3), rel=1e-9)
     assert tw.c5_verdict == "inconclusive"
     euc = next(m for m in tw.methods if m.key == "ours-euclidean")
-    assert euc.median_min == pytest.approx(12.0) and euc.target_met is True and euc.target_min == 20.0
-    assert tw.peak_mb_max == 502.0 and tw.peak_target_met is True
+    # a reduced size is a dry run: the twins' targets do not apply
+    assert euc.median_min == pytest.approx(12.0) and euc.target_met is None and euc.target_min is None
+    assert tw.peak_mb_max == 502.0 and tw.peak_target_met is None
     T.write(table, tmp_path)
     md = (tmp_path / "table.md").read_text()
     assert "**inconclusive**" in md and "x1.200" in md
