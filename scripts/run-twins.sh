@@ -7,6 +7,8 @@
 # Our front end (features, matching, verification) uses every core by default (threads,
 # polarref/sfm/frontend.py; OMP_NUM_THREADS caps it); a stage loaded from an earlier run's cache
 # is named so in stages/*.json, with the time measured when the cache was made counted beside it.
+# pycolmap runs on 2 threads (TwinRun.pycolmap_threads, issue 34; stored in run.json and the table).
+# For three seeds from one pinned commit, resumable over sessions: scripts/twin-campaign.sh.
 set -u
 cd "$(dirname "$0")/.."
 P=.venv/bin/polarref

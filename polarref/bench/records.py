@@ -20,6 +20,8 @@ from polarref.core.atomic import atomic_write
 from polarref.core.provenance import Provenance
 from polarref.core.status import RunStatus
 from polarref.model.run import MethodRun
+# the settings record lives in the model (the twin campaign's cells hold it too); read from here as before
+from polarref.model.settings import MethodSettings, Setting, flatten_settings, json_default  # noqa: F401
 from polarref.sfm.stages import StageCost
 from synth.config import SceneConfig
 
@@ -42,28 +44,6 @@ class PeakMemory:
 
     ru_maxrss_mb: float
     vmhwm_mb: float | None = None
-
-
-@dataclass(frozen=True)
-class Setting:
-    """One option of a method, by dotted name, as it prints (JSON text of its value)."""
-
-    name: str
-    value: str
-
-
-@dataclass(frozen=True)
-class MethodSettings:
-    """How one method ran in one cell: what makes the comparison level, then every option."""
-
-    method: str                   # ours | pycolmap
-    parallel: int                 # ours: front-end worker threads (SfMConfig.threads); pycolmap: num_threads
-    threads_per_process: int      # BLAS / OpenMP / OpenCV threads of the cell's main process
-    max_num_features: int         # SIFT keypoints kept per image
-    max_image_size: int           # SIFT detection side cap (0: full resolution)
-    ignore_two_view_tracks: bool  # the mapper drops two-view tracks (pycolmap's default; ours never)
-    pairing: str
-    options: tuple[Setting, ...] = ()   # every option of the method (ours: SfMConfig; pycolmap: its option objects)
 
 
 # the stages each method's wall time is split into (the cells' total, bench.json and the tables)
@@ -322,15 +302,6 @@ class ExecutorMode:
     config: SceneConfig           # the rendered scene's settings
 
 
-def json_default(obj):
-    """numpy scalars as numbers; paths, enums and sets of pycolmap's option dicts as text."""
-    if hasattr(obj, "item") and callable(obj.item):
-        return obj.item()
-    if isinstance(obj, (set, frozenset, tuple)):
-        return sorted(map(str, obj))
-    return str(obj)
-
-
 def dumps(record: SfMCell | SfMBench) -> str:
     """The record's JSON as the bench has always written it (indent 1, option objects as text)."""
     return json.dumps(record.to_json(), indent=1, default=json_default)
@@ -360,19 +331,6 @@ def _upgrade_cell_json(data):
     settings = MethodSettings(str(method), int(threads), int(threads), int(budget or 0), int(size or 0), ignore,
                               str(bench.get("pairing", "")), flat)
     return dict(data, cpu_s=data.get("cpu_s"), bench_settings=bench, method_settings=records.to_dict(settings))
-
-
-def _flatten(prefix: str, value):
-    if isinstance(value, dict):
-        for k, v in value.items():
-            yield from _flatten(f"{prefix}.{k}" if prefix else str(k), v)
-    else:
-        yield prefix, value
-
-
-def flatten_settings(value) -> tuple[Setting, ...]:
-    """Every leaf of a nested option tree (dataclass-as-dict or pycolmap ``todict()``) as a Setting."""
-    return tuple(Setting(k, json.dumps(v, default=json_default, sort_keys=True)) for k, v in _flatten("", value))
 
 
 def read_cell(path: Path) -> SfMCell:

@@ -116,6 +116,58 @@ def match_descriptors(desc1: np.ndarray, desc2: np.ndarray, config: MatchConfig)
     """
     if len(desc1) < 2 or len(desc2) < 2:
         return np.zeros((0, 2), np.int32)
+    if config.mutual:
+        fast = _match_mutual_by_column_max(desc1, desc2, config)
+        if fast is not None:
+            return fast
+    return _match_by_column_argmax(desc1, desc2, config)
+
+
+def _keep(s1: np.ndarray, s2: np.ndarray, config: MatchConfig) -> np.ndarray:
+    """Lowe's ratio test and the distance cap on the best and second-best cosine similarities."""
+    d1 = np.sqrt(np.maximum(2.0 - 2.0 * s1, 0.0))
+    d2 = np.sqrt(np.maximum(2.0 - 2.0 * s2, 0.0))
+    return (d1 <= config.max_distance) & (d1 < config.ratio * d2)
+
+
+def _match_mutual_by_column_max(desc1: np.ndarray, desc2: np.ndarray, config: MatchConfig) -> np.ndarray | None:
+    """The mutual matches without a column argmax (issue 34): numpy's argmax along the first axis
+    of a C-ordered block walks it column by column and cost as much as the matrix product itself
+    (0.061 of 0.145 s CPU per 4096 x 4096 pair), while the column max is a fast reduction. Row i's
+    best column b is mutual when its similarity is b's column maximum and no other row reaches it;
+    a column whose maximum several rows reach (identical descriptors) returns None, and the caller
+    takes the argmax path, whose first-row rule decides such ties. The same matches either way."""
+    n1, n2 = len(desc1), len(desc2)
+    best = np.empty(n1, np.int64)
+    s1 = np.empty(n1, np.float32)
+    s2 = np.empty(n1, np.float32)
+    col_val = np.full(n2, -np.inf, np.float32)
+    col_cnt = np.zeros(n2, np.int64)          # rows reaching the column maximum so far
+    step = max(16, CHUNK_ELEMENTS // n2)      # row blocks stay in the cache
+    count = np.uint16 if step < 2**16 else np.int64   # summing bytes into uint16: half the time of a bool sum
+    for r0 in range(0, n1, step):
+        blk = desc1[r0:r0 + step] @ desc2.T
+        rows = np.arange(len(blk))
+        b = blk.argmax(1)
+        best[r0:r0 + step] = b
+        s1[r0:r0 + step] = blk[rows, b]
+        bm = blk.max(0)
+        cnt = (blk == bm).view(np.uint8).sum(0, dtype=count)
+        higher, same = bm > col_val, bm == col_val
+        col_cnt[same] += cnt[same]
+        col_cnt[higher] = cnt[higher]
+        col_val[higher] = bm[higher]
+        blk[rows, b] = -np.inf
+        s2[r0:r0 + step] = blk.max(1)
+    mutual = s1 == col_val[best]
+    if (col_cnt[best[mutual]] > 1).any():
+        return None
+    keep = _keep(s1, s2, config) & mutual
+    return np.stack([np.flatnonzero(keep), best[keep]], 1).astype(np.int32)
+
+
+def _match_by_column_argmax(desc1: np.ndarray, desc2: np.ndarray, config: MatchConfig) -> np.ndarray:
+    """The matches with the column argmax of every row block (the reference; ties go to the first row)."""
     n1, n2 = len(desc1), len(desc2)
     best = np.empty(n1, np.int64)
     s1 = np.empty(n1, np.float32)
@@ -139,9 +191,7 @@ def match_descriptors(desc1: np.ndarray, desc2: np.ndarray, config: MatchConfig)
             col_arg[upd] = ca[upd] + r0
         blk[rows, b] = -np.inf
         s2[r0:r0 + step] = blk.max(1)
-    d1 = np.sqrt(np.maximum(2.0 - 2.0 * s1, 0.0))
-    d2 = np.sqrt(np.maximum(2.0 - 2.0 * s2, 0.0))
-    keep = (d1 <= config.max_distance) & (d1 < config.ratio * d2)
+    keep = _keep(s1, s2, config)
     if config.mutual:
         keep &= col_arg[best] == np.arange(n1)
     return np.stack([np.flatnonzero(keep), best[keep]], 1).astype(np.int32)

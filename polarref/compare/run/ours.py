@@ -61,6 +61,12 @@ def _features_and_matches(image_dir: Path, cam: Camera, config: SfMConfig):
 
 def prepare_features(image_dir: Path, cam: Camera, config: SfMConfig) -> MethodRun:
     """Compute (and cache) features and verified matches; returns the timed stages."""
+    return prepare_features_staged(image_dir, cam, config)[0]
+
+
+def prepare_features_staged(image_dir: Path, cam: Camera, config: SfMConfig) -> tuple[MethodRun, tuple]:
+    """:func:`prepare_features` and its stage costs (``polarref.sfm.stages.StageCost``: wall, CPU,
+    peak memory, cached) for the twin campaign's cells."""
     matches, skipped, clock, key = _features_and_matches(image_dir, cam, config)
     stages: dict[str, float] = {}
     for s in clock.stages:
@@ -75,7 +81,8 @@ def prepare_features(image_dir: Path, cam: Camera, config: SfMConfig) -> MethodR
             stages[MEASURED.format(s.stage)] = s.measured_s
     return MethodRun("ours-features", stage_runtime_s=stages, verified_pairs=len(matches.geometries),
                      skipped_images=list(skipped),
-                     feature_file=str(Path(config.cache_dir) / f"features-{key}.npz"), peak_rss_mb=peak_rss_mb())
+                     feature_file=str(Path(config.cache_dir) / f"features-{key}.npz"),
+                     peak_rss_mb=peak_rss_mb()), tuple(clock.stages)
 
 
 def import_into_database(image_dir: Path, cam: Camera, config: SfMConfig, db_path: Path) -> MethodRun:
@@ -100,6 +107,11 @@ def _final_trace(bas) -> list[TracePoint] | None:
 
 def run(image_dir: Path, cam: Camera, ba: str, work_dir: Path, config: SfMConfig) -> MethodRun:
     """``polarref.sfm.run_sfm`` with BA ``ba``; model in ``work_dir/sfm/model``."""
+    return run_staged(image_dir, cam, ba, work_dir, config)[0]
+
+
+def run_staged(image_dir: Path, cam: Camera, ba: str, work_dir: Path, config: SfMConfig) -> tuple[MethodRun, tuple]:
+    """:func:`run` and its stage costs (``polarref.sfm.stages.StageCost``) for the twin campaign."""
     from polarref.sfm.pipeline import run_sfm, with_ba
 
     t0 = time.perf_counter()
@@ -114,4 +126,4 @@ def run(image_dir: Path, cam: Camera, ba: str, work_dir: Path, config: SfMConfig
     bas = list(result.report.ba or [])
     return MethodRun(f"ours-{ba}", form=ba, stage_runtime_s=stages, wall_s=wall,
                      model_dir=str(work_dir / "sfm" / "model"), num_ba_runs=len(bas),
-                     final_ba_trace=_final_trace(bas), peak_rss_mb=peak_rss_mb())
+                     final_ba_trace=_final_trace(bas), peak_rss_mb=peak_rss_mb()), tuple(result.stages)

@@ -49,6 +49,7 @@ DEFAULT_TIMEOUT_S = 4 * 3600.0
 # a session resumes (rosetta: > 2 h of mapping on one core); a snapshot of 600 views takes ~1-2 s
 PYCOLMAP_SNAPSHOT_EVERY = 20
 FEATURES_CACHED = ours.FEATURES_CACHED
+PYCOLMAP_THREADS = 2  # both cores of the reference machine, like our front end
 
 
 @dataclass(frozen=True)
@@ -62,6 +63,9 @@ class TwinRun:
     method_timeout_s: float = DEFAULT_TIMEOUT_S
     scene_dir: str = ""  # a rendered scene folder instead of the twin's cached render (tests)
     tables_dir: str = ""  # also write <tables_dir>/<twin>/paper-table.* and <tables_dir>/README.md
+    # pycolmap's threads in every stage (issue 34: a user's pycolmap takes the cores; ours' front end
+    # runs on both); 1 is the older tables' setting. Stored in run.json and the table's provenance.
+    pycolmap_threads: int = PYCOLMAP_THREADS
 
 
 def default_pairing(twin: str, meta: dict) -> PairingConfig:
@@ -194,14 +198,18 @@ class PairsMeta:
 
 
 def _pairs(run: TwinRun, scene: Scene, out: Path) -> tuple[Path, int]:
-    """The scene's pairs file (chosen once; reused on reruns)."""
+    return choose_pairs(run.twin, scene, out)
+
+
+def choose_pairs(twin: str, scene: Scene, out: Path) -> tuple[Path, int]:
+    """The scene's pairs file in ``out`` by the twin's pairing rule (chosen once; reused on reruns)."""
     meta_path = out / "pairs.json"
     if meta_path.is_file():
         path = out / records.load(PairsMeta, meta_path).file
         if path.is_file():
             return path, len(read_pairs(path, scene.image_names))
     meta = load_scene(scene.root).meta
-    config = default_pairing(run.twin, meta)
+    config = default_pairing(twin, meta)
     pair_set = select(priors_from_scene(meta), config)
     path = write_pairs(out / pairs_file_name(pair_set), pair_set, {"scene_digest": meta.get("digest")})
     records.save(PairsMeta(path.name, len(pair_set.pairs), config), meta_path)
@@ -284,11 +292,11 @@ def _run_stages(run: TwinRun, scene: Scene, out: Path, pairs_file: Path) -> dict
     if any(m.startswith("pycolmap-") for m in wanted):
         sift = st.run("pycolmap-features", jobs.pycolmap_sift_db,
                       dict(image_dir=img, image_names=list(scene.image_names), camera=cam, db_path=db, seed=run.seed,
-                           num_threads=1, pairs_file=str(pairs_file), max_num_features=PYCOLMAP_FEATURES))
+                           num_threads=run.pycolmap_threads, pairs_file=str(pairs_file), max_num_features=PYCOLMAP_FEATURES))
         for m in (m for m in wanted if m.startswith("pycolmap-")):
             recs[m] = [sift] if sift.status != RunStatus.OK else [sift, st.run(
                 m, jobs.pycolmap_map, dict(db_path=db, image_dir=img, work_dir=str(out / m), mapper=m.split("-")[1],
-                                           seed=run.seed, num_threads=1, snapshot_every=PYCOLMAP_SNAPSHOT_EVERY))]
+                                           seed=run.seed, num_threads=run.pycolmap_threads, snapshot_every=PYCOLMAP_SNAPSHOT_EVERY))]
     return recs
 
 
@@ -317,7 +325,7 @@ def run_twin(run: TwinRun) -> PT.TwinTable:
                                  if source == "ours" else mean_keypoints_db(out / "pycolmap" / "database.db"))
         methods[m] = dataclasses.replace(r, mean_keypoints=keypoints[source])
     stage_recs = {rec.stage: rec for rs in recs.values() for rec in rs}
-    env = collect_record()
+    env = collect_record(seeds={"scene": run.seed}, threads={"pycolmap": run.pycolmap_threads})
     provenance = PT.TwinProvenance(
         env.git_commit, env.git_dirty, env.machine, run.seed, pairs_file.name, round(time.perf_counter() - t0, 1),
         PYCOLMAP_FEATURES, env, {k: PT.StageProvenance(v.git_commit, v.git_dirty, v.finished_utc)

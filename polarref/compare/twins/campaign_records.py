@@ -1,0 +1,80 @@
+"""The twin campaign's records: one :class:`CampaignCell` per (twin, seed, method), with its stages
+and provenance (written by :mod:`polarref.compare.twins.campaign`, read by
+:mod:`polarref.compare.twins.campaign_table`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from polarref.compare.twins import campaign_jobs as J
+from polarref.core import records
+from polarref.core.provenance import Provenance
+from polarref.core.status import RunStatus
+from polarref.model.scores import ReconstructionMetrics
+
+FORMAT = "polarref-twin-campaign-cell/1"
+OURS = ("ours-euclidean", "ours-polar")
+PYCOLMAP = ("pycolmap-incremental-sift", "pycolmap-global-sift")
+METHODS = OURS + PYCOLMAP
+
+
+@dataclass(frozen=True)
+class CellStage:
+    """One stage process of a cell (``shared``: the front end every method of its family reads)."""
+
+    job: str
+    shared: bool
+    status: RunStatus
+    reason: str = ""
+    wall_s: float = 0.0               # the process's wall time (a resumed mapping: its segments summed)
+    reused: bool = False              # finished earlier in this campaign's work folder (another cell ran it)
+    finished_utc: str = ""
+    git_commit: str = ""
+    git_dirty: bool | None = None
+    result: J.StagedRun | None = None
+
+
+@dataclass(frozen=True)
+class CellProvenance:
+    commit: str
+    dirty: bool | None
+    host: str
+    started_utc: str
+    finished_utc: str
+    load_before: tuple[float, float, float]
+    load_after: tuple[float, float, float]
+    threads: dict[str, int]
+    seeds: dict[str, int]
+    environment: Provenance
+
+
+@dataclass(frozen=True)
+class CampaignCell:
+    """One (twin, seed, method) result."""
+
+    twin: str
+    size: str
+    seed: int
+    method: str                       # a METHODS name
+    key: str                          # the file name (pycolmap: with its thread count)
+    views: int
+    pairs: int
+    status: RunStatus
+    reason: str
+    wall_s: float                     # every stage process of the cell, the shared front end included
+    peak_rss_mb: float | None         # the largest stage
+    ba_s: float | None                # ours: the BA inside the mapper
+    render_s: float                   # not counted in wall_s (0: rendered by an earlier session)
+    stages: tuple[CellStage, ...]
+    metrics: ReconstructionMetrics | None
+    provenance: CellProvenance
+    format: str = FORMAT
+
+    @property
+    def minutes(self) -> float:
+        return self.wall_s / 60.0
+
+
+def read_cell(path: Path) -> CampaignCell:
+    return records.load(CampaignCell, path)
