@@ -3,9 +3,9 @@
 The model is moved into the priors' frame by a similarity (from the prior centres, else from
 the control points triangulated in the model), with priors or control points on then by the
 similarity that fits them as the BA weights them (georef/datum.py), then bundle-adjusted with
-the pose priors and the control points as residual blocks (polarref.ba.priors). Check points never enter the
-adjustment: they are triangulated from their marks in the final model and compared with their
-given coordinates.
+the pose priors and the control points as residual blocks (polarref.ba.priors). Check points
+never enter the adjustment: they are triangulated from their marks in the final model and
+compared with their given coordinates.
 """
 
 from __future__ import annotations
