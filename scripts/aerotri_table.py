@@ -25,7 +25,7 @@ import numpy as np
 
 from polarref.ba.parameterization import PARAMS
 from polarref.core.provenance import collect_record
-from polarref.georef.adjust import align_to_datum, evaluate, georeference, triangulate_marks
+from polarref.georef.adjust import align_to_datum, evaluate, georeference, place_by_priors, triangulate_marks
 from polarref.georef.formats import Georef, Role, load_georef
 from polarref.core.geometry import so3_log
 from polarref.georef.predict import PredictedRMSE, datum_error, predict_priors_only
@@ -234,18 +234,29 @@ def _ours(work: Path, gt, georef: Georef, mark_sigma: float, tie_points: str, pa
                              image_sigma_px=IMAGE_SIGMA_PX)
             rows.append(AerotriRow("polarref", variant, r))
             if variant == Variant.PRIORS_ON:
-                placed = copy.deepcopy(model)  # where the similarity onto the priors alone puts it
-                align_to_datum(placed, georef, True, True)
-                moved = max(float(np.linalg.norm(rec.images[i].cam_from_world.center
-                                                 - placed.images[i].cam_from_world.center)) for i in rec.images)
                 src = ("the mapper's model (in the priors' frame)" if shared is None
                        else f"the {tie_points} mapper's model (in the priors' frame)")
                 if tie_points == "pycolmap":
                     src = "pycolmap's plain model (free frame)"
-                notes.append(f"polarref {form}: {src}, placed by a similarity onto the prior centres; the final "
-                             f"priors-only adjustment in {form} then moved its centres by at most {moved:.2e} m")
+                notes.append(f"polarref {form}: {src}, placed by the similarity that fits the priors as the BA "
+                             f"weights them (georef/datum.py); the final priors-only adjustment in {form} then "
+                             f"moved its centres by at most {_moved_from(model, rec, georef, True):.2e} m, "
+                             f"{_moved_from(model, rec, georef, False):.2e} m from the centres' unweighted "
+                             "similarity")
             print(form, variant, r.check, flush=True)
     return rows, registered, notes, models
+
+
+def _moved_from(model, adjusted, georef: Georef, weighted: bool) -> float:
+    """Largest centre distance between ``adjusted`` and ``model`` placed on the priors by their
+    weighted similarity (``weighted``) or by the centres' unweighted one."""
+    placed = copy.deepcopy(model)
+    if weighted:
+        place_by_priors(placed, georef, True, False)
+    else:
+        align_to_datum(placed, georef, True, True)
+    return max(float(np.linalg.norm(adjusted.images[i].cam_from_world.center
+                                    - placed.images[i].cam_from_world.center)) for i in adjusted.images)
 
 
 def _pycolmap_db(work: Path, gt, pairs: Path | None) -> Path:

@@ -1,10 +1,11 @@
 """Georeferenced adjustment of a finished model and its check-point record (metres).
 
 The model is moved into the priors' frame by a similarity (from the prior centres, else from
-the control points triangulated in the model), then bundle-adjusted with the pose priors and the
-control points as residual blocks (polarref.ba.priors). Check points never enter the
-adjustment: they are triangulated from their marks in the final model and compared with their
-given coordinates.
+the control points triangulated in the model), with priors or control points on then by the
+similarity that fits them as the BA weights them (georef/datum.py), then bundle-adjusted with
+the pose priors and the control points as residual blocks (polarref.ba.priors). Check points
+never enter the adjustment: they are triangulated from their marks in the final model and
+compared with their given coordinates.
 """
 
 from __future__ import annotations
@@ -17,7 +18,8 @@ import numpy as np
 from polarref.ba import BAOptions, prepare, problem_from_reconstruction, solve, write_back
 from polarref.ba.priors import AttitudePriors, BAPriors, CentrePriors, ControlPoints, PriorTerms
 from polarref.core.errors import PolarrefError
-from polarref.core.geometry import Rigid3, umeyama
+from polarref.core.geometry import Rigid3, Sim3, umeyama
+from polarref.georef.datum import DatumPriors, weighted_similarity
 from polarref.georef.formats import MIN_CONTROL_POINTS, Georef, Role
 
 log = logging.getLogger(__name__)
@@ -146,11 +148,51 @@ def align_to_datum(rec, georef: Georef, use_priors: bool, use_control: bool) -> 
         sim = umeyama(np.array(src), np.array(dst))
     except ValueError as exc:
         raise PolarrefError(f"georeferencing: cannot place the model in the priors' frame ({exc})") from exc
+    _move(rec, sim)
+
+
+def _move(rec, sim: Sim3) -> None:
     for im in rec.images.values():
         pose = sim.transform_pose(im.cam_from_world)
         im.cam_from_world = Rigid3(pose.R, pose.t)
     for p in rec.points3D.values():
         p.xyz = sim.apply(p.xyz[None])[0]
+
+
+def datum_priors(rec, georef: Georef, use_priors: bool, use_control: bool) -> DatumPriors:
+    """The priors of ``rec``'s registered images (centres, attitudes) and its control points
+    (triangulated from their marks in ``rec``), weighted as ba_priors weights them."""
+    by_name = {im.name: im for im in rec.images.values()}
+    pri = [p for p in georef.priors if p.name in by_name] if use_priors else []
+    src = [by_name[p.name].cam_from_world.center for p in pri]
+    dst = [p.centre for p in pri]
+    W = [np.diag(1.0 / p.sigma) for p in pri]
+    att = [p for p in pri if p.R is not None]
+    if use_control:
+        ctl = georef.of_role(Role.CONTROL)
+        found, X = triangulate_marks(rec, georef.marks, [p.id for p in ctl]).matched(ctl)
+        src += list(X)
+        dst += [p.xyz for p in found]
+        W += [np.diag(1.0 / p.sigma) for p in found]
+    return DatumPriors(np.array(src).reshape(-1, 3), np.array(dst).reshape(-1, 3),
+                       np.array(W).reshape(-1, 3, 3),
+                       np.array([by_name[p.name].cam_from_world.R for p in att]).reshape(-1, 3, 3),
+                       np.array([p.R for p in att]).reshape(-1, 3, 3),
+                       np.radians([p.sigma_angle_deg for p in att]).reshape(-1))
+
+
+def place_by_priors(rec, georef: Georef, use_priors: bool, use_control: bool) -> None:
+    """Move ``rec`` (in place) by the similarity that best fits the priors the BA will use
+    (polarref.georef.datum: where the BA's optimum lies for a rigid block, and where LM does
+    not reliably get from the centres' unweighted fit)."""
+    align_to_datum(rec, georef, True, True)
+    dp = datum_priors(rec, georef, use_priors, use_control)
+    if len(dp.src) < MIN_CONTROL_POINTS:
+        return
+    try:
+        _move(rec, weighted_similarity(dp))
+    except ValueError as exc:
+        raise PolarrefError(f"georeferencing: cannot place the model on its priors ({exc})") from exc
 
 
 def georeference(rec, georef: Georef, form: str, *, use_priors: bool = True,
@@ -164,7 +206,10 @@ def georeference(rec, georef: Georef, form: str, *, use_priors: bool = True,
     names = [rec.images[i].name for i in ids]
     have_p = use_priors and any(p.name in names for p in georef.priors)
     have_c = use_control and bool(georef.of_role(Role.CONTROL))
-    align_to_datum(rec, georef, True, True)
+    if have_p or have_c:
+        place_by_priors(rec, georef, have_p, have_c)
+    else:
+        align_to_datum(rec, georef, True, True)
     problem = problem_from_reconstruction(rec)
     pnames = [rec.images[int(i)].name for i in problem.image_ids]
     if have_p or have_c:
