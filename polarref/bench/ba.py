@@ -82,6 +82,11 @@ def _resolve(spec: str) -> str:
                             f"the reference data: {exc})") from exc
 
 
+def _slug(spec: str) -> str:
+    """A folder name for a problem spec (a path or a name)."""
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in spec)
+
+
 @dataclass
 class _Solver:
     """One solver configuration: ``fn(limit, trace)`` solves the problem once (limit: at most so
@@ -198,14 +203,22 @@ class _Work:
         return self.solver.name
 
 
-def _full_run(s: _Solver) -> SolveRun:
-    """The first full run, in a forked child so its peak memory is its own (ba_measure)."""
-    from polarref.bench.ba_measure import forked
+def _full_run(s: _Solver, cache: Path | None = None) -> SolveRun:
+    """The first full run, in a forked child so its peak memory is its own (ba_measure). With
+    ``cache`` (a folder per problem) a finished run is stored there and reused by a later bench
+    of the same problem: a bench of hours resumes from its finished solvers, and solvers can be
+    measured by separate processes, then tabulated together."""
+    from polarref.bench.ba_measure import cached, forked
 
-    full, peak = forked(lambda: s.fn(None, trace=True))
+    def first() -> SolveRun:
+        load = os.getloadavg()[0]
+        full, peak = forked(lambda: s.fn(None, trace=True))
+        return dataclasses.replace(full, peak_rss_mib=peak, load_1min=load, load_1min_end=os.getloadavg()[0])
+
+    full = first() if cache is None else cached(cache / f"{s.name}.pkl", first)
     if full.settings_used is not None:
         s.settings = full.settings_used
-    return dataclasses.replace(full, peak_rss_mib=peak, settings_used=None)
+    return dataclasses.replace(full, settings_used=None)
 
 
 def _tau_targets(initial: float, best: float) -> dict[str, TauTarget]:
@@ -300,14 +313,14 @@ def _scipy_row(base, options: BAOptions, scipy_max_obs: int, target: float) -> S
         time_to_target_kind="wall time of the whole run (upper bound)")
 
 
-def _measure(solvers: list[_Solver], spec: str) -> list[_Work]:
+def _measure(solvers: list[_Solver], spec: str, cache: Path | None) -> list[_Work]:
     """Every solver's first full run (they fix the common cost)."""
     work = []
     for s in solvers:
         log.info("bench %s: %s", spec, s.name)
         w = _Work(s)
         try:
-            w.full_runs.append(_full_run(s))
+            w.full_runs.append(_full_run(s, cache))
         except Exception as exc:  # a failing solver is reported, not fatal to the bench
             w.error = f"{type(exc).__name__}: {exc}"
         work.append(w)
@@ -330,14 +343,14 @@ def _repeats(work: list[_Work], tg: _Targets, repeat: int) -> None:
 
 def run_problem(spec: str, options: BAOptions, scipy_max_obs: int = SCIPY_MAX_OBS, repeat: int = 1,
                 bisect_max_obs: int = BISECT_MAX_OBS, ceres_max_s: float = CERES_MAX_S,
-                cold: bool = True, only: tuple = ()) -> ProblemResult:
+                cold: bool = True, only: tuple = (), cache: Path | None = None) -> ProblemResult:
     from polarref.ba.loaders import load_problem
 
     load = os.getloadavg()[0]  # the machine is shared: say how busy it was
     base, _ = load_problem(_resolve(spec))
     prepare(base)
     solvers, skipped = _solvers(base, options, ceres_max_s, only)
-    work = _measure(solvers, spec)
+    work = _measure(solvers, spec, None if cache is None else cache / _slug(spec))
     tg = _targets(work, base.num_observations <= bisect_max_obs)
     _repeats(work, tg, repeat)
     by = {w.name: w for w in work if w.error is None}
@@ -486,7 +499,8 @@ def _previous(path: Path, merge: bool) -> tuple[ProblemResult, ...]:
 def run_bench(problems, out_dir: Path, options: BAOptions = BAOptions(),
               scipy_max_obs: int = SCIPY_MAX_OBS, repeat: int = 1,
               merge: bool = False, bisect_max_obs: int = BISECT_MAX_OBS,
-              ceres_max_s: float = CERES_MAX_S, cold: bool = True, only: tuple = ()) -> BenchDoc:
+              ceres_max_s: float = CERES_MAX_S, cold: bool = True, only: tuple = (),
+              cache: Path | None = None) -> BenchDoc:
     """Run the problems; with ``merge`` keep the other problems of an existing bench.json
     (a problem run again replaces its old entry). bench.json, bench.md and the performance
     profiles (profiles.png) in ``out_dir``, written after every problem."""
@@ -510,7 +524,7 @@ def run_bench(problems, out_dir: Path, options: BAOptions = BAOptions(),
                    _settings(options, repeat, bisect_max_obs, ceres_max_s, only, kern, heap), previous, machine)
     for spec in problems:
         t = time.perf_counter()
-        res = run_problem(spec, options, scipy_max_obs, repeat, bisect_max_obs, ceres_max_s, cold, only)
+        res = run_problem(spec, options, scipy_max_obs, repeat, bisect_max_obs, ceres_max_s, cold, only, cache)
         res = dataclasses.replace(res, bench_s=time.perf_counter() - t, environment=doc.environment,
                                   machine=machine)
         log.info("bench %s done in %.1f s", spec, res.bench_s)

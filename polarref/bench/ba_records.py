@@ -85,6 +85,8 @@ class SolveRun:
     trace_cost_shift: float | None = None  # Ceres: recomputed - reported final cost
     peak_rss_mib: float | None = None      # first full run: memory the solve added (forked child)
     name: str | None = None                # scipy's runs carry their peer's name
+    load_1min: float | None = None         # first full run: machine load at its start and end
+    load_1min_end: float | None = None
     trace: tuple[TracePoint, ...] = field(default=(), metadata={"stored": False})
     settings_used: dict[str, Setting] | None = field(default=None, metadata={"stored": False})
 
