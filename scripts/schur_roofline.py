@@ -23,7 +23,6 @@ provenance and the load average) and OUT.md.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -42,10 +41,8 @@ from polarref.ba.problem import prepare  # noqa: E402
 from polarref.ba.roofline import lm_flops  # noqa: E402
 from polarref.ba.schur import SchurStructure, _c, chol_inv3  # noqa: E402
 from polarref.bench.ba import _resolve  # noqa: E402
-from polarref.core.atomic import atomic_write  # noqa: E402
-from polarref.core.heap import keep_heap  # noqa: E402
-from polarref.core.provenance import collect_record  # noqa: E402
 from polarref.core.records import to_dict  # noqa: E402
+from profile_ba import add_out_arguments, begin, write_doc  # noqa: E402  (scripts/ is sys.path[0])
 
 
 def _best(fn, repeat: int) -> float:
@@ -139,29 +136,22 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("problems", nargs="+")
     ap.add_argument("--repeat", type=int, default=5)
-    ap.add_argument("--out", default=str(ROOT / "reports" / "bench-ba-scale" / "schur-roofline"))
-    ap.add_argument("--overwrite", action="store_true")
+    add_out_arguments(ap, ROOT / "reports" / "bench-ba-scale" / "schur-roofline")
     args = ap.parse_args(argv)
     out = Path(args.out)
-    if out.with_suffix(".json").exists() and not args.overwrite:
-        print(f"{out.with_suffix('.json')} exists (--overwrite to replace it)", file=sys.stderr)
+    started = begin(out, args.overwrite)
+    if started is None:
         return 2
+    env, load0 = started
     from threadpoolctl import threadpool_limits
 
-    env = collect_record(threads={"ours_blas": 1, "kernels": 1})
-    keep_heap()
-    kernels.warm_up()
-    load0 = os.getloadavg()[0]
     with threadpool_limits(limits=1, user_api="blas"):
         problems = [measure(p, args.repeat) for p in args.problems]
         gemm = gemm_cpu_gflops()
     doc = {"command": "python scripts/schur_roofline.py " + " ".join(sys.argv[1:]), "repeat": args.repeat,
            "clock": "process CPU time (time.process_time)", "gemm_gflops_1t": gemm,
            "load_1min": [load0, os.getloadavg()[0]], "problems": problems, "environment": to_dict(env)}
-    out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(out.with_suffix(".json"), json.dumps(doc, indent=1) + "\n")
-    atomic_write(out.with_suffix(".md"), markdown(doc))
-    print(markdown(doc))
+    write_doc(out, doc, markdown)
     return 0
 
 
