@@ -445,3 +445,10 @@ def schur_blocks(W, Li, q, bounds, entry_pt, pair_blk, blocks, b, entry_cam):
                     z0, z1, z2 = za[i, 0], za[i, 1], za[i, 2]
                     for j in range(6):
                         blk[i, j] -= z0 * zb[j, 0] + z1 * zb[j, 1] + z2 * zb[j, 2]
+
+
+@_njit
+def triad(a, b, c, s):
+    """STREAM's triad ``a = b + s c`` (roofline.triad_gbs: the machine's memory bandwidth)."""
+    for i in range(len(a)):
+        a[i] = b[i] + s * c[i]

@@ -46,7 +46,7 @@ from polarref.ba.peers import ceres_settings
 from polarref.bench.ba_records import (BenchDoc, BenchSettings, IterationsToTarget, KernelSettings,
                                        MachineRates, OwnCost, OwnCostRow, ProblemResult, Roofline, SolverKind,
                                        SolverRow, SolveRun, Stats, TauSummary, TauTarget, TauTime, TracePoint,
-                                       FlopCounts, StageRates, Setting)
+                                       FlopCounts, SchurBytes, StageRates, Setting)
 from polarref.core.errors import PolarrefError
 
 log = logging.getLogger(__name__)
@@ -380,7 +380,7 @@ def run_problem(spec: str, options: BAOptions, scipy_max_obs: int = SCIPY_MAX_OB
 def _roofline(base, w: _Work) -> Roofline:
     """Analytic flops of our Euclidean LM step and the rates its stages reached (medians over
     the full runs: flops x LM steps / time in the stage)."""
-    from polarref.ba.roofline import lm_flops
+    from polarref.ba.roofline import lm_flops, schur_traffic
 
     runs = w.full_runs
     dense = "dense Cholesky" in runs[0].linear_solver
@@ -398,10 +398,12 @@ def _roofline(base, w: _Work) -> Roofline:
                          for x in runs if x.time_in.get(stage, 0) > 0 and x.iterations])
 
     stages = ("evaluate", "normal_equations", "schur", "solve")
+    tr = schur_traffic(base.obs_cam, base.obs_pt, base.cam_mask.any(1))
     return Roofline("euclidean", runs[0].linear_solver, FlopCounts(f.build, f.schur, f.factorisation),
                     f.num_unknowns, StageRates(rate(f.build, "normal_equations", builds=True),
                                                rate(f.schur, "schur"), rate(f.factorisation, "solve")),
-                    {k: Stats.of([x.time_in.get(k, 0.0) for x in runs]) for k in stages})
+                    {k: Stats.of([x.time_in.get(k, 0.0) for x in runs]) for k in stages},
+                    SchurBytes(tr.compulsory_bytes, tr.per_update_bytes, tr.pairs, tr.blocks))
 
 
 def _ceres_own_cost(by: dict[str, _Work], target: float, repeat: int) -> OwnCost | None:
@@ -478,11 +480,13 @@ def _settings(options: BAOptions, repeat: int, bisect_max_obs: int, ceres_max_s:
 
 
 def _machine() -> MachineRates:
-    from polarref.ba.roofline import gemm_gflops
+    from polarref.ba.roofline import gemm_gflops, triad_gbs
 
-    return MachineRates({str(t): gemm_gflops(t) for t in (1, 2)},
-                        "numpy float64 1500x1500 @ 1500x1500, best of 3, BLAS threads by threadpoolctl",
-                        os.getloadavg()[0])
+    load = os.getloadavg()[0]
+    gemm = {str(t): gemm_gflops(t) for t in (1, 2)}
+    load_triad = os.getloadavg()[0]
+    return MachineRates(gemm, "numpy float64 1500x1500 @ 1500x1500, best of 3, BLAS threads by threadpoolctl",
+                        load, triad_gbs(), load_triad)
 
 
 def _previous(path: Path, merge: bool) -> tuple[ProblemResult, ...]:

@@ -174,6 +174,16 @@ class StageRates:
 
 
 @dataclass(frozen=True)
+class SchurBytes:
+    """Bytes the block-sparse Schur kernel moves per LM step in roofline.py's two models."""
+
+    compulsory: float
+    per_update: float
+    entry_pairs: int
+    pair_blocks: int
+
+
+@dataclass(frozen=True)
 class Roofline:
     """Our Euclidean form's flops per LM step and the rates its stages reached (roofline.py)."""
 
@@ -183,6 +193,7 @@ class Roofline:
     num_unknowns: int
     gflops: StageRates
     time_in_s: dict[str, Stats]
+    schur_bytes: SchurBytes | None = None
 
 
 @dataclass(frozen=True)
@@ -223,6 +234,8 @@ class MachineRates:
     gemm_gflops: dict[str, float]
     gemm: str
     load_1min_at_gemm: float | None = None
+    triad_gbs: float | None = None             # STREAM triad, 1 thread (roofline.triad_gbs)
+    load_1min_at_triad: float | None = None
 
 
 @dataclass(frozen=True)
