@@ -374,7 +374,21 @@ def run_problem(spec: str, options: BAOptions, scipy_max_obs: int = SCIPY_MAX_OB
         rows=tuple(rows), repeat=repeat, load_1min=load, load_1min_end=os.getloadavg()[0],
         fastest_ceres=fastest, fastest_ceres_time_to_target_s=fastest_s, tau_summary=tau_summary,
         roofline=_roofline(base, by["euclidean"]) if "euclidean" in by else None,
-        cold_process=cold_rec, ceres_own_cost=own)
+        cold_process=cold_rec, ceres_own_cost=own, ceres_scope=_ceres_scope(rows, ceres_max_s, options))
+
+
+def _ceres_scope(rows: list[SolverRow], cap_s: float, options: BAOptions) -> str | None:
+    """Issue 35's scope rule ("as large as Ceres finishes in 10 minutes"): where every Ceres
+    setting that ran stopped at its time cap (NO_CONVERGENCE before its iteration limit),
+    the problem is past that limit and there is no ratio to Ceres; said so, never a ratio."""
+    ceres = [r for r in rows if r.kind is SolverKind.CERES and r.error is None and r.full_runs]
+    capped = [r for r in ceres if r.full_runs[0].termination == "NO_CONVERGENCE"
+              and r.full_runs[0].iterations < options.max_iterations]
+    if not ceres or len(capped) < len(ceres):
+        return None
+    return (f"Ceres did not finish in {cap_s:.0f} s: every setting run ({', '.join(r.solver for r in ceres)}) "
+            f"stopped at its {cap_s:.0f} s cap (NO_CONVERGENCE after "
+            f"{'/'.join(str(r.full_runs[0].iterations) for r in ceres)} of {options.max_iterations} iterations)")
 
 
 def _roofline(base, w: _Work) -> Roofline:

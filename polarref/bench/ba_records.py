@@ -289,6 +289,7 @@ class ProblemResult:
     roofline: Roofline | None = None
     cold_process: ColdProcess | None = None
     ceres_own_cost: OwnCost | None = None
+    ceres_scope: str | None = None   # the done-when's scope rule: why no Ceres ratio exists here
     bench_s: float | None = None
     environment: Provenance | None = None     # a merged problem keeps its own run's
     machine: MachineRates | None = None

@@ -89,7 +89,7 @@ def markdown(doc: BenchDoc) -> str:
                        f"{x.iterations} | {_rng(x.time_to_target_s)} | {_iters(x)} | "
                        f"{'-' if ratio is None else f'{ratio:.2f}'} | {x.full_runs[0].termination} |")
             name = ""
-    out += (_per_iteration_lines(doc) + _own_cost_lines(doc) + _tau_lines(doc) + _memory_lines(doc)
+    out += (_scope_lines(doc) + _per_iteration_lines(doc) + _own_cost_lines(doc) + _tau_lines(doc) + _memory_lines(doc)
             + _roofline_lines(doc) + _bandwidth_lines(doc) + _cold_lines(doc))
     return "\n".join(out) + "\n"
 
@@ -205,6 +205,20 @@ def _roofline_lines(doc: BenchDoc) -> list[str]:
                    f"{fl.schur / 1e9:.3f} | {_fmt(None if fl.factorisation is None else fl.factorisation / 1e9)} | "
                    f"{_fmt(_median(gf.build), '.2f')} | {share(gf.schur)} | {share(gf.factorisation)} |")
     return out
+
+
+def _scope_lines(doc: BenchDoc) -> list[str]:
+    """Where Ceres did not finish in its cap (the done-when's scope limit), and the machine load
+    at the start and end of every first full run (benches that recorded it)."""
+    out = [f"Scope, {r.problem}: {r.ceres_scope}." for r in doc.problems if r.ceres_scope]
+    loads = [(r.problem, x.solver, x.full_runs[0]) for r in doc.problems for x in r.rows
+             if x.full_runs and x.full_runs[0].load_1min is not None]
+    if loads:
+        out += ["", "Machine load (1-minute average) at the start and end of each solver's first full run: "
+                "the machine is shared, so its times are indicative only.", "",
+                "| problem | solver | load start | load end |", "|---|---|---|---|"]
+        out += [f"| {p} | {n} | {run.load_1min:.1f} | {_fmt(run.load_1min_end, '.1f')} |" for p, n, run in loads]
+    return ([""] if out and out[0] else []) + out
 
 
 def _bandwidth_lines(doc: BenchDoc) -> list[str]:

@@ -73,3 +73,23 @@ def test_bandwidth_table_from_json_alone():
     assert "10.0 GB/s on 1 thread (load 1.0)" in md
     older = markdown(make_doc([res], machine={"gemm_gflops": {"1": 20.0}, "gemm": "g"}))
     assert "bandwidth roof" not in older          # benches without a triad keep their bench.md
+
+
+def test_ceres_scope_says_so_when_every_setting_hits_its_cap():
+    """No ratio where every Ceres setting stopped at its time cap; none said where one finished."""
+    from polarref.ba.options import BAOptions
+    from polarref.bench.ba import _ceres_scope
+    from polarref.bench.ba_records import SolverKind, SolverRow, SolveRun
+
+    def row(name, term, its):
+        return SolverRow(name, SolverKind.CERES, full_runs=(SolveRun(1.0, 650.0, its, termination=term),))
+
+    ours = SolverRow("euclidean", SolverKind.OURS, full_runs=(SolveRun(1.0, 50.0, 100, termination="max_iterations"),))
+    capped = [ours, row("ceres-dense-schur-1t", "NO_CONVERGENCE", 11), row("ceres-iterative-schur-1t", "NO_CONVERGENCE", 40)]
+    said = _ceres_scope(capped, 600.0, BAOptions(max_iterations=100))
+    assert said.startswith("Ceres did not finish in 600 s") and "11/40 of 100" in said
+    done = capped[:2] + [row("ceres-sparse-schur-1t", "CONVERGENCE", 30)]
+    assert _ceres_scope(done, 600.0, BAOptions(max_iterations=100)) is None
+    at_limit = capped[:2] + [row("ceres-sparse-schur-1t", "NO_CONVERGENCE", 100)]   # its iteration limit, not the cap
+    assert _ceres_scope(at_limit, 600.0, BAOptions(max_iterations=100)) is None
+    assert _ceres_scope([ours], 600.0, BAOptions()) is None
