@@ -47,6 +47,7 @@ import argparse
 import os
 import sys
 import time
+from pathlib import Path
 
 from polarref.ba import kernels
 from polarref.bench.ba import _resolve
@@ -295,10 +296,43 @@ def _run_record(s) -> dict:
             "cpu_s_per_step_all_accepted": per_step + t.get("normal_equations", 0.0) / max(builds, 1)}
 
 
+def add_out_arguments(ap, default: Path) -> None:
+    """``--out`` (OUT.json and OUT.md) and ``--overwrite``, as the issue-35 scripts take them."""
+    ap.add_argument("--out", default=str(default))
+    ap.add_argument("--overwrite", action="store_true")
+
+
+def begin(out: Path, overwrite: bool):
+    """The shared start of the scripts that write OUT.json/OUT.md (reduced_solvers.py,
+    schur_roofline.py): refuse an existing OUT.json unless ``overwrite``, then the provenance,
+    the bench's heap setting and the kernels loaded before anything is timed. (provenance,
+    1-minute load at the start), or None where OUT.json exists."""
+    from polarref.core.provenance import collect_record
+
+    if out.with_suffix(".json").exists() and not overwrite:
+        print(f"{out.with_suffix('.json')} exists (--overwrite to replace it)", file=sys.stderr)
+        return None
+    env = collect_record(threads={"ours_blas": 1, "kernels": 1})
+    keep_heap()
+    kernels.warm_up()
+    return env, os.getloadavg()[0]
+
+
+def write_doc(out: Path, doc: dict, markdown) -> None:
+    """OUT.json (doc) and OUT.md (``markdown(doc)``), atomically; the markdown printed too."""
+    import json
+
+    from polarref.core.atomic import atomic_write
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write(out.with_suffix(".json"), json.dumps(doc, indent=1) + "\n")
+    atomic_write(out.with_suffix(".md"), markdown(doc))
+    print(markdown(doc))
+
+
 def _write_json(args, rows: list, load0: float, env) -> None:
     """The --paired figures with provenance (core.provenance) and the load before and after."""
     import json
-    from pathlib import Path
 
     from polarref.core.atomic import atomic_write
     from polarref.core.records import to_dict

@@ -15,7 +15,6 @@ cost. Writes OUT.json (with provenance and the load average) and OUT.md.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -25,7 +24,6 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from polarref.ba import kernels  # noqa: E402
 from polarref.ba import solver as solver_mod  # noqa: E402
 from polarref.ba.entry import solve  # noqa: E402
 from polarref.ba.loaders import load_problem  # noqa: E402
@@ -33,10 +31,8 @@ from polarref.ba.options import BAOptions  # noqa: E402
 from polarref.ba.problem import prepare  # noqa: E402
 from polarref.bench.ba import _resolve  # noqa: E402
 from polarref.bench.ba_measure import forked  # noqa: E402
-from polarref.core.atomic import atomic_write  # noqa: E402
-from polarref.core.heap import keep_heap  # noqa: E402
-from polarref.core.provenance import collect_record  # noqa: E402
 from polarref.core.records import to_dict  # noqa: E402
+from profile_ba import add_out_arguments, begin, write_doc  # noqa: E402  (scripts/ is sys.path[0])
 
 
 def one(base, form: str, solver: str, max_iterations: int) -> dict:
@@ -82,17 +78,13 @@ def main(argv=None) -> int:
     ap.add_argument("--forms", default="euclidean")
     ap.add_argument("--solvers", default="dense-cholesky,sparse-lu,pcg")
     ap.add_argument("--max-iterations", type=int, default=5)
-    ap.add_argument("--out", default=str(ROOT / "reports" / "bench-ba-scale" / "reduced-solvers"))
-    ap.add_argument("--overwrite", action="store_true")
+    add_out_arguments(ap, ROOT / "reports" / "bench-ba-scale" / "reduced-solvers")
     args = ap.parse_args(argv)
     out = Path(args.out)
-    if out.with_suffix(".json").exists() and not args.overwrite:
-        print(f"{out.with_suffix('.json')} exists (--overwrite to replace it)", file=sys.stderr)
+    started = begin(out, args.overwrite)
+    if started is None:
         return 2
-    env = collect_record(threads={"ours_blas": 1, "kernels": 1})
-    keep_heap()
-    kernels.warm_up()
-    load0 = os.getloadavg()[0]
+    env, load0 = started
     base, _ = load_problem(_resolve(args.problem))
     prepare(base)
     rows = []
@@ -104,10 +96,7 @@ def main(argv=None) -> int:
            "num_cameras": base.num_cameras, "num_observations": base.num_observations,
            "max_iterations": args.max_iterations, "load_1min": [load0, os.getloadavg()[0]], "rows": rows,
            "environment": to_dict(env)}
-    out.parent.mkdir(parents=True, exist_ok=True)
-    atomic_write(out.with_suffix(".json"), json.dumps(doc, indent=1) + "\n")
-    atomic_write(out.with_suffix(".md"), markdown(doc))
-    print(markdown(doc))
+    write_doc(out, doc, markdown)
     return 0
 
 

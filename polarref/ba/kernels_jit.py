@@ -13,6 +13,32 @@ def _njit(fn):
 
 
 @_njit
+def _longest(bounds):
+    """The most entries of one point (bounds (G + 1,) the points' entry ranges)."""
+    nmax = 0
+    for g in range(len(bounds) - 1):
+        nmax = max(nmax, bounds[g + 1] - bounds[g])
+    return nmax
+
+
+@_njit
+def _point_factors(W, Li, q, p, e0, e1, entry_cam, Z, b):
+    """``Z[a - e0] = W_a L_p^-T`` for the entries a of point p (e0 <= a < e1) and their share of
+    the right-hand side, ``b[cam(a)] += Z_a q_p``: the per-entry half of the point's elimination
+    that the dense and the block-sparse Schur kernels share."""
+    for a in range(e0, e1):
+        za = Z[a - e0]
+        ca = entry_cam[a]
+        for i in range(6):
+            for j in range(3):  # (W Li^T)[i, j] = sum_l W[i, l] Li[j, l], Li lower
+                s = 0.0
+                for l in range(j + 1):
+                    s += W[a, i, l] * Li[p, j, l]
+                za[i, j] = s
+            b[ca, i] += za[i, 0] * q[p, 0] + za[i, 1] * q[p, 1] + za[i, 2] * q[p, 2]
+
+
+@_njit
 def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, X, h, Xma, ent,
                 obs_bounds):
     """Point elimination into the dense reduced system, per point p with entries a <= b:
@@ -32,26 +58,14 @@ def schur_dense(W, Li, q, bounds, entry_pt, entry_cam, S, b, cross, X, h, Xma, e
     and main x associate centre Xma (P, 3, 3); ent (3, M) the slots' entries, obs_bounds
     (P + 1,) each point's observations.
     """
-    nmax = 0
-    for g in range(len(bounds) - 1):
-        nmax = max(nmax, bounds[g + 1] - bounds[g])
-    Z = np.empty((nmax, 6, 3))
+    Z = np.empty((_longest(bounds), 6, 3))
     for g in range(len(bounds) - 1):
         e0, e1 = bounds[g], bounds[g + 1]
         p = entry_pt[e0]
         em = ea = -1
         if cross:
             em, ea = ent[1, obs_bounds[p]], ent[2, obs_bounds[p]]
-        for a in range(e0, e1):
-            za = Z[a - e0]
-            ca = entry_cam[a]
-            for i in range(6):
-                for j in range(3):  # (W Li^T)[i, j] = sum_l W[i, l] Li[j, l], Li lower
-                    s = 0.0
-                    for l in range(j + 1):
-                        s += W[a, i, l] * Li[p, j, l]
-                    za[i, j] = s
-                b[ca, i] += za[i, 0] * q[p, 0] + za[i, 1] * q[p, 1] + za[i, 2] * q[p, 2]
+        _point_factors(W, Li, q, p, e0, e1, entry_cam, Z, b)
         for a in range(e0, e1):
             za = Z[a - e0]
             ra = 6 * entry_cam[a]
@@ -415,24 +429,12 @@ def schur_blocks(W, Li, q, bounds, entry_pt, pair_blk, blocks, b, entry_cam):
     order) and ``b[ca] += Z_a q_p``. blocks (K, 6, 6) are the camera-pair blocks (ca <= cb)
     of a block-sparse S; a pair's 36 products land in one contiguous 288-byte block instead of
     six rows of a dense (6 Nv)^2 matrix."""
-    nmax = 0
-    for g in range(len(bounds) - 1):
-        nmax = max(nmax, bounds[g + 1] - bounds[g])
-    Z = np.empty((nmax, 6, 3))
+    Z = np.empty((_longest(bounds), 6, 3))
     k = 0
     for g in range(len(bounds) - 1):
         e0, e1 = bounds[g], bounds[g + 1]
         p = entry_pt[e0]
-        for a in range(e0, e1):
-            za = Z[a - e0]
-            ca = entry_cam[a]
-            for i in range(6):
-                for j in range(3):  # (W Li^T)[i, j] = sum_l W[i, l] Li[j, l], Li lower
-                    s = 0.0
-                    for l in range(j + 1):
-                        s += W[a, i, l] * Li[p, j, l]
-                    za[i, j] = s
-                b[ca, i] += za[i, 0] * q[p, 0] + za[i, 1] * q[p, 1] + za[i, 2] * q[p, 2]
+        _point_factors(W, Li, q, p, e0, e1, entry_cam, Z, b)
         for a in range(e0, e1):
             za = Z[a - e0]
             for bb in range(a, e1):
@@ -443,3 +445,10 @@ def schur_blocks(W, Li, q, bounds, entry_pt, pair_blk, blocks, b, entry_cam):
                     z0, z1, z2 = za[i, 0], za[i, 1], za[i, 2]
                     for j in range(6):
                         blk[i, j] -= z0 * zb[j, 0] + z1 * zb[j, 1] + z2 * zb[j, 2]
+
+
+@_njit
+def triad(a, b, c, s):
+    """STREAM's triad ``a = b + s c`` (roofline.triad_gbs: the machine's memory bandwidth)."""
+    for i in range(len(a)):
+        a[i] = b[i] + s * c[i]

@@ -46,7 +46,7 @@ from polarref.ba.peers import ceres_settings
 from polarref.bench.ba_records import (BenchDoc, BenchSettings, IterationsToTarget, KernelSettings,
                                        MachineRates, OwnCost, OwnCostRow, ProblemResult, Roofline, SolverKind,
                                        SolverRow, SolveRun, Stats, TauSummary, TauTarget, TauTime, TracePoint,
-                                       FlopCounts, StageRates, Setting)
+                                       FlopCounts, SchurBytes, StageRates, Setting)
 from polarref.core.errors import PolarrefError
 
 log = logging.getLogger(__name__)
@@ -80,6 +80,11 @@ def _resolve(spec: str) -> str:
     except DataNotFoundError as exc:
         raise PolarrefError(f"BA problem not found: {spec} (neither a path here nor an item of "
                             f"the reference data: {exc})") from exc
+
+
+def _slug(spec: str) -> str:
+    """A folder name for a problem spec (a path or a name)."""
+    return "".join(c if c.isalnum() or c in "-_." else "_" for c in spec)
 
 
 @dataclass
@@ -198,14 +203,22 @@ class _Work:
         return self.solver.name
 
 
-def _full_run(s: _Solver) -> SolveRun:
-    """The first full run, in a forked child so its peak memory is its own (ba_measure)."""
-    from polarref.bench.ba_measure import forked
+def _full_run(s: _Solver, cache: Path | None = None) -> SolveRun:
+    """The first full run, in a forked child so its peak memory is its own (ba_measure). With
+    ``cache`` (a folder per problem) a finished run is stored there and reused by a later bench
+    of the same problem: a bench of hours resumes from its finished solvers, and solvers can be
+    measured by separate processes, then tabulated together."""
+    from polarref.bench.ba_measure import cached, forked
 
-    full, peak = forked(lambda: s.fn(None, trace=True))
+    def first() -> SolveRun:
+        load = os.getloadavg()[0]
+        full, peak = forked(lambda: s.fn(None, trace=True))
+        return dataclasses.replace(full.with_peak(peak), load_1min=load, load_1min_end=os.getloadavg()[0])
+
+    full = first() if cache is None else cached(cache / f"{s.name}.pkl", first)
     if full.settings_used is not None:
         s.settings = full.settings_used
-    return dataclasses.replace(full.with_peak(peak), settings_used=None)
+    return dataclasses.replace(full, settings_used=None)
 
 
 def _tau_targets(initial: float, best: float) -> dict[str, TauTarget]:
@@ -300,14 +313,14 @@ def _scipy_row(base, options: BAOptions, scipy_max_obs: int, target: float) -> S
         time_to_target_kind="wall time of the whole run (upper bound)")
 
 
-def _measure(solvers: list[_Solver], spec: str) -> list[_Work]:
+def _measure(solvers: list[_Solver], spec: str, cache: Path | None) -> list[_Work]:
     """Every solver's first full run (they fix the common cost)."""
     work = []
     for s in solvers:
         log.info("bench %s: %s", spec, s.name)
         w = _Work(s)
         try:
-            w.full_runs.append(_full_run(s))
+            w.full_runs.append(_full_run(s, cache))
         except Exception as exc:  # a failing solver is reported, not fatal to the bench
             w.error = f"{type(exc).__name__}: {exc}"
         work.append(w)
@@ -330,14 +343,14 @@ def _repeats(work: list[_Work], tg: _Targets, repeat: int) -> None:
 
 def run_problem(spec: str, options: BAOptions, scipy_max_obs: int = SCIPY_MAX_OBS, repeat: int = 1,
                 bisect_max_obs: int = BISECT_MAX_OBS, ceres_max_s: float = CERES_MAX_S,
-                cold: bool = True, only: tuple = ()) -> ProblemResult:
+                cold: bool = True, only: tuple = (), cache: Path | None = None) -> ProblemResult:
     from polarref.ba.loaders import load_problem
 
     load = os.getloadavg()[0]  # the machine is shared: say how busy it was
     base, _ = load_problem(_resolve(spec))
     prepare(base)
     solvers, skipped = _solvers(base, options, ceres_max_s, only)
-    work = _measure(solvers, spec)
+    work = _measure(solvers, spec, None if cache is None else cache / _slug(spec))
     tg = _targets(work, base.num_observations <= bisect_max_obs)
     _repeats(work, tg, repeat)
     by = {w.name: w for w in work if w.error is None}
@@ -361,13 +374,32 @@ def run_problem(spec: str, options: BAOptions, scipy_max_obs: int = SCIPY_MAX_OB
         rows=tuple(rows), repeat=repeat, load_1min=load, load_1min_end=os.getloadavg()[0],
         fastest_ceres=fastest, fastest_ceres_time_to_target_s=fastest_s, tau_summary=tau_summary,
         roofline=_roofline(base, by["euclidean"]) if "euclidean" in by else None,
-        cold_process=cold_rec, ceres_own_cost=own)
+        cold_process=cold_rec, ceres_own_cost=own, ceres_scope=_ceres_scope(rows, ceres_max_s, options))
+
+
+def _ceres_scope(rows: list[SolverRow], cap_s: float, options: BAOptions) -> str | None:
+    """Issue 35's scope rule ("as large as Ceres finishes in 10 minutes"): where no Ceres setting
+    that ran reached the common target within its time cap (each stopped at the cap, or
+    stopped early above the target), the problem is past that limit and there is no ratio to
+    Ceres; said so with each setting's stop, never a ratio."""
+    ceres = [r for r in rows if r.kind is SolverKind.CERES and r.error is None and r.full_runs]
+    if not ceres or any(r.reached_target for r in ceres):
+        return None
+
+    def stop(r: SolverRow) -> str:
+        run = r.full_runs[0]
+        capped = run.termination == "NO_CONVERGENCE" and run.iterations < options.max_iterations
+        how = f"stopped at the {cap_s:.0f} s cap" if capped else f"stopped ({run.termination}) above the target"
+        return f"{r.solver} {how} after {run.iterations} iterations at cost {run.final_cost:.6g}"
+
+    return (f"Ceres did not finish in {cap_s:.0f} s: no setting reached the common cost within its cap; "
+            + "; ".join(stop(r) for r in ceres))
 
 
 def _roofline(base, w: _Work) -> Roofline:
     """Analytic flops of our Euclidean LM step and the rates its stages reached (medians over
     the full runs: flops x LM steps / time in the stage)."""
-    from polarref.ba.roofline import lm_flops
+    from polarref.ba.roofline import lm_flops, schur_traffic
 
     runs = w.full_runs
     dense = "dense Cholesky" in runs[0].linear_solver
@@ -385,10 +417,12 @@ def _roofline(base, w: _Work) -> Roofline:
                          for x in runs if x.run.stage_runtime_s.get(stage, 0) > 0 and x.iterations])
 
     stages = ("evaluate", "normal_equations", "schur", "solve")
+    tr = schur_traffic(base.obs_cam, base.obs_pt, base.cam_mask.any(1))
     return Roofline("euclidean", runs[0].linear_solver, FlopCounts(f.build, f.schur, f.factorisation),
                     f.num_unknowns, StageRates(rate(f.build, "normal_equations", builds=True),
                                                rate(f.schur, "schur"), rate(f.factorisation, "solve")),
-                    {k: Stats.of([x.run.stage_runtime_s.get(k, 0.0) for x in runs]) for k in stages})
+                    {k: Stats.of([x.run.stage_runtime_s.get(k, 0.0) for x in runs]) for k in stages},
+                    SchurBytes(tr.compulsory_bytes, tr.per_update_bytes, tr.pairs, tr.blocks))
 
 
 def _ceres_own_cost(by: dict[str, _Work], target: float, repeat: int) -> OwnCost | None:
@@ -465,11 +499,13 @@ def _settings(options: BAOptions, repeat: int, bisect_max_obs: int, ceres_max_s:
 
 
 def _machine() -> MachineRates:
-    from polarref.ba.roofline import gemm_gflops
+    from polarref.ba.roofline import gemm_gflops, triad_gbs
 
-    return MachineRates({str(t): gemm_gflops(t) for t in (1, 2)},
-                        "numpy float64 1500x1500 @ 1500x1500, best of 3, BLAS threads by threadpoolctl",
-                        os.getloadavg()[0])
+    load = os.getloadavg()[0]
+    gemm = {str(t): gemm_gflops(t) for t in (1, 2)}
+    load_triad = os.getloadavg()[0]
+    return MachineRates(gemm, "numpy float64 1500x1500 @ 1500x1500, best of 3, BLAS threads by threadpoolctl",
+                        load, triad_gbs(), load_triad)
 
 
 def _previous(path: Path, merge: bool) -> tuple[ProblemResult, ...]:
@@ -486,7 +522,8 @@ def _previous(path: Path, merge: bool) -> tuple[ProblemResult, ...]:
 def run_bench(problems, out_dir: Path, options: BAOptions = BAOptions(),
               scipy_max_obs: int = SCIPY_MAX_OBS, repeat: int = 1,
               merge: bool = False, bisect_max_obs: int = BISECT_MAX_OBS,
-              ceres_max_s: float = CERES_MAX_S, cold: bool = True, only: tuple = ()) -> BenchDoc:
+              ceres_max_s: float = CERES_MAX_S, cold: bool = True, only: tuple = (),
+              cache: Path | None = None) -> BenchDoc:
     """Run the problems; with ``merge`` keep the other problems of an existing bench.json
     (a problem run again replaces its old entry). bench.json, bench.md and the performance
     profiles (profiles.png) in ``out_dir``, written after every problem."""
@@ -510,7 +547,7 @@ def run_bench(problems, out_dir: Path, options: BAOptions = BAOptions(),
                    _settings(options, repeat, bisect_max_obs, ceres_max_s, only, kern, heap), previous, machine)
     for spec in problems:
         t = time.perf_counter()
-        res = run_problem(spec, options, scipy_max_obs, repeat, bisect_max_obs, ceres_max_s, cold, only)
+        res = run_problem(spec, options, scipy_max_obs, repeat, bisect_max_obs, ceres_max_s, cold, only, cache)
         res = dataclasses.replace(res, bench_s=time.perf_counter() - t, environment=doc.environment,
                                   machine=machine)
         log.info("bench %s done in %.1f s", spec, res.bench_s)

@@ -66,6 +66,21 @@ def forked(fn) -> tuple[object, float]:
     return value, peak
 
 
+def cached(path: Path, fn):
+    """fn()'s value, pickled at ``path`` the first time and read from there afterwards (a
+    scratch cache of finished solves; written atomically so a killed run leaves no half file)."""
+    if path.exists():
+        with path.open("rb") as f:
+            return pickle.load(f)
+    value = fn()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    with tmp.open("wb") as f:
+        pickle.dump(value, f)
+    os.replace(tmp, path)
+    return value
+
+
 def cold_process(problem: str, param: str = "euclidean") -> ColdProcess:
     """Time ``polarref ba PROBLEM`` in a fresh interpreter: process wall, the solve's wall and
     its first iteration's latency (from the solve's start), as that process measured them."""

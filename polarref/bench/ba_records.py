@@ -92,6 +92,8 @@ class SolveRun:
     reported_cost: float | None = None     # peers: their own final cost
     behind_camera: int | None = None       # peers: observations behind their camera at the end
     trace_cost_shift: float | None = None  # Ceres: recomputed - reported final cost
+    load_1min: float | None = None         # first full run: machine load at its start and end
+    load_1min_end: float | None = None
     trace: tuple[TracePoint, ...] = field(default=(), metadata={"stored": False})
     settings_used: dict[str, Setting] | None = field(default=None, metadata={"stored": False})
 
@@ -125,7 +127,8 @@ class SolveRun:
         return _SolveFile(self.final_cost, self.wall_s, self.iterations, self.accepted, self.rejected,
                           self.termination, self.final_rms_px, self.initial_cost, self.linear_solver,
                           self.objective_final, self.setup_s, dict(self.run.stage_runtime_s), self.reported_cost,
-                          self.behind_camera, self.trace_cost_shift, self.peak_rss_mib, self.name)
+                          self.behind_camera, self.trace_cost_shift, self.peak_rss_mib, self.name, self.load_1min,
+                          self.load_1min_end)
 
     @staticmethod
     def from_file(f: _SolveFile) -> SolveRun:
@@ -134,7 +137,8 @@ class SolveRun:
             iterations=f.iterations, accepted=f.accepted, rejected=f.rejected, termination=f.termination,
             final_rms_px=f.final_rms_px, initial_cost=f.initial_cost, linear_solver=f.linear_solver,
             objective_final=f.objective_final, setup_s=f.setup_s, reported_cost=f.reported_cost,
-            behind_camera=f.behind_camera, trace_cost_shift=f.trace_cost_shift)
+            behind_camera=f.behind_camera, trace_cost_shift=f.trace_cost_shift, load_1min=f.load_1min,
+            load_1min_end=f.load_1min_end)
 
 
 @dataclass(frozen=True)
@@ -158,6 +162,8 @@ class _SolveFile:
     trace_cost_shift: float | None = None
     peak_rss_mib: float | None = None
     name: str | None = None
+    load_1min: float | None = None
+    load_1min_end: float | None = None
 
 
 @dataclass(frozen=True)
@@ -240,6 +246,16 @@ class StageRates:
 
 
 @dataclass(frozen=True)
+class SchurBytes:
+    """Bytes the block-sparse Schur kernel moves per LM step in roofline.py's two models."""
+
+    compulsory: float
+    per_update: float
+    entry_pairs: int
+    pair_blocks: int
+
+
+@dataclass(frozen=True)
 class Roofline:
     """Our Euclidean form's flops per LM step and the rates its stages reached (roofline.py)."""
 
@@ -249,6 +265,7 @@ class Roofline:
     num_unknowns: int
     gflops: StageRates
     time_in_s: dict[str, Stats]
+    schur_bytes: SchurBytes | None = None
 
 
 @dataclass(frozen=True)
@@ -289,6 +306,8 @@ class MachineRates:
     gemm_gflops: dict[str, float]
     gemm: str
     load_1min_at_gemm: float | None = None
+    triad_gbs: float | None = None             # STREAM triad, 1 thread (roofline.triad_gbs)
+    load_1min_at_triad: float | None = None
 
 
 @dataclass(frozen=True)
@@ -342,6 +361,7 @@ class ProblemResult:
     roofline: Roofline | None = None
     cold_process: ColdProcess | None = None
     ceres_own_cost: OwnCost | None = None
+    ceres_scope: str | None = None   # the done-when's scope rule: why no Ceres ratio exists here
     bench_s: float | None = None
     environment: Provenance | None = None     # a merged problem keeps its own run's
     machine: MachineRates | None = None

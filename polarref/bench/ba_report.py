@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from polarref.ba.parameterization import PARAMS
+from polarref.ba.roofline import roof
 from polarref.bench.ba_records import BenchDoc, SolverKind, SolverRow, Stats, dumps_json, read_json_doc
 from polarref.core.atomic import atomic_write
 from polarref.core.markers import read_block, replace_block
@@ -88,8 +89,8 @@ def markdown(doc: BenchDoc) -> str:
                        f"{x.iterations} | {_rng(x.time_to_target_s)} | {_iters(x)} | "
                        f"{'-' if ratio is None else f'{ratio:.2f}'} | {x.full_runs[0].termination} |")
             name = ""
-    out += (_per_iteration_lines(doc) + _own_cost_lines(doc) + _tau_lines(doc) + _memory_lines(doc)
-            + _roofline_lines(doc) + _cold_lines(doc))
+    out += (_scope_lines(doc) + _per_iteration_lines(doc) + _own_cost_lines(doc) + _tau_lines(doc) + _memory_lines(doc)
+            + _roofline_lines(doc) + _bandwidth_lines(doc) + _cold_lines(doc))
     return "\n".join(out) + "\n"
 
 
@@ -203,6 +204,48 @@ def _roofline_lines(doc: BenchDoc) -> list[str]:
         out.append(f"| {res.problem} | {f.num_unknowns} | {solver} | {fl.build / 1e9:.3f} | "
                    f"{fl.schur / 1e9:.3f} | {_fmt(None if fl.factorisation is None else fl.factorisation / 1e9)} | "
                    f"{_fmt(_median(gf.build), '.2f')} | {share(gf.schur)} | {share(gf.factorisation)} |")
+    return out
+
+
+def _scope_lines(doc: BenchDoc) -> list[str]:
+    """Where Ceres did not finish in its cap (the done-when's scope limit), and the machine load
+    at the start and end of every first full run (benches that recorded it)."""
+    out = [f"Scope, {r.problem}: {r.ceres_scope}." for r in doc.problems if r.ceres_scope]
+    loads = [(r.problem, x.solver, x.full_runs[0]) for r in doc.problems for x in r.rows
+             if x.full_runs and x.full_runs[0].load_1min is not None]
+    if loads:
+        out += ["", "Machine load (1-minute average) at the start and end of each solver's first full run: "
+                "the machine is shared, so its times are indicative only.", "",
+                "| problem | solver | load start | load end |", "|---|---|---|---|"]
+        out += [f"| {p} | {n} | {run.load_1min:.1f} | {_fmt(run.load_1min_end, '.1f')} |" for p, n, run in loads]
+    return ([""] if out and out[0] else []) + out
+
+
+def _bandwidth_lines(doc: BenchDoc) -> list[str]:
+    """The Schur stage against both roofs (roofline.py's bytes models); only for a bench that
+    measured the memory bandwidth."""
+    m = doc.machine
+    probs = [r for r in doc.problems if r.roofline and r.roofline.schur_bytes]
+    if m is None or m.triad_gbs is None or not probs:
+        return []
+    g1, bw = m.gemm_gflops.get("1"), m.triad_gbs
+    out = ["", f"Schur stage against the bandwidth roof: arithmetic intensity (Schur flops / bytes per LM "
+           f"step, roofline.py: compulsory = every array once, per update = each entry pair's 6x6 block "
+           f"read and written from memory) x the STREAM triad bandwidth measured in this run, "
+           f"{bw:.1f} GB/s on 1 thread (load {_fmt(m.load_1min_at_triad, '.1f')}); roof = min(GEMM 1t, "
+           f"intensity x bandwidth). Achieved: the Schur GFLOP/s of the table above.", "",
+           "| problem | entry pairs | pair blocks | MB compulsory / per update | flop/B compulsory / per update | "
+           "roof GFLOP/s compulsory / per update | achieved GFLOP/s | x roof compulsory / per update | x GEMM 1t |",
+           "|---|---|---|---|---|---|---|---|---|"]
+    for res in probs:
+        f = res.roofline
+        by, flops, got = f.schur_bytes, f.flops_per_iteration.schur, _median(f.gflops.schur)
+        ai = (flops / by.compulsory, flops / by.per_update)
+        roofs = tuple(roof(a, bw, g1) if g1 else a * bw for a in ai)
+        x = "-" if got is None else f"{got / roofs[0]:.2f} / {got / roofs[1]:.2f}"
+        out.append(f"| {res.problem} | {by.entry_pairs} | {by.pair_blocks} | {by.compulsory / 1e6:.1f} / "
+                   f"{by.per_update / 1e6:.1f} | {ai[0]:.3f} / {ai[1]:.3f} | {roofs[0]:.2f} / {roofs[1]:.2f} | "
+                   f"{_fmt(got, '.2f')} | {x} | {'-' if got is None or not g1 else f'{got / g1:.2f}'} |")
     return out
 
 

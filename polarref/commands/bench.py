@@ -18,7 +18,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("what", choices=("ba", "sfm"), help="which benchmark")
     parser.add_argument("--problem", action="append", default=None,
                         help="problem path or synth-20/60/200, synth-60-sparse/synth-200-sparse, "
-                        "scale-1e5/1e6/1e7[:SEED] (repeatable; default: the full set)")
+                        "scale-1e5/1e6/3e6/1e7[:SEED] (repeatable; default: the full set)")
     parser.add_argument("--quick", action="store_true", help="only the small problems")
     parser.add_argument("--loss", choices=LOSSES, default="trivial")
     parser.add_argument("--max-iterations", type=positive_int, default=100)
@@ -37,6 +37,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--solvers", nargs="+", default=None, metavar="NAME",
                         help="ba: run only these solvers (forms and Ceres settings by name, e.g. euclidean "
                         "ceres-sparse-schur-1t); the others are listed as not run")
+    parser.add_argument("--cache", default=None, metavar="DIR",
+                        help="ba: store each solver's first full run in DIR and reuse it (resume; solvers "
+                        "measured by separate processes, then tabulated together)")
     parser.add_argument("--no-cold", action="store_true",
                         help="ba: skip the cold-process timing of `polarref ba` per problem")
     sfm = parser.add_argument_group("sfm (our SfM vs pycolmap incremental, same images and pairs)")
@@ -78,14 +81,15 @@ def run(args) -> int:
     if args.solvers:
         from polarref.bench.ba import solver_names
         unknown = sorted(set(args.solvers) - set(solver_names()))
-        if unknown or "euclidean" not in args.solvers:
+        if unknown or ("euclidean" not in args.solvers and not args.cache):
             raise UsageError(f"--solvers: {'unknown ' + ', '.join(unknown) if unknown else 'euclidean is needed'}"
                              f" (known: {', '.join(solver_names())})")
     doc = run_bench(problems, out, BAOptions(loss=args.loss,
                                                  max_iterations=args.max_iterations),
                         args.scipy_max_obs, repeat=args.repeat, merge=args.merge,
                         bisect_max_obs=args.bisect_max_obs, ceres_max_s=float(args.ceres_max_s),
-                        cold=not args.no_cold, only=tuple(args.solvers or ()))
+                        cold=not args.no_cold, only=tuple(args.solvers or ()),
+                        cache=Path(args.cache) if args.cache else None)
     print((out / "bench.md").read_text())
     return 0 if doc.problems else 1
 

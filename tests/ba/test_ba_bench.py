@@ -81,7 +81,7 @@ def test_bench_records_settings_repeats_and_time_to_common_cost(tmp_path):
     assert res.ceres_own_cost is None      # Euclidean and Ceres reach the common target here
     table = readme_table(doc)            # the README's figures come from bench.json only
     assert f"{ratio:.2f}x" in table and fastest in table
-    assert np.isfinite(res.load_1min) and (tmp_path / "bench.md").read_text().count("| ceres-") == 8 * 2
+    assert np.isfinite(res.load_1min) and (tmp_path / "bench.md").read_text().count("| ceres-") == 8 * 3   # main, tau and load tables
     # tau targets: best + tau (initial - best), each solver's time from its traces, ratios to the fastest Ceres
     init, best = res.initial_cost, res.best_final_cost
     for key, tt in res.tau_targets.items():

@@ -258,3 +258,26 @@ def test_merge_docs_keeps_each_runs_provenance():
     assert got == {"p": "a", "q": "b0", "r": "b"} and m.environment.git_commit == "b"
     assert m.problems[0].machine.gemm_gflops == {"1": 1.0} and m.merged_from == 2
     assert m.problems[2].settings == b.settings
+
+
+def test_bench_cache_resumes_and_tabulates_solvers_measured_apart(tmp_path):
+    """Two benches each measuring one solver into one cache, then a third with both: it reruns
+    nothing (the cached runs, their wall times and load readings come back unchanged) and its
+    common cost is the one of the two runs together."""
+    from polarref.bench.ba import run_bench
+
+    opts = BAOptions(max_iterations=8, kernels="numpy")
+    cache = tmp_path / "cache"
+    a = run_bench(["synth-20"], tmp_path / "a", opts, scipy_max_obs=0, cold=False, only=("euclidean",), cache=cache)
+    b = run_bench(["synth-20"], tmp_path / "b", opts, scipy_max_obs=0, cold=False,
+                  only=("ceres-dense-schur-1t",), cache=cache)
+    both = run_bench(["synth-20"], tmp_path / "c", opts, scipy_max_obs=0, cold=False,
+                     only=("euclidean", "ceres-dense-schur-1t"), cache=cache)
+    ra, rb = a.problems[0].rows[0], b.problems[0].rows[0]
+    rows = {r.solver: r for r in both.problems[0].rows}
+    for r in (ra, rb):
+        again = rows[r.solver].full_runs[0]
+        assert again == r.full_runs[0] and again.load_1min is not None and again.load_1min_end is not None
+    finals = [ra.final_cost, rb.final_cost]
+    close = [c for c in finals if c <= min(finals) * 1.01]
+    assert both.problems[0].common_final_cost == max(close)
