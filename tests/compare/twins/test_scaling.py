@@ -44,3 +44,21 @@ def test_power_law_is_recovered_and_extrapolated():
     polar = S.build("mappilot", "polar", runs + [_run(36, 240, "polar", cached=True)])
     assert {f.stage: f for f in polar.fits}["matching"].exponent == pytest.approx(1.0)
     assert "Indicative" in S.render(rep)
+
+
+def test_wall_estimate_scales_each_stage_by_its_measured_wall_over_cpu():
+    runs = [_run(36, 240), _run(72, 480), _run(144, 960)]
+    rep = S.build("mappilot", "euclidean", runs)
+    big = runs[-1]
+    # features: 9 s wall for 0.5 * 144 CPU s at the largest block
+    assert S.wall_ratio(rep, "features") == pytest.approx(9.0 / (0.5 * 144))
+    expected = 0.0
+    for f in rep.fits:
+        r = S.wall_ratio(rep, f.stage)
+        expected += f.at_twin_s["rosetta"] * (1.0 if r is None else r)
+    text = S._wall_estimate(rep, "rosetta")
+    assert text.startswith(f"{expected:.1f} (")
+    # the front end read from a cache has no ratio: counted at CPU time and marked
+    polar = S.build("mappilot", "polar", runs + [_run(36, 240, "polar", cached=True), _run(144, 960, "polar", cached=True)])
+    assert S.wall_ratio(polar, "features") is None and S._wall_estimate(polar, "rosetta").endswith("*")
+    assert big.wall("features") == 9.0
