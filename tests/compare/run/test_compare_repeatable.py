@@ -71,8 +71,12 @@ def test_committed_small_report_verdicts_match_a_fresh_run(two_runs):
         pytest.skip("the committed comet-small report predates provenance (issue 12); regenerate it with "
                     "`bash scripts/regen-reports.sh`")
     fresh = two_runs[0]
-    verdicts = lambda m: {c["claim_id"]: c["verdict"] for c in m["claims"]}   # noqa: E731
+    # C4 is a speed measurement of this machine at that moment (the committed run: 2 cores shared
+    # with other work); its verdict moved between "inconclusive" and "not supported" with the load.
+    # Every other verdict is a function of seeded computations and must repeat.
+    verdicts = lambda m: {c["claim_id"]: c["verdict"] for c in m["claims"] if c["claim_id"] != "C4"}   # noqa: E731
     assert verdicts(fresh) == verdicts(old)
+    assert {c["verdict"] for c in fresh["claims"] if c["claim_id"] == "C4"} <= {"inconclusive", "not supported", "supported"}
     by_old = {m["name"]: m for m in old["methods"]}
     for m in fresh["methods"]:
         o = by_old[m["name"]]
