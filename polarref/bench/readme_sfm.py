@@ -14,8 +14,7 @@ from pathlib import Path
 
 from polarref.bench.records import SfMBench, SfMRow, read_bench
 from polarref.bench.sfm_report import TARGET_VIEWS
-from polarref.core.atomic import atomic_write
-from polarref.core.markers import replace_block
+from polarref.core.markers import rewrite_block
 
 BEGIN = "<!-- sfm-findings: generated from reports/bench-sfm/level/bench.json, do not edit by hand -->"
 END = "<!-- /sfm-findings -->"
@@ -66,11 +65,7 @@ def findings_block(level_dir: Path) -> str:
 
 
 def update_readme(readme: Path, level_dir: Path) -> Path:
-    try:
-        text = replace_block(readme.read_text(), BEGIN, END, findings_block(level_dir))
-    except ValueError as exc:
-        raise SystemExit(f"{readme}: {exc}") from exc
-    return atomic_write(readme, text)
+    return rewrite_block(readme, BEGIN, END, findings_block(level_dir))
 
 
 if __name__ == "__main__":  # python -m polarref.bench.readme_sfm reports/bench-sfm/level README.md

@@ -11,8 +11,7 @@ import sys
 from pathlib import Path
 
 from polarref.compare.schema import ClaimResult, MetricsFile, load
-from polarref.core.atomic import atomic_write
-from polarref.core.markers import read_block, replace_block
+from polarref.core.markers import read_block, rewrite_block
 
 BEGIN = "<!-- compare-findings: generated from reports/*/metrics.json, do not edit by hand -->"
 END = "<!-- /compare-findings -->"
@@ -111,11 +110,7 @@ def readme_block(text: str) -> str | None:
 
 
 def update_readme(readme: Path, reports: Path) -> Path:
-    try:
-        text = replace_block(readme.read_text(), BEGIN, END, findings_block(reports))
-    except ValueError as exc:
-        raise SystemExit(f"{readme}: {exc}") from exc
-    return atomic_write(readme, text)
+    return rewrite_block(readme, BEGIN, END, findings_block(reports))
 
 
 if __name__ == "__main__":  # python -m polarref.compare.report.readme_findings reports README.md

@@ -13,8 +13,7 @@ from pathlib import Path
 
 from polarref.compare.report.readme_findings import REPORTS
 from polarref.compare.schema import MetricsFile, load
-from polarref.core.atomic import atomic_write
-from polarref.core.markers import read_block, replace_block
+from polarref.core.markers import read_block, rewrite_block
 
 BEGIN = "<!-- compare-runtime: generated from reports/*/metrics.json, do not edit by hand -->"
 END = "<!-- /compare-runtime -->"
@@ -58,11 +57,7 @@ def readme_block(text: str) -> str | None:
 
 
 def update_readme(readme: Path, reports: Path) -> Path:
-    try:
-        text = replace_block(readme.read_text(), BEGIN, END, runtime_block(reports))
-    except ValueError as exc:
-        raise SystemExit(f"{readme}: {exc}") from exc
-    return atomic_write(readme, text)
+    return rewrite_block(readme, BEGIN, END, runtime_block(reports))
 
 
 if __name__ == "__main__":  # python -m polarref.compare.report.readme_runtime reports README.md

@@ -13,8 +13,7 @@ from pathlib import Path
 from polarref.core.status import RunStatus
 from polarref.compare.twins.tables import (BASELINE, OURS, PAPER, TwinRow, TwinTable, load_tables, status_text,
                                            verdicts)
-from polarref.core.atomic import atomic_write
-from polarref.core.markers import replace_block
+from polarref.core.markers import rewrite_block
 
 BEGIN = "<!-- scale-findings: generated from reports/paper-tables/*/paper-table.json, do not edit by hand -->"
 END = "<!-- /scale-findings -->"
@@ -57,11 +56,7 @@ def findings_block(root: Path) -> str:
 
 
 def update_readme(readme: Path, root: Path) -> Path:
-    try:
-        text = replace_block(readme.read_text(), BEGIN, END, findings_block(root))
-    except ValueError as exc:
-        raise SystemExit(f"{readme}: {exc}") from exc
-    return atomic_write(readme, text)
+    return rewrite_block(readme, BEGIN, END, findings_block(root))
 
 
 if __name__ == "__main__":  # python -m polarref.compare.twins.readme_scale reports/paper-tables README.md
