@@ -193,7 +193,8 @@ def _sfm(work: Path, gt, georef: Georef, form: str, pairs: Path | None):
         return read_model(out / "model")
     config = with_ba(PRESETS["default"], form)
     if pairs is not None:
-        config = dataclasses.replace(config, matching=dataclasses.replace(config.matching, pairs_file=str(pairs)))
+        config = dataclasses.replace(config, matching=dataclasses.replace(config.matching, pairing="file",
+                                                                          pairs_file=str(pairs)))
     return run_sfm(work / "images", out, config, gt=gt, priors=georef.priors, image_sigma_px=IMAGE_SIGMA_PX,
                    overwrite=True).reconstruction
 
