@@ -22,6 +22,7 @@ from polarref.ba.priors import AttitudePriors, BAPriors, CentrePriors, restrict
 from polarref.ba.parameterization import PARAMS
 from polarref.core.errors import PolarrefError
 from polarref.core.geometry import Rigid3, Sim3, umeyama
+from polarref.georef.datum import DatumPriors, weighted_similarity
 from polarref.georef.formats import PosePrior
 
 log = logging.getLogger(__name__)
@@ -87,12 +88,14 @@ class PriorHook:
         return True
 
     def realign(self, state) -> None:
-        """Before a global BA: the datum again by the closed-form similarity. The priors are weak
-        against the tie points, so LM's damping creeps along the 7 datum directions (50
-        iterations without converging, measured on the small UAV); the similarity takes that
-        step at once and the BA refines the rest (COLMAP's pose-prior BA also aligns first)."""
+        """Before a global BA: the datum again, by the similarity that fits the priors as the BA
+        weights them (georef.datum; the closed form where they cannot fix it yet). The priors
+        are weak against the tie points, so LM's damping creeps along the 7 datum directions (50
+        iterations without converging, measured on the small UAV) or stops where it started
+        (the function tolerance on a large block, issue 33's sub-block: 0.78 m off); the
+        similarity takes that step at once and the BA refines the rest."""
         if self.placed:
-            sim = _similarity(state, self.priors)
+            sim = _weighted(state, self.priors) or _similarity(state, self.priors)
             if sim is not None:
                 _move(state, sim)
 
@@ -152,3 +155,19 @@ def _similarity(state, pri: MapperPriors) -> Sim3 | None:
     if sv[1] < MIN_SPREAD * sv[0]:
         return None
     return umeyama(src, dst)
+
+
+def _weighted(state, pri: MapperPriors) -> Sim3 | None:
+    """The weighted similarity of >= 3 non-collinear registered prior centres (and the attitude
+    priors); None where the centres cannot fix it."""
+    reg = np.flatnonzero(state.registered & np.isfinite(pri.centre).all(1))
+    if len(reg) < 3:
+        return None
+    dst = pri.centre[reg]
+    sv = np.linalg.svd(dst - dst.mean(0), compute_uv=False)
+    if sv[1] < MIN_SPREAD * sv[0]:
+        return None
+    att = reg[np.isfinite(pri.sigma_rad[reg])]
+    W = np.array([np.diag(1.0 / s) for s in pri.sigma[reg]]).reshape(-1, 3, 3)
+    return weighted_similarity(DatumPriors(state.centers()[reg], dst, W, state.R[att], pri.R[att],
+                                           pri.sigma_rad[att]))
