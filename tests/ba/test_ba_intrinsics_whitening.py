@@ -15,6 +15,8 @@ from polarref.ba.synthetic import clone, synthetic_reconstruction
 from polarref.camera import Camera, ray_from_angular
 from polarref.camera.models import MODELS
 
+from intrinsics_fd import intrinsics_columns_match_differences
+
 LENSES = {"SIMPLE_PINHOLE": [500, 320, 240], "PINHOLE": [500, 510, 320, 240],
           "SIMPLE_RADIAL": [500, 320, 240, -0.1], "RADIAL": [500, 320, 240, -0.1, 0.02],
           "OPENCV": [500, 505, 320, 240, -0.1, 0.02, 0.003, -0.002],
@@ -108,28 +110,6 @@ def _wrapper(init, model, param, options):
     return SelfCalibrating(inner, blocks, p, aug), aug
 
 
-def _intrinsics_columns_match_differences(w, aug):
-    R, C, pts = aug.R, aug.C, w.init_points()
-    _, _, Jc = w.evaluate(R, C, pts)
-    N, h = w.N, 1e-7
-    checked = 0
-    for j in range(N, len(C)):
-        for c in range(3):
-            if not aug.cam_mask[j, 3 + c]:
-                continue
-            Cp, Cm = C.copy(), C.copy()
-            Cp[j, c] += h
-            Cm[j, c] -= h
-            num = (w.evaluate(R, Cp, pts, False)[0] - w.evaluate(R, Cm, pts, False)[0]) / (2 * h)
-            ana = np.zeros_like(num)
-            for s, (c0, c1) in enumerate(w.slot_cols):
-                if c0 <= 3 + c < c1:
-                    ana += np.where((w.slot_cams[s] == j)[:, None], Jc[s][:, :, 3 + c - c0], 0.0)
-            np.testing.assert_allclose(ana, num, rtol=1e-5, atol=1e-6 * max(np.abs(num).max(), 1))
-            checked += 1
-    return checked
-
-
 @pytest.mark.parametrize("model", ["SIMPLE_RADIAL", "PINHOLE", "OPENCV", "OPENCV_FISHEYE",
                                    "STEREOGRAPHIC"])
 @pytest.mark.parametrize("rows", ["chart", "theta_gated", "theta_stage"])
@@ -146,13 +126,13 @@ def test_angle_rows_jacobian_with_moving_whitening(small, model, rows):
     gated = int((~inner.phi_ok).sum())
     assert 0 < gated < len(inner.phi_ok) and not inner.phi_ok[0]
     assert inner.use_chart == (rows == "chart")
-    assert _intrinsics_columns_match_differences(w, aug) == len(w.blocks.cams0[0].params)
+    assert intrinsics_columns_match_differences(w, aug) == len(w.blocks.cams0[0].params)
 
 
 @pytest.mark.parametrize("model", ["SIMPLE_RADIAL", "OPENCV", "OPENCV_FISHEYE"])
 def test_polar_theta_row_jacobian_with_moving_weight(small, model):
     w, aug = _wrapper(small, model, "polar", BAOptions(param="polar"))
-    assert _intrinsics_columns_match_differences(w, aug) == len(w.blocks.cams0[0].params)
+    assert intrinsics_columns_match_differences(w, aug) == len(w.blocks.cams0[0].params)
 
 
 def test_whitening_is_the_chart_jacobian_at_the_current_intrinsics(small):
