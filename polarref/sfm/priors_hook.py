@@ -55,12 +55,15 @@ class MapperPriors:
                 R[k], sig_r[k] = p.R, np.radians(p.sigma_angle_deg)
         return cls(centre, sigma, R, sig_r, image_sigma_px)
 
+    def whitening(self, idx: np.ndarray) -> np.ndarray:
+        """(len(idx), 3, 3) diag(1 / sigma) of the centre priors of images ``idx``."""
+        return np.array([np.diag(1.0 / s) for s in self.sigma[idx]]).reshape(-1, 3, 3)
+
     def ba_priors(self) -> BAPriors:
         """Every prior, cameras numbered by image index."""
         c = np.flatnonzero(np.isfinite(self.centre).all(1))
         a = np.flatnonzero(np.isfinite(self.sigma_rad))
-        centres = CentrePriors(c, self.centre[c], np.array([np.diag(1.0 / s) for s in self.sigma[c]])
-                               .reshape(-1, 3, 3)) if len(c) else None
+        centres = CentrePriors(c, self.centre[c], self.whitening(c)) if len(c) else None
         att = AttitudePriors(a, self.R[a], self.sigma_rad[a]) if len(a) else None
         return BAPriors(centres, att, None, self.image_sigma_px)
 
@@ -149,10 +152,7 @@ def _similarity(state, pri: MapperPriors) -> Sim3 | None:
         if not s > 0:
             return None
         return Sim3(s, R, dst.mean(0) - s * R @ src.mean(0))
-    if len(reg) < 3:
-        return None
-    sv = np.linalg.svd(dst - dst.mean(0), compute_uv=False)
-    if sv[1] < MIN_SPREAD * sv[0]:
+    if len(reg) < 3 or not _spread(dst):
         return None
     return umeyama(src, dst)
 
@@ -161,13 +161,15 @@ def _weighted(state, pri: MapperPriors) -> Sim3 | None:
     """The weighted similarity of >= 3 non-collinear registered prior centres (and the attitude
     priors); None where the centres cannot fix it."""
     reg = np.flatnonzero(state.registered & np.isfinite(pri.centre).all(1))
-    if len(reg) < 3:
-        return None
     dst = pri.centre[reg]
-    sv = np.linalg.svd(dst - dst.mean(0), compute_uv=False)
-    if sv[1] < MIN_SPREAD * sv[0]:
+    if len(reg) < 3 or not _spread(dst):
         return None
     att = reg[np.isfinite(pri.sigma_rad[reg])]
-    W = np.array([np.diag(1.0 / s) for s in pri.sigma[reg]]).reshape(-1, 3, 3)
-    return weighted_similarity(DatumPriors(state.centers()[reg], dst, W, state.R[att], pri.R[att],
-                                           pri.sigma_rad[att]))
+    return weighted_similarity(DatumPriors(state.centers()[reg], dst, pri.whitening(reg), state.R[att],
+                                           pri.R[att], pri.sigma_rad[att]))
+
+
+def _spread(centres: np.ndarray) -> bool:
+    """Whether prior centres (P, 3) are spread enough across the strip to fix a similarity."""
+    sv = np.linalg.svd(centres - centres.mean(0), compute_uv=False)
+    return bool(sv[1] >= MIN_SPREAD * sv[0])
