@@ -69,6 +69,9 @@ def _args():
                     help="the BA forms of our rows (default: all; none: the peer's rows only); parts run side "
                          "by side are joined by scripts/aerotri_merge.py")
     ap.add_argument("--no-pycolmap", action="store_true")
+    ap.add_argument("--pycolmap-threads", type=int, default=1, choices=(1, 2),
+                    help="pycolmap's threads in every stage (1: the reference runs; its results are then "
+                         "reproducible; 2: the machine's cores)")
     ap.add_argument("--overwrite", action="store_true")
     return ap.parse_args()
 
@@ -162,7 +165,7 @@ def _monte_carlo(rec, gt_imgs, georef: Georef, pp: PriorParams, form: str, draws
     Rt = np.array([p.R for p in poses])
     checks = georef.of_role(Role.CHECK)
     G = np.array([p.xyz for p in checks])
-    sq, lin = [], []
+    sq, lin, per = [], [], []
     for k in range(draws):
         cfg = preset(scene, "small", priors=pp, seed=seed + k)
         drawn = views_from_json(draw_priors(cfg, flight, centre)["views"])
@@ -171,12 +174,29 @@ def _monte_carlo(rec, gt_imgs, georef: Georef, pp: PriorParams, form: str, draws
         r = copy.deepcopy(rec)
         georeference(r, g, form, use_priors=True, use_control=False)
         found, X = triangulate_marks(r, georef.marks, [p.id for p in checks]).matched(checks)
-        sq += list((X - np.array([p.xyz for p in found]).reshape(-1, 3)) ** 2)
+        err = (X - np.array([p.xyz for p in found]).reshape(-1, 3)) ** 2
+        sq += list(err)
+        per.append(_rmse(err))
         att = pp.rotation_sigma_deg > 0
         d_rot = np.array([so3_log(p.R @ R.T) for p, R in zip(pri, Rt)]) if att else None
         lin.append(datum_error(C, np.array([p.sigma for p in pri]), G, np.array([p.centre for p in pri]) - C,
                                Rt if att else None, np.radians(pp.rotation_sigma_deg), d_rot) ** 2)
-    return MonteCarlo(draws, seed, form, _rmse(np.array(sq)), _rmse(np.concatenate(lin)))
+    return MonteCarlo(draws, seed, form, _rmse(np.array(sq)), _rmse(np.concatenate(lin)), tuple(per))
+
+
+def _realised(gt_imgs, georef: Georef, pp: PriorParams) -> PredictedRMSE:
+    """The linear datum model fed this scene's own prior errors: what the drawn noise predicts
+    for this one draw (``_predicted`` is its expectation over draws)."""
+    by_name = {p.name: p for p in georef.priors}
+    pri = [by_name[im.name] for im in gt_imgs]
+    poses = [im.cam_from_world for im in gt_imgs]
+    C, Rt = np.array([q.center for q in poses]), np.array([q.R for q in poses])
+    att = pp.rotation_sigma_deg > 0 and all(p.R is not None for p in pri)
+    d_rot = np.array([so3_log(p.R @ R.T) for p, R in zip(pri, Rt)]) if att else None
+    G = np.array([p.xyz for p in georef.of_role(Role.CHECK)])
+    err = datum_error(C, np.array([p.sigma for p in pri]), G, np.array([p.centre for p in pri]) - C,
+                      Rt if att else None, np.radians(pp.rotation_sigma_deg), d_rot)
+    return _rmse(err**2)
 
 
 def _rmse(sq: np.ndarray) -> PredictedRMSE:
@@ -260,34 +280,38 @@ def _moved_from(model, adjusted, georef: Georef, weighted: bool) -> float:
                                     - placed.images[i].cam_from_world.center)) for i in adjusted.images)
 
 
-def _pycolmap_db(work: Path, gt, pairs: Path | None) -> Path:
+def _pycolmap_db(work: Path, gt, pairs: Path | None, opts) -> Path:
     from polarref.peers.colmap_sfm import extract_and_match_sift
 
     cam = next(iter(gt.cameras.values()))
     db = work / "pycolmap" / "database.db"
     done = work / "pycolmap" / "matched"  # the database is complete (a run killed while matching leaves none)
     if not done.is_file():
-        extract_and_match_sift(work / "images", cam, db, overwrite=True, pairs_file=pairs)
+        extract_and_match_sift(work / "images", cam, db, opts, overwrite=True, pairs_file=pairs)
         done.write_text("extraction and matching finished\n")
     return db
 
 
-def _pycolmap_plain(work: Path, gt, pairs: Path | None):
-    from polarref.peers.colmap_sfm import run_mapper
+def _pycolmap_plain(work: Path, gt, pairs: Path | None, threads: int = 1):
+    from polarref.peers.colmap_sfm import ColmapSfMOptions, run_mapper
 
-    db = _pycolmap_db(work, gt, pairs)
-    return _peer_model(work / "pycolmap" / "plain", lambda: run_mapper(db, work / "images", work / "pycolmap" / "plain"))
+    opts = ColmapSfMOptions(num_threads=threads)
+    db = _pycolmap_db(work, gt, pairs, opts)
+    return _peer_model(work / "pycolmap" / "plain",
+                       lambda: run_mapper(db, work / "images", work / "pycolmap" / "plain", opts=opts))
 
 
-def _pycolmap(work: Path, gt, georef: Georef, mark_sigma: float, pairs: Path | None):
+def _pycolmap(work: Path, gt, georef: Georef, mark_sigma: float, pairs: Path | None, threads: int):
     from polarref.peers.colmap_priors import run_prior_mapper, similarity_to_control
+    from polarref.peers.colmap_sfm import ColmapSfMOptions
 
-    db = _pycolmap_db(work, gt, pairs)
+    opts = ColmapSfMOptions(num_threads=threads)
+    db = _pycolmap_db(work, gt, pairs, opts)
     ev = dict(image_sigma_px=IMAGE_SIGMA_PX, mark_sigma_px=mark_sigma)
     img = work / "images"
-    plain = _pycolmap_plain(work, gt, pairs)
+    plain = _pycolmap_plain(work, gt, pairs, threads)
     pri = _peer_model(work / "pycolmap" / "priors",
-                      lambda: run_prior_mapper(db, img, work / "pycolmap" / "priors", georef.priors))
+                      lambda: run_prior_mapper(db, img, work / "pycolmap" / "priors", georef.priors, opts))
     rows, registered = [], []
     if plain is not None:
         rec = plain
@@ -316,7 +340,7 @@ def main() -> int:
     # the environment of the code that runs: collected before any work (a commit made while
     # this runs must not be recorded as its source)
     prov = collect_record(seeds={"gcp_layout": a.seed, "monte_carlo": 1000 + a.seed, "pycolmap": 0},
-                          threads={"pycolmap": 1})
+                          threads={"pycolmap": a.pycolmap_threads})
     work = a.work or a.out / "work"
     _link_scene(a.scene, work)
     meta = _scene_meta(work)
@@ -343,7 +367,7 @@ def main() -> int:
     mc = (_monte_carlo(models[a.forms[0]], gt_imgs, georef, pp, a.forms[0], a.mc, 1000 + a.seed, seq, kind, centre)
           if a.mc and a.forms else None)
     if not a.no_pycolmap:
-        prow, preg = _pycolmap(work, gt, georef, a.mark_sigma, pairs)
+        prow, preg = _pycolmap(work, gt, georef, a.mark_sigma, pairs, a.pycolmap_threads)
         rows, registered = rows + prow, registered + preg
         notes.append("pycolmap takes position priors only (no attitude), in its global BA after a RANSAC "
                      "similarity; it has no GCP adjustment: its 'priors + GCP similarity' row is its "
@@ -357,7 +381,7 @@ def main() -> int:
         _scene_label(a.scene, work), len(names), tuple(registered), _gsd(gt, georef), a.priors,
         (pp.position_sigma_m, pp.position_sigma_m, pp.vertical_sigma_m or pp.position_sigma_m), pp.correlation,
         pp.rotation_sigma_deg or None, a.mark_sigma, IMAGE_SIGMA_PX, a.seed, _predicted(gt_imgs, georef, pp, seq),
-        mc, tuple(rows), tuple(notes), prov, pp.position_sigma_rel)
+        mc, tuple(rows), tuple(notes), prov, pp.position_sigma_rel, _realised(gt_imgs, georef, pp))
     table.write(a.out)
     print(table.markdown())
     return 0

@@ -324,3 +324,39 @@ def test_sfm_priors_scene_without_priors_is_one_line(uav_small_scene, tmp_path):
     lines = [ln for ln in p.stderr.splitlines() if ln.strip()]
     assert len(lines) == 1 and "no pose priors in this scene" in lines[0], p.stderr
     assert not out.exists()
+
+
+def test_priors_only_verdict_against_the_realised_prediction():
+    """With the realised prediction the rule compares the row with what this draw's errors
+    predict (within 1.5x either way) and says how often one Monte Carlo draw alone exceeds 1.5x
+    the expectation; a /2 table (without it) keeps its old line."""
+    from polarref.core.provenance import collect_record
+    from polarref.georef.adjust import AerotriangulationRecord, CheckPointStats
+    from polarref.georef.predict import PredictedRMSE
+    from polarref.georef.table import AerotriRow, AerotriTable, MonteCarlo, Variant
+
+    def stats(h, z):
+        return CheckPointStats(10, h / np.sqrt(2), h / np.sqrt(2), z, h, 1.0, 2.0)
+
+    pred = PredictedRMSE(1.0, 1.0, 1.0, np.sqrt(2))
+    draws = tuple(PredictedRMSE(1.0, 1.0, z, h) for h, z in ((1.0, 0.5), (2.2, 1.6), (1.2, 2.0), (3.0, 0.9)))
+    row = AerotriRow("polarref", Variant.PRIORS_ON, AerotriangulationRecord(
+        "polar", 0, 10, 12, 0.2, 100, stats(1.4 * np.sqrt(2), 1.6), "g", 3))
+    t = AerotriTable("s", 12, (("polarref polar", 12),), 0.25, "scene", (2.0, 2.0, 4.0), 0.9, 1.0, 0.5, 0.5, 0,
+                     pred, MonteCarlo(4, 1, "polar", pred, pred, draws), (row,), ("n",),
+                     collect_record(seeds={"x": 1}), 0.0, PredictedRMSE(1.0, 1.0, 1.5, 1.5))
+    assert AerotriTable.from_json(t.to_json()) == t
+    md = t.markdown()
+    # 1.4 sqrt(2) / 1.5 = 1.32x and 1.6 / 1.5 = 1.07x the realised prediction: met; 1.40x, 1.60x
+    # the expectation; draws above 1.5x: horizontal 2.2, 3.0 > 2.12 (2 of 4), vertical 1.6, 2.0 (2 of 4)
+    assert ("horizontal 1.32x, Z 1.07x what this draw's prior errors predict (within 1.5x either way): met; "
+            "1.40x, 1.60x the expectation over draws (one draw alone exceeds 1.5x the expectation in 2 of 4 "
+            "Monte Carlo redraws horizontally, 2 of 4 vertically)") in md
+    assert "This draw's own prior errors through the same linear model" in md
+    low = dataclasses.replace(t, realised=PredictedRMSE(3.0, 3.0, 3.0, 3.0 * np.sqrt(2)))
+    assert "what this draw's prior errors predict (within 1.5x either way): NOT met" in low.markdown()
+    old = t.to_json() | {"format": "polarref-aerotriangulation/2"}
+    del old["realised"]
+    old["monte_carlo"] = {k: v for k, v in old["monte_carlo"].items() if k != "per_draw"}
+    md2 = AerotriTable.from_json(old).markdown()
+    assert "horizontal 1.40x, Z 1.60x the prediction (<= 1.5x): NOT met" in md2
