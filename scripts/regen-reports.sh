@@ -22,3 +22,4 @@ $P --no-progress report --index reports
 # The README's findings and run times are generated from the metrics.json just written (tests compare them).
 .venv/bin/python -m polarref.compare.report.readme_findings reports README.md
 .venv/bin/python -m polarref.compare.report.readme_runtime reports README.md
+.venv/bin/python -m polarref.georef.readme reports README.md
