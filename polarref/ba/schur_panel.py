@@ -71,8 +71,9 @@ def window_triples(entry_bounds: np.ndarray, entry_cam: np.ndarray, width: int) 
 def estimate_s(triples: int, width: int, num_windows: int) -> float:
     """Estimated seconds of the panel path at ``width`` (module cost model)."""
     flops = 216.0 * width**2 * triples
-    fill = 2 * 18 * width * triples + 36 * width**2 * min(triples, num_windows**2)
-    return flops / _GEMM_RATE[width] + fill * _PANEL_DOUBLE_S + _TILE_S * min(triples, num_windows**2)
+    tiles = min(triples, num_windows * (num_windows + 1) // 2)   # an upper bound
+    fill = 2 * 18 * width * triples + 36 * width**2 * tiles
+    return flops / _GEMM_RATE[width] + fill * _PANEL_DOUBLE_S + _TILE_S * tiles
 
 
 def choose_width(entry_bounds: np.ndarray, entry_cam: np.ndarray, num_pairs: int, nv: int) -> int:
