@@ -16,9 +16,9 @@ over ``--repeat`` calls of process CPU time and, separately, of wall time:
 
 Rates are analytic flops (roofline.lm_flops: 144 per entry + 216 per entry pair; n^3/3 + 2 n^2
 for the factorisation) over the time, never the padded GEMM flops. Per width also: the
-(point, window, window) triples, the flops the padded tiles execute (diagonal tiles by dsyrk:
-half) and the useful share, useful / executed: even at the full GEMM rate the window path's
-useful rate cannot exceed that share of it. ring-631 is ``ring_problem(631, 99325, 12.3, 0)``,
+(point, window, window) triples, the padded tiles' flops (216 w^2 per triple, roofline.py's
+convention) and the useful share, useful / padded: even at the full GEMM rate the window
+path's useful rate cannot exceed about that share of it. ring-631 is ``ring_problem(631, 99325, 12.3, 0)``,
 the shape of the rosetta twin's last global BA (reports/bench-sfm/memory-631.md).
 """
 
@@ -79,14 +79,13 @@ def _problem(spec: str):
 
 
 def _padding(st, width: int, useful: float) -> dict:
-    """Triples, executed padded flops (diagonal tiles half: dsyrk) and the useful share."""
+    """Triples, padded flops and the useful share. Padded flops on roofline.py's convention
+    (it counts a point's diagonal pairs a = b as full 6x6 products): 216 w^2 per triple, a
+    diagonal tile as a full GEMM though dsyrk does about half; so share <= 1."""
     p = schur_panel.plan(st.entry_bounds, st.entry_cam, width)
     T = len(p.a0)
-    diag = int(sum(p.tile_bounds[t + 1] - p.tile_bounds[t]
-                   for t in range(len(p.tile_i)) if p.tile_i[t] == p.tile_j[t]))
-    executed = 216.0 * width**2 * (T - diag) + 108.0 * width**2 * diag
-    return {"width": width, "triples": T, "tiles": len(p.tile_i), "executed_flops": executed,
-            "useful_share": useful / executed,
+    return {"width": width, "triples": T, "tiles": len(p.tile_i), "executed_flops": p.padded_flops,
+            "useful_share": useful / p.padded_flops,
             "estimate_s": schur_panel.estimate_s(T, width, -(-st.Nv // width))}
 
 
@@ -148,10 +147,10 @@ def _row(r: dict, g: dict) -> str:
 def _padding_lines(doc: dict) -> list[str]:
     g = doc["gemm_gflops"]["cpu"]
     out = ["", "Window GEMMs per width: the (point, window I, window J >= I) triples, tiles, flops the padded "
-           "tiles execute, and the useful share (the products' analytic flops / executed): the window path's "
+           "tiles (216 w^2 per triple), and the useful share (the products' analytic flops / executed): the window path's "
            f"useful rate is at most that share of the GEMM rate ({g:.2f} GFLOP/s). Measured: stage CPU ms, "
            "GFLOP/s (x GEMM), max relative difference of S (upper triangle) from the kernel's.", "",
-           "| problem | width | triples | tiles | executed GFLOP | useful share | ceiling GFLOP/s | measured ms | "
+           "| problem | width | triples | tiles | padded GFLOP | useful share | ceiling GFLOP/s | measured ms | "
            "GFLOP/s | max rel diff S |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in doc["problems"]:
         meas = {x["width"]: x for x in r["schur"]}
