@@ -146,8 +146,8 @@ def _row(r: dict, g: dict) -> str:
 
 def _padding_lines(doc: dict) -> list[str]:
     g = doc["gemm_gflops"]["cpu"]
-    out = ["", "Window GEMMs per width: the (point, window I, window J >= I) triples, tiles, flops the padded "
-           "tiles (216 w^2 per triple), and the useful share (the products' analytic flops / executed): the window path's "
+    out = ["", "Window GEMMs per width: the (point, window I, window J >= I) triples, tiles, the padded tiles' flops "
+           "(216 w^2 per triple), and the useful share (the products' analytic flops / padded): the window path's "
            f"useful rate is at most that share of the GEMM rate ({g:.2f} GFLOP/s). Measured: stage CPU ms, "
            "GFLOP/s (x GEMM), max relative difference of S (upper triangle) from the kernel's.", "",
            "| problem | width | triples | tiles | padded GFLOP | useful share | ceiling GFLOP/s | measured ms | "
@@ -193,7 +193,7 @@ def _notes(doc: dict) -> list[str]:
             "updates that miss the caches (its in-core bound with the blocks in L1: schur-roofline.json, "
             "'one block'). A GEMM-rate product needs a long inner dimension: many points summed into one "
             "tile. Points share a tile only with padding: the window GEMMs execute 216 w^2 flops per "
-            "(point, window pair) (diagonal tiles half), and the useful share column bounds their useful "
+            "(point, window pair), and the useful share column bounds their useful "
             "rate by share x GEMM even if the (6 w)-wide tiles ran at the 1500^3 rate, which they do not. "
             "Where the share times the small tiles' rate stays below the kernel, the cost model keeps the "
             "kernel ('picked').",
