@@ -16,6 +16,9 @@ over observations). Terms:
   points, over the entry pairs of that camera pair gathered contiguously (sparse
   visibility), whichever a cost estimate says is cheaper. The second form replaced one 6x6 product per entry pair plus ``np.add.reduceat``: Ladybug-49 Schur
   0.17 s -> ~0.02 s per iteration.
+* Kernel path, dense S: the entry-pair kernel, or GEMMs over windows of consecutive cameras
+  (schur_panel.py) where its cost model says padding the points into dense panels pays
+  (long runs of shared cameras); reports/bench-ba-scale/schur-panel.md measures both.
 """
 
 from __future__ import annotations
