@@ -245,11 +245,11 @@ def _notes(doc: dict) -> list[str]:
             "'one block'). A GEMM-rate product needs a long inner dimension: many points summed into one "
             "tile. Points share a tile only with padding: the window GEMMs execute 216 w^2 flops per "
             "(point, window pair), and their useful rate is at most the useful share x the (6 w)-wide tiles' "
-            "own GEMM rate (the ceiling column), below the 1500^3 GEMM rate at small widths, and filling the "
-            "panels (one scalar store per padded cell: 2 x 18 w doubles per triple) costs about as much as "
-            "their GEMMs (measured column). "
-            "Where the share times the small tiles' rate stays below the kernel, the cost model keeps the "
-            "kernel ('picked').",
+            "own GEMM rate (the ceiling column), below the 1500^3 GEMM rate at small widths; on top of that, "
+            "filling the panels (one scalar store per padded cell: up to 2 x 18 w doubles per triple) takes "
+            "the first of the two measured times, of the order of the GEMMs' own. "
+            "The cost model (schur_panel.py: GEMMs, fills, per-tile overhead) keeps the kernel wherever it "
+            "estimates the window path slower ('picked').",
             "The factorisation (dense Cholesky, LAPACK) is GEMM-shaped work; where its n^3/3 flops dominate, "
             "the two stages together ('Schur + fact.') are the rate of the iteration's linear algebra."]
 
