@@ -16,6 +16,9 @@ over observations). Terms:
   points, over the entry pairs of that camera pair gathered contiguously (sparse
   visibility), whichever a cost estimate says is cheaper. The second form replaced one 6x6 product per entry pair plus ``np.add.reduceat``: Ladybug-49 Schur
   0.17 s -> ~0.02 s per iteration.
+* Kernel path, dense S: the entry-pair kernel, or GEMMs over windows of consecutive cameras
+  (schur_panel.py) where its cost model says padding the points into dense panels pays
+  (long runs of shared cameras); reports/bench-ba-scale/schur-panel.md measures both.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
 
+from polarref.ba import schur_panel
 from polarref.ba.reduced_solve import ReducedSolver, pcg
 
 # Cost model for choosing the Z Z^T form, measured on this machine (1 BLAS thread):
@@ -185,10 +189,23 @@ class SchurStructure:
         # (scattered into the dense S once per step): 1.7x the rate of writing them into
         # six rows of the dense S on scale-1e5 (reports/bench-ba-scale/schur-roofline.md)
         self.dense_blocks = fast and not self.sparse_S and not self.use_gemm and not self.fused
-        if fast and (self.sparse_S or self.dense_blocks):
+        # dense S with long runs of shared cameras: GEMMs over camera windows (schur_panel.py)
+        self.panel = None
+        if fast and not self.sparse_S and not self.use_gemm and E:
+            self.use_panels(schur_panel.choose_width(self.entry_bounds, self.entry_cam,
+                                                     self.num_pairs, Nv))
+        if fast and (self.sparse_S or self.dense_blocks) and not hasattr(self, "pair_blk"):
             self._build_blocks()
         elif not self.use_gemm and (self.sparse_S or not fast):
             self._build_pairs(counts)
+
+    def use_panels(self, width: int) -> None:
+        """Kernel path, dense S: the point products by GEMMs over camera windows of ``width``
+        (schur_panel.py), or 0: the entry-pair kernel."""
+        self.panel = schur_panel.plan(self.entry_bounds, self.entry_cam, width) if width else None
+        self.dense_blocks = self.panel is None and not self.use_gemm and not self.fused
+        if self.dense_blocks and not hasattr(self, "pair_blk"):
+            self._build_blocks()
 
     def _build_u_reducers(self, vc: np.ndarray, slot_entry: np.ndarray) -> None:
         """numpy path: sparse 0/1 reducers per slot and slot pair (U, W, g)."""
@@ -311,6 +328,7 @@ class SchurStructure:
     # ------------------------------------------------------------------------------------------
     def linear_solver_name(self) -> str:
         how = ("dense syrk" if self.use_gemm else
+               f"window GEMMs, width {self.panel.width}" if self.panel is not None else
                "entry-pair kernel" + (", block-sparse S" if self.sparse_S else ", camera-pair blocks"
                                       if self.dense_blocks else "") if self.fast
                else "camera-pair GEMMs")
@@ -457,6 +475,8 @@ class SchurStructure:
         fused = self.fused and cross
         if self.fast and self.sparse_S:
             return self._bsr(self._blocks(U_blocks, W, Li, q, b, diag_c)), b.reshape(-1), Li
+        if self.panel is not None:
+            return self._panel_system(U_blocks, W, Li, q, b, diag_c, fused), b.reshape(-1), Li
         if self.dense_blocks:  # the upper block triangle (ca <= cb), what the Cholesky reads
             S = np.zeros((Nv, 6, Nv, 6))
             S[self.blk_ca, :, self.blk_cb, :] = self._blocks(U_blocks, W, Li, q, b, diag_c)
@@ -504,6 +524,25 @@ class SchurStructure:
             S4[self.seg_cb[off], :, self.seg_ca[off], :] -= blocks[off].transpose(0, 2, 1)
         S[np.diag_indices_from(S)] += diag_c.reshape(-1)
         return S, b.reshape(-1), Li
+
+    def _panel_system(self, U_blocks, W, Li, q, b, diag_c, fused: bool) -> np.ndarray:
+        """Dense S (upper triangle) with the point products by window GEMMs; b (Nv, 6) gets
+        the points' share in place."""
+        from polarref.ba import kernels, schur_panel_jit
+        Nv = self.Nv
+        S = np.zeros((Nv, 6, Nv, 6))
+        S[self.u_ca, :, self.u_cb, :] = U_blocks
+        S = S.reshape(6 * Nv, 6 * Nv)
+        Z = np.empty((self.E, 6, 3))
+        schur_panel_jit.entry_factors(_c(W), Li, q, self.entry_bounds, self.entry_pt,
+                                      self.entry_cam, Z, b)
+        schur_panel.subtract_products(S, self.panel, Z, self.entry_cam)
+        if fused:
+            kernels.add_cross(S, *self._cross(), self.entry_bounds, self.entry_pt,
+                              self.entry_cam, self.slot_entry, self.obs_bounds)
+            self._zero_held(S)
+        S[np.diag_indices_from(S)] += diag_c.reshape(-1)
+        return S
 
     def _blocks(self, U_blocks, W, Li, q, b, diag_c) -> np.ndarray:
         """(K, 6, 6): U, the entry-pair Schur products and the damping in the blocks of the
