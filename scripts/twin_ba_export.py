@@ -17,6 +17,7 @@ from polarref.compare.run import presets
 from polarref.compare.run.scenes import prepare
 from polarref.compare.twins.campaign_jobs import seeded_config
 from polarref.compare.twins.pipeline import choose_pairs
+from polarref.core.data import cache_root
 from polarref.sfm.pipeline import run_sfm, with_ba
 
 
@@ -37,7 +38,8 @@ def main() -> int:
     a.out.mkdir(parents=True, exist_ok=True)
     scene = prepare(str(a.scene_dir), presets.DEFAULT, a.seed)
     pairs, n = choose_pairs(a.twin, scene, a.out)
-    config = with_ba(seeded_config(presets.DEFAULT.name, a.cache, str(pairs), a.seed, a.threads), "euclidean")
+    cache = a.cache or str(cache_root() / "sfm")  # the pipeline's own default: its cached features are reused
+    config = with_ba(seeded_config(presets.DEFAULT.name, cache, str(pairs), a.seed, a.threads), "euclidean")
     res = run_sfm(scene.image_dir, a.out / "sfm", config, camera=scene.camera, gt=scene.gt, overwrite=True,
                   export_final_ba=target)
     m = res.report.metrics
