@@ -146,37 +146,38 @@ def read_problem_file(path: Path) -> ProblemFile:
             data = {k: z[k] for k in z.files}
     except (OSError, ValueError, EOFError, zipfile.BadZipFile, KeyError) as exc:
         raise PolarrefError(f"{path}: not a readable BA problem file ({type(exc).__name__}: {exc})") from exc
-    if str(data.get("format", "")) != FORMAT:
+    return _decode(path, data)
+
+
+def _cameras(models, sizes, params, nparams, index) -> list[Camera]:
+    table = [Camera(str(m), int(wh[0]), int(wh[1]), prm[:n]) for m, wh, prm, n in zip(models, sizes, params, nparams)]
+    return [table[k] for k in index]
+
+
+def _decode(path: Path, d: dict[str, np.ndarray]) -> ProblemFile:
+    """The arrays of one file as a ProblemFile (PolarrefError naming ``path`` when they are not one)."""
+    if str(d.get("format", "")) != FORMAT:
         raise PolarrefError(f"{path}: not a {FORMAT} file (no format tag)")
-    if int(data["version"]) != VERSION:
-        raise PolarrefError(f"{path}: {FORMAT} version {int(data['version'])}; this reader knows version {VERSION}")
+    if int(d["version"]) != VERSION:
+        raise PolarrefError(f"{path}: {FORMAT} version {int(d['version'])}; this reader knows version {VERSION}")
     try:
-        return _from_arrays(data)
+        problem = BAProblem(cameras=_cameras(d["camera_model"], d["camera_size"], d["camera_params"],
+                                             d["camera_nparams"], d["camera_index"]), R=d["R"], C=d["C"], X=d["X"],
+                            obs=Observations.from_arrays(d["obs_image"], d["obs_point"], d["obs_uv"]),
+                            cam_fixed=d.get("cam_fixed"), pt_fixed=d.get("pt_fixed"), image_ids=d.get("image_ids"),
+                            point_ids=d.get("point_ids"))
+        problem.camera_group = d.get("camera_group")
+        options = ExportedOptions(str(d["opt_param"]), str(d["opt_loss"]), int(d["opt_max_iterations"]),
+                                  float(d["opt_function_tolerance"]), tuple(str(g) for g in d["opt_refine"]))
+        result = None
+        if "result_costs" in d:
+            c = d["result_costs"]
+            result = MapperResult(float(c[0]), float(c[1]), int(d["result_iterations"]), d["result_image_ids"],
+                                  d["result_R"], d["result_C"], d["result_point_ids"], d["result_X"])
+        return ProblemFile(problem, options, result, tuple(str(n) for n in d["image_names"]), d["truth_R"],
+                           d["truth_C"], str(d["source"]))
     except (KeyError, ValueError, IndexError) as exc:
         raise PolarrefError(f"{path}: incomplete or inconsistent BA problem file ({type(exc).__name__}: {exc})") from exc
-
-
-def _cameras(d: dict[str, np.ndarray]) -> list[Camera]:
-    table = [Camera(str(m), int(wh[0]), int(wh[1]), prm[:n])
-             for m, wh, prm, n in zip(d["camera_model"], d["camera_size"], d["camera_params"], d["camera_nparams"])]
-    return [table[k] for k in d["camera_index"]]
-
-
-def _from_arrays(d: dict[str, np.ndarray]) -> ProblemFile:
-    problem = BAProblem(cameras=_cameras(d), R=d["R"], C=d["C"], X=d["X"],
-                        obs=Observations.from_arrays(d["obs_image"], d["obs_point"], d["obs_uv"]),
-                        cam_fixed=d.get("cam_fixed"), pt_fixed=d.get("pt_fixed"), image_ids=d.get("image_ids"),
-                        point_ids=d.get("point_ids"))
-    problem.camera_group = d.get("camera_group")
-    options = ExportedOptions(str(d["opt_param"]), str(d["opt_loss"]), int(d["opt_max_iterations"]),
-                              float(d["opt_function_tolerance"]), tuple(str(g) for g in d["opt_refine"]))
-    result = None
-    if "result_costs" in d:
-        c = d["result_costs"]
-        result = MapperResult(float(c[0]), float(c[1]), int(d["result_iterations"]), d["result_image_ids"],
-                              d["result_R"], d["result_C"], d["result_point_ids"], d["result_X"])
-    return ProblemFile(problem, options, result, tuple(str(n) for n in d["image_names"]), d["truth_R"],
-                       d["truth_C"], str(d["source"]))
 
 
 def truth_reconstruction(pf: ProblemFile) -> Reconstruction | None:
