@@ -4,7 +4,8 @@
 
     PYTHONPATH=$PWD python scripts/twin_ba_export.py SCENE_DIR TWIN OUT_DIR [--seed 0] [--threads 2]
 
-SCENE_DIR: a rendered twin (e.g. a render of ``mappilot``); OUT_DIR gets pairs.json + the pairs
+SCENE_DIR: a rendered twin folder, or the twin's name (rendered into the cache if needed, as
+the campaign does); OUT_DIR gets pairs.json + the pairs
 file, sfm/ (model, metrics.json) and final-ba.npz. A finished final-ba.npz is kept (resume)."""
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from polarref.sfm.pipeline import run_sfm, with_ba
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("scene_dir", type=Path)
+    ap.add_argument("scene_dir", help="a rendered twin folder, or the twin's name")
     ap.add_argument("twin", help="the twin's name (its pairing rule): mappilot | rosetta | poets-park")
     ap.add_argument("out", type=Path)
     ap.add_argument("--seed", type=int, default=0, help="the campaign seed (RANSACs)")

@@ -138,3 +138,18 @@ def test_polarref_ba_and_the_bench_read_it(tmp_path, capsys):
     got = doc.problems[0]
     assert (got.num_cameras, got.num_points, got.num_observations) == (
         prepared.num_cameras, prepared.num_points, prepared.num_observations)
+
+
+def test_bench_resolves_a_twin_problem_from_the_cache(tmp_path, monkeypatch):
+    from polarref.bench.ba import _resolve, twin_problem_path
+    from polarref.core.errors import PolarrefError
+
+    monkeypatch.setenv("POLARREF_CACHE", str(tmp_path))
+    with pytest.raises(PolarrefError, match="scripts/twin_ba_export.py mappilot mappilot"):
+        _resolve("twin-mappilot")
+    path = twin_problem_path("mappilot")
+    path.parent.mkdir(parents=True)
+    write_problem_file(path, _problem_file())
+    assert _resolve("twin-mappilot") == str(path) and str(tmp_path) in str(path)
+    problem, _ = load_problem(_resolve("twin-mappilot"))
+    assert problem.num_observations == _problem_file().problem.num_observations
