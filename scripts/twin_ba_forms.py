@@ -34,6 +34,7 @@ from polarref.ba.parameterization import PARAMS  # noqa: E402
 from polarref.core.atomic import atomic_write  # noqa: E402
 from polarref.core.provenance import collect  # noqa: E402
 
+PHASES = ("evaluate", "normal_equations", "schur", "solve", "update")  # per-iteration phases of BASummary.time_in
 THRESHOLD = 1.3   # issue 35's bound on a three-slot form's per-iteration cost / the Euclidean form's
 
 
@@ -52,6 +53,22 @@ def _options(form: str, iterations: int) -> BAOptions:
                      gradient_tolerance=0.0, parameter_tolerance=0.0)
 
 
+def reproduce(pf, base) -> dict | None:
+    """Our BA under the mapper's own options on the exported problem, against the mapper's
+    result stored in the file (the export's check at scale); None when the file holds none."""
+    if pf.result is None:
+        return None
+    p = base.copy()
+    s = solve(p, pf.options.ba_options(), prepared=True)
+    r = pf.result
+    size = float((r.C.max(0) - r.C.min(0)).max())
+    same = bool((p.image_ids == r.image_ids).all())
+    return {"final_cost": s.final_cost, "mapper_final_cost": r.final_cost,
+            "final_cost_rel_diff": abs(s.final_cost - r.final_cost) / r.final_cost,
+            "iterations": s.iterations, "mapper_iterations": r.iterations, "same_cameras": same,
+            "max_centre_diff_rel": float(abs(p.C - r.C).max()) / size if same else None, "wall_s": s.wall_s}
+
+
 def measure(path: Path, iterations: int, repeat: int) -> tuple[dict, list[dict]]:
     pf = read_problem_file(path)
     base = prepare(pf.problem)
@@ -64,6 +81,7 @@ def measure(path: Path, iterations: int, repeat: int) -> tuple[dict, list[dict]]
              "mapper_initial_cost": None if pf.result is None else pf.result.initial_cost}
     t0 = time.perf_counter()
     kernels.warm_up()
+    facts["reproduction"] = reproduce(pf, base)
     for form in PARAMS:  # untimed: what warm_up() leaves to compile or load happens here
         solve(base.copy(), _options(form, 1), prepared=True)
     facts["warm_up_s"] = time.perf_counter() - t0
@@ -121,6 +139,19 @@ def markdown(doc: dict) -> str:
             out.append(f"| {form} | {s['per_iteration_s_median']:.3f} | {s['ratio_to_euclidean']:.2f} | "
                        f"{s['ratio_paired_min']:.2f}-{s['ratio_paired_max']:.2f} | {its} | "
                        f"{'yes' if s['within_threshold'] else 'NO'} |")
+        out += ["", "Seconds per iteration by solver phase (median over the repeats):", "",
+                "| form | " + " | ".join(PHASES) + " |", "|---|" + "---|" * len(PHASES)]
+        for form in p["summary"]:
+            mine = [r for r in p["runs"] if r["form"] == form]
+            cells = [statistics.median(r["time_in"].get(ph, 0.0) / r["iterations"] for r in mine) for ph in PHASES]
+            out.append(f"| {form} | " + " | ".join(f"{c:.3f}" for c in cells) + " |")
+        rep = p.get("reproduction")
+        if rep is not None:
+            out += ["", f"Check of the export at this size: our BA under the mapper's options reaches cost "
+                    f"{rep['final_cost']:.10g} in {rep['iterations']} iterations, the mapper's final BA reached "
+                    f"{rep['mapper_final_cost']:.10g} in {rep['mapper_iterations']} (relative difference "
+                    f"{rep['final_cost_rel_diff']:.1e}; largest centre difference {rep['max_centre_diff_rel']:.1e} "
+                    "of the centres' extent)."]
         out.append("")
     return "\n".join(out)
 
@@ -133,8 +164,12 @@ def main() -> int:
     ap.add_argument("--iterations", type=int, default=5)
     ap.add_argument("--repeat", type=int, default=2)
     ap.add_argument("--out", default=str(ROOT / "reports" / "bench-ba-scale" / "twin-problems"))
+    ap.add_argument("--render-only", action="store_true", help="rewrite OUT.md from OUT.json; measure nothing")
     a = ap.parse_args()
     out = Path(a.out)
+    if a.render_only:
+        atomic_write(out.with_suffix(".md"), markdown(json.loads(out.with_suffix(".json").read_text())))
+        return 0
     old = json.loads(out.with_suffix(".json").read_text()) if out.with_suffix(".json").exists() else None
     env = collect(threads={"ours_blas": 1, "ours_kernels": 1})
     load = os.getloadavg()[0]

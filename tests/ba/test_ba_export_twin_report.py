@@ -50,3 +50,13 @@ def test_provenance_of_a_clean_commit_and_a_named_problem_file(doc):
         assert re.fullmatch(r"[0-9a-f]{64}", p["sha256"]) and p["size_bytes"] > 0
         assert "twin_ba_export.py" in p["regenerate"]
         assert p["num_observations"] > 100_000  # a twin's final BA, not a test scene
+
+
+def test_the_export_reproduces_the_mappers_final_ba_at_scale(doc):
+    """The committed run re-solved each twin's problem under the mapper's options: same cost and
+    centres as the mapper's own final BA (the tolerances of tests/sfm/test_sfm_ba_export.py)."""
+    for p in doc["problems"]:
+        rep = p["reproduction"]
+        assert rep["same_cameras"] and rep["final_cost_rel_diff"] <= 1e-8 and rep["max_centre_diff_rel"] <= 1e-6
+        assert rep["final_cost_rel_diff"] == pytest.approx(
+            abs(rep["final_cost"] - rep["mapper_final_cost"]) / rep["mapper_final_cost"], rel=1e-12, abs=1e-300)
