@@ -44,7 +44,8 @@ def _load(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]:
     ``Cam.txt`` + ``Feature.pmba`` or ``Cam<N>.txt`` + ``Feature<N>.txt`` + ``cal<N>.txt`` (points
     from ``XYZ.txt`` if present, else by DLT triangulation; PINHOLE); PVL-BA: a folder with
     ``cal.txt`` + ``XYZ.txt`` + ``Feature.txt``, or a ContextCapture BlocksExchange ``.xml``
-    (observations undistorted by ``polarref.io.pvlba``); COLMAP: a model folder.
+    (observations undistorted by ``polarref.io.pvlba``); COLMAP: a model folder; an exported SfM
+    problem: a ``.npz`` of ``polarref.ba.export_problem`` (truth: its ground-truth poses).
     """
     from polarref.ba.adapter import problem_from_reconstruction
 
@@ -70,6 +71,10 @@ def _load(spec: str, *, seed: int = 0) -> tuple[BAProblem, object | None]:
     path = Path(spec)
     if not path.exists():
         raise PolarrefError(f"BA problem not found: {path}")
+    from polarref.ba.export_problem import is_problem_file, read_problem_file, truth_reconstruction
+    if is_problem_file(path):
+        pf = read_problem_file(path)
+        return pf.problem, truth_reconstruction(pf)
     from polarref.io.parallaxba import find_parallaxba_files
     if find_parallaxba_files(path) is not None:
         from polarref.io.parallaxba import read_parallaxba, triangulate_dlt

@@ -67,10 +67,34 @@ CERES_MAX_S = 600.0
 PIXEL_FORMS = ("euclidean", "parallax")   # forms whose objective is the pixel cost
 
 
+# The twins' final BA problems (issue 35): each exported once, by our Euclidean SfM as the twin
+# campaign runs it (seed 0), into the cache; `twin-<name>` names the file there
+TWINS = ("mappilot", "rosetta", "poets-park")
+
+
+def twin_problem_path(twin: str) -> Path:
+    """Where the exported final BA problem of ``twin`` (seed 0) is kept for the bench."""
+    from polarref.core.data import cache_root
+    return cache_root() / "ba-problems" / f"twin-{twin}-seed0" / "final-ba.npz"
+
+
+def _resolve_twin(spec: str) -> str:
+    twin = spec.removeprefix("twin-")
+    path = twin_problem_path(twin)
+    if path.is_file():
+        return str(path)
+    raise PolarrefError(f"BA problem {spec} not exported yet: make it with `PYTHONPATH=$PWD python "
+                        f"scripts/twin_ba_export.py {twin} {twin} {path.parent}` (renders the twin if needed; "
+                        "a render folder may replace the first argument)")
+
+
 def _resolve(spec: str) -> str:
-    """A path that exists, ``synth-*``, or an item of the reference data (``bal/...``)."""
+    """A path that exists, ``synth-*``, ``scale-*``, ``twin-<twin>`` (an exported twin problem in
+    the cache), or an item of the reference data (``bal/...``)."""
     if spec.startswith(("synth-", "scale-")) or Path(spec).exists():
         return spec
+    if spec.startswith("twin-") and spec.removeprefix("twin-") in TWINS:
+        return _resolve_twin(spec)
     from polarref.core.data import data_path
     from polarref.core.errors import DataNotFoundError
     if Path(spec).is_absolute() or spec.startswith((".", "~")):

@@ -18,7 +18,7 @@ def add_arguments(parser) -> None:
     from polarref.ba.losses import LOSSES
     from polarref.ba.options import DAMPINGS, PARAMS, SOLVERS
     parser.add_argument("problem", help="BAL .txt, ParallaxBA folder, PVL-BA folder or BlocksExchange .xml, COLMAP model folder, "
-                        "or synth-20 / synth-60 / synth-200")
+                        "a BA problem exported by `polarref sfm --export-final-ba` (.npz), or synth-20 / synth-60 / synth-200")
     parser.add_argument("--param", choices=PARAMS, default="euclidean")
     parser.add_argument("--loss", choices=LOSSES, default="trivial")
     parser.add_argument("--loss-scale", type=float_range(0.0, lo_open=True), default=1.0,

@@ -18,7 +18,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("what", choices=("ba", "sfm"), help="which benchmark")
     parser.add_argument("--problem", action="append", default=None,
                         help="problem path or synth-20/60/200, synth-60-sparse/synth-200-sparse, "
-                        "scale-1e5/1e6/3e6/1e7[:SEED] (repeatable; default: the full set)")
+                        "scale-1e5/1e6/3e6/1e7[:SEED], twin-mappilot/rosetta/poets-park (an exported twin final BA, "
+                        "scripts/twin_ba_export.py), an exported .npz (repeatable; default: the full set)")
     parser.add_argument("--quick", action="store_true", help="only the small problems")
     parser.add_argument("--loss", choices=LOSSES, default="trivial")
     parser.add_argument("--max-iterations", type=positive_int, default=100)

@@ -47,6 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="COLMAP model format in OUT/model (default: both; binary only when an image name holds "
                              "a space, which COLMAP text cannot hold); points3D.ply is always written")
     parser.add_argument("--overwrite", action="store_true", help="write into a non-empty --out")
+    parser.add_argument("--export-final-ba", type=Path, default=None, metavar="PATH.npz",
+                        help="also write the mapper's last global BA (problem, options, result, GT poses) to this "
+                             ".npz, a problem for `polarref ba` and `polarref bench ba --problem`")
     geo = parser.add_argument_group("georeferencing (README: Ground control and pose priors)")
     geo.add_argument("--priors", type=Path, metavar="CSV|scene",
                      help="pose priors name,x,y,z,sigma_x,sigma_y,sigma_z[,omega,phi,kappa,sigma_angle_deg]; "
@@ -124,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
     model_format = _model_format(args, [p.name for p in F.list_images(image_dir)])
     res = run_sfm(image_dir, args.out, cfg, camera=camera, gt=gt, mesh=mesh, overwrite=args.overwrite,
                   model_format=model_format, priors=georef.priors if georef is not None else (),
-                  image_sigma_px=args.image_sigma)
+                  image_sigma_px=args.image_sigma, export_final_ba=args.export_final_ba)
     r = res.report
     m = r.metrics
     if r.gt_skipped:

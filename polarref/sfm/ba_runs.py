@@ -9,7 +9,9 @@ from typing import Any
 
 import numpy as np
 
+from polarref.ba.export_problem import ExportedOptions, MapperResult
 from polarref.ba.options import BASummary, IterationRecord
+from polarref.ba.problem import BAProblem
 
 
 @dataclass
@@ -25,6 +27,16 @@ class ColmapBARun:
     num_unsuccessful_steps: float | None = None
 
 
+@dataclass(frozen=True)
+class ExportedBA:
+    """A global BA as it entered our solver (``problem``: a copy taken before ``prepare``), the
+    options it ran with and what it ended with; kept only when the export is asked for."""
+
+    problem: BAProblem
+    options: ExportedOptions
+    result: MapperResult
+
+
 @dataclass
 class BARun:
     """One bundle adjustment inside the mapper (``polarref.sfm.bundle.adjust``)."""
@@ -38,6 +50,7 @@ class BARun:
     image: int | None = None             # local: the image just registered
     num_variable: int | None = None      # local: images with variable poses
     num_fixed: int | None = None         # local: images held fixed
+    exported: ExportedBA | None = None   # adjust(export=True): the problem and result (not in to_json)
 
     @property
     def wall_s(self) -> float:

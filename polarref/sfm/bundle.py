@@ -16,12 +16,13 @@ import numpy as np
 from polarref.core.errors import PolarrefError
 from polarref.core.geometry import Rigid3
 from polarref.model import Image, Point3D, Reconstruction
-from polarref.sfm.ba_runs import BARun, ColmapBARun
+from polarref.sfm.ba_runs import BARun, ColmapBARun, ExportedBA
 
 log = logging.getLogger(__name__)
 
 from polarref.ba.parameterization import SFM_BA_NAMES as BA_NAMES  # noqa: E402  (the one registry)
 from polarref.model.colmap import to_pycolmap
+from polarref.ba.export_problem import ExportedOptions, MapperResult  # noqa: E402
 
 
 def to_reconstruction(state, image_ids=None, track_ids=None, colors=None) -> Reconstruction:
@@ -161,7 +162,7 @@ def _write_back_state(state, problem) -> None:
 
 def adjust(state, variable: list[int], fixed: list[int], ba: str, max_iterations: int,
            loss: str = "trivial", track_ids=None, refine: tuple = (),
-           function_tolerance: float = 1e-6, priors=None) -> BARun:
+           function_tolerance: float = 1e-6, priors=None, export: bool = False) -> BARun:
     """Adjust poses of ``variable`` images and the points (``track_ids`` or all) in place, and
     the intrinsics groups ``refine`` of the cameras involved.
 
@@ -169,7 +170,8 @@ def adjust(state, variable: list[int], fixed: list[int], ba: str, max_iterations
     observations are gathered); pycolmap's goes through a Reconstruction.
     ``priors`` (a :class:`polarref.sfm.priors_hook.PriorHook`) adds the pose priors of the
     variable cameras (our adjusters only). Returns the typed record of the run (the adjuster's
-    summary with its iteration trace).
+    summary with its iteration trace); with ``export`` (our adjusters only) it also holds a copy
+    of the problem as it entered the solver and the solve's result (``BARun.exported``).
     """
     if ba not in BA_NAMES:
         raise PolarrefError(f"unknown bundle adjuster {ba!r}; choose one of {', '.join(BA_NAMES)}")
@@ -190,8 +192,20 @@ def adjust(state, variable: list[int], fixed: list[int], ba: str, max_iterations
         problem.priors = priors.for_problem(problem)
     opts = BAOptions(param=ba, loss=loss, max_iterations=max_iterations, refine=tuple(refine),
                      function_tolerance=function_tolerance)
+    entered = problem.copy() if export else None
     prepare(problem)
     summary = solve(problem, opts, prepared=True)
     _write_back_state(state, problem)
     summary.points_state = None  # internal landmark parameters: not part of the record
-    return BARun(ba, summary=summary)
+    run = BARun(ba, summary=summary)
+    if entered is not None:
+        run.exported = ExportedBA(entered, ExportedOptions(ba, loss, max_iterations, function_tolerance,
+                                                           tuple(opts.refine)), _result(problem, summary))
+    return run
+
+
+def _result(problem, summary) -> MapperResult:
+    """The solved (prepared) problem's poses and points, by id, with the solve's costs."""
+    return MapperResult(float(summary.initial_cost), float(summary.final_cost), int(summary.iterations),
+                        np.asarray(problem.image_ids).copy(), problem.R.copy(), problem.C.copy(),
+                        np.asarray(problem.point_ids).copy(), problem.X.copy())

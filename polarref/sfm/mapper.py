@@ -17,7 +17,7 @@ from polarref.sfm.guided import GuidedConfig, guided_extend
 from polarref.sfm.initial_pair import InitConfig, choose_initial_pair
 from polarref.sfm.priors_hook import PriorHook
 from polarref.sfm.registration import RegisterConfig, estimate_pose, estimate_pose_and_focal
-from polarref.sfm.ba_runs import BARun
+from polarref.sfm.ba_runs import BARun, ExportedBA
 from polarref.sfm.state import MapState
 from polarref.sfm.verification import TwoViewGeometry
 
@@ -95,6 +95,7 @@ class MapperLog:
     focal_estimates: dict[int, float] = field(default_factory=dict)  # camera -> focal (px) from P4Pf
     pp_refined: list[int] = field(default_factory=list)  # cameras whose principal point was refined and kept
     pp_reset: list[int] = field(default_factory=list)    # ... refined, found past pp_max_offset, reset
+    final_ba: ExportedBA | None = None  # run_mapper(export_final=True): the last global BA's problem
 
 
 def _image_tracks(state: MapState, image: int) -> np.ndarray:
@@ -103,7 +104,7 @@ def _image_tracks(state: MapState, image: int) -> np.ndarray:
 
 
 def _global_ba(state: MapState, cfg: MapperConfig, log_: MapperLog, gauge: list[int],
-               hook: PriorHook | None = None, pp: bool = False) -> None:
+               hook: PriorHook | None = None, pp: bool = False, export: bool = False) -> None:
     if hook is not None:
         hook.realign(state)
     reg = [int(i) for i in np.flatnonzero(state.registered)]
@@ -116,8 +117,10 @@ def _global_ba(state: MapState, cfg: MapperConfig, log_: MapperLog, gauge: list[
     enough = len(reg) >= cfg.refine_min_images or (guess_in_map and len(reg) >= cfg.refine_guessed_min_images)
     refine = tuple(g for g in cfg.refine or () if g != "pp" or pp) if enough else ()
     info = bundle.adjust(state, var, list(gauge), cfg.ba, cfg.global_ba_iterations, cfg.global_ba_loss,
-                         refine=refine, priors=hook)
+                         refine=refine, priors=hook, export=export)
     info.kind, info.num_registered = "global", len(reg)
+    if export:  # the latest one is kept: after the final rounds it is the mapper's last global BA
+        log_.final_ba, info.exported = info.exported, None
     log_.ba.append(info)
 
 
@@ -208,7 +211,8 @@ def _register_next(state: MapState, cfg: MapperConfig, out: MapperLog, gauge: li
 
 def run_mapper(state: MapState, geoms: dict[tuple[int, int], TwoViewGeometry],
                cfg: MapperConfig, descriptors: list[np.ndarray] | None = None,
-               hook: PriorHook | None = None, allowed: np.ndarray | None = None) -> MapperLog:
+               hook: PriorHook | None = None, allowed: np.ndarray | None = None,
+               export_final: bool = False) -> MapperLog:
     """Incremental reconstruction into ``state``; returns what happened.
 
     Args:
@@ -217,6 +221,8 @@ def run_mapper(state: MapState, geoms: dict[tuple[int, int], TwoViewGeometry],
             and every later BA carries them.
         allowed: (N,) bool, images this model may hold (default all): a second model is built
             from the images the first left out.
+        export_final: keep the last global BA's problem, options and result in ``final_ba``
+            (copies of the final rounds' problems; nothing else changes).
 
     Raises:
         PolarrefError: no initial pair, or fewer than two images registered.
@@ -283,7 +289,7 @@ def run_mapper(state: MapState, geoms: dict[tuple[int, int], TwoViewGeometry],
     for _ in range(rounds):
         _retriangulate(state)
         _guided(state, np.flatnonzero(state.registered), descriptors, cfg, out)
-        _global_ba(state, cfg, out, gauge, hook, pp=pp)
+        _global_ba(state, cfg, out, gauge, hook, pp=pp, export=export_final)
         state.filter()
     if pp:
         out.pp_reset = _reset_far_principal_points(state, cfg)
@@ -291,7 +297,7 @@ def run_mapper(state: MapState, geoms: dict[tuple[int, int], TwoViewGeometry],
         out.pp_refined = [int(c) for c in used if int(c) not in out.pp_reset]
         for _ in range(cfg.final_ba_rounds if out.pp_reset else 0):  # the map settles on the held centre
             _retriangulate(state)
-            _global_ba(state, cfg, out, gauge, hook)
+            _global_ba(state, cfg, out, gauge, hook, export=export_final)
             state.filter()
     if state.registered.sum() < 2:
         raise PolarrefError("fewer than two images could be registered")

@@ -34,6 +34,7 @@ from polarref.sfm import rays as R_
 from polarref.sfm.bundle import to_reconstruction
 from polarref.sfm.mapper import run_mapper
 from polarref.sfm.priors_hook import prior_hook
+from polarref.sfm.ba_export import write_final_ba
 from polarref.sfm.report import ModelSummary, SfMReport, UnregisteredImage
 from polarref.sfm.matching import match_pairs, select_pairs
 from polarref.sfm.state import MapState
@@ -308,7 +309,8 @@ SFM_OUTPUTS = ("model", "metrics.json")  # what a run writes into its folder (th
 def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig = SfMConfig(),
             camera=None, gt: Reconstruction | None = None,
             mesh: tuple[np.ndarray, np.ndarray] | None = None, overwrite: bool = False,
-            model_format: str = "text", priors: tuple = (), image_sigma_px: float = 0.5) -> SfMResult:
+            model_format: str = "text", priors: tuple = (), image_sigma_px: float = 0.5,
+            export_final_ba: str | Path | None = None) -> SfMResult:
     """Run the whole pipeline on ``image_dir`` and write ``out_dir/model`` and ``out_dir/metrics.json``.
 
     Args:
@@ -320,10 +322,14 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         overwrite: replace a non-empty ``out_dir``. The new folder is built in a hidden
             sibling and swapped in whole when complete, so ``out_dir`` always holds one run's
             outputs: the old ones until the new ones are written, never a mix.
+            It also lets ``export_final_ba`` replace an existing file.
         model_format: COLMAP ``text``, ``binary`` or ``both``; ``model/points3D.ply`` is always written.
         priors: pose priors (:class:`polarref.georef.formats.PosePrior`) used inside the mapper
             (sfm/priors_hook.py), weighted against tie points of ``image_sigma_px``: the model
             comes out in the priors' frame. Not with intrinsics refinement or ``--ba colmap``.
+        export_final_ba: write the largest model's last global BA as it entered our solver, with
+            its options, its result and ``gt``'s poses, to this ``.npz`` (sfm.ba_export; read by
+            ``polarref ba`` and the BA bench). None (default): nothing is kept or written.
     Raises:
         PolarrefError: no images, unknown intrinsics, no initial pair, < 2 registered images.
             metrics.json is still written with what was done, unless ``out_dir`` holds a
@@ -338,6 +344,8 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
         refuse_inside_inputs(target, [image_dir])
         check_dir_target(target, overwrite)
         check_writable_parent(target)
+    if export_final_ba is not None:
+        _check_export(Path(export_final_ba), overwrite, priors, config)
     t_start = time.perf_counter()
     clock = StageClock()
     from polarref.core.provenance import collect_record
@@ -415,9 +423,12 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
             for f in feats:
                 f.descriptors = None
         models = _map_all(feats, list(cameras), cam_idx, guessed, tracks, matches.geometries, config,
-                          descriptors, priors, image_sigma_px)
+                          descriptors, priors, image_sigma_px, export_final_ba is not None)
         state, mlog = models[0]
         clock.stop()
+        if export_final_ba is not None:
+            write_final_ba(Path(export_final_ba), mlog.final_ba, [f.name for f in feats], gt,
+                           f"polarref sfm {image_dir} (ba={config.mapper.ba}): last global BA of the largest model")
         clock.add("ba", float(sum(b.wall_s for _, ml in models for b in ml.ba)))
         report.initial_pair = [feats[i].name for i in mlog.initial_pair]
         report.registration_order = [feats[i].name for i in mlog.registration_order]
@@ -474,7 +485,7 @@ def run_sfm(image_dir: str | Path, out_dir: str | Path | None, config: SfMConfig
 
 def _map_all(feats, cameras: list, cam_idx: np.ndarray, guessed: np.ndarray, tracks,
              geoms: dict[tuple[int, int], TwoViewGeometry], config: SfMConfig, descriptors,
-             priors=(), image_sigma_px: float = 0.5):
+             priors=(), image_sigma_px: float = 0.5, export_final: bool = False):
     """[(state, log)] of every model, largest first: each next one from the images left out.
 
     Every model gets its own prior hook (pose priors place each model in the priors' frame)."""
@@ -487,7 +498,8 @@ def _map_all(feats, cameras: list, cam_idx: np.ndarray, guessed: np.ndarray, tra
 
     state = new_state(cameras, guessed)
     models = [(state, run_mapper(state, geoms, config.mapper, descriptors,
-                                 prior_hook(priors, names, image_sigma_px, config.mapper)))]
+                                 prior_hook(priors, names, image_sigma_px, config.mapper),
+                                 export_final=export_final))]
     left = ~state.registered
     while len(models) < config.max_models and left.sum() >= 2 and any(left[i] and left[j] for i, j in geoms):
         prev = models[-1][0]
@@ -495,7 +507,8 @@ def _map_all(feats, cameras: list, cam_idx: np.ndarray, guessed: np.ndarray, tra
         st = new_state(prev.cameras, np.flatnonzero(prev.focal_guessed))
         try:
             ml = run_mapper(st, geoms, config.mapper, descriptors,
-                            prior_hook(priors, names, image_sigma_px, config.mapper), allowed=left)
+                            prior_hook(priors, names, image_sigma_px, config.mapper), allowed=left,
+                            export_final=export_final)
         except PolarrefError as exc:  # what is left does not make a model
             log.info("no further model from %d images: %s", int(left.sum()), exc)
             break
@@ -503,6 +516,17 @@ def _map_all(feats, cameras: list, cam_idx: np.ndarray, guessed: np.ndarray, tra
         left &= ~st.registered
     models.sort(key=lambda m: -int(m[0].registered.sum()))
     return models
+
+
+def _check_export(path: Path, overwrite: bool, priors: tuple, config: SfMConfig) -> None:
+    """Refuse an export that cannot be written, before any work."""
+    if path.exists() and not overwrite:
+        raise PolarrefError(f"{path} exists", option="overwrite")
+    if path.suffix.lower() != ".npz":
+        raise PolarrefError(f"{path}: the exported BA problem is an .npz file; name it *.npz")
+    if priors or config.mapper.ba == "colmap":
+        raise PolarrefError("the BA export takes our adjusters without pose priors (format version 1)")
+    check_writable_parent(path)
 
 
 def _unregistered(models, geoms: dict[tuple[int, int], TwoViewGeometry], names: list[str]) -> list[UnregisteredImage]:
