@@ -32,7 +32,10 @@ class Angular(Parallax):
     name = "angular"
     k = 2
     groups = ((0, 2),)
-    row_arrays = None  # chart rows are indexed over all observations: no chunked build
+    # the compiled rows' per-observation inputs (refresh_kernel_rows): the chunked build
+    # (chunked.py) slices them; the numpy path's chart rows are indexed over all observations,
+    # but rows are only evaluated with the kernels (Parallax.supports_rows)
+    row_arrays = ("k_obs", "k_whiten", "w_theta", "mode")
 
     def __init__(self, problem, options=None):
         super().__init__(problem, options)
