@@ -1,0 +1,43 @@
+"""The structure build's unique/inverse (schur.unique_inverse) against numpy's sort-based
+np.unique, on both of its branches, and a whole structure built from it against the
+searchsorted definition of its entry and U-block indices."""
+
+import numpy as np
+import pytest
+
+from polarref.ba.schur import SchurStructure, unique_inverse
+
+
+@pytest.mark.parametrize("n, bound", [(5000, 400), (5000, 10_000_000), (0, 10), (1, 1)])
+def test_unique_inverse_matches_numpy(n, bound):
+    keys = np.random.default_rng(n + bound).integers(0, bound, n)
+    uniq, inv = unique_inverse(keys, bound)
+    ref_u, ref_inv = np.unique(keys, return_inverse=True)
+    assert uniq.dtype == np.int64 and inv.dtype == np.int64
+    np.testing.assert_array_equal(uniq, ref_u)
+    np.testing.assert_array_equal(inv, ref_inv.reshape(-1))
+    np.testing.assert_array_equal(uniq[inv], keys)
+
+
+def test_structure_indices_by_definition():
+    rng = np.random.default_rng(3)
+    P, N, M = 300, 12, 2400
+    obs_pt = np.sort(np.r_[np.arange(P), rng.integers(0, P, M - P)])
+    slot_cams = rng.integers(0, N, (1, M))
+    cam_var = np.ones(N, bool)
+    cam_var[[0, 5]] = False
+    st = SchurStructure(slot_cams, [(0, 6)], obs_pt, cam_var, P, 700, fast=True, anchored=False)
+    vc = st.var_index[slot_cams]
+    nv = st.Nv
+    key = np.where(vc >= 0, obs_pt * nv + vc, -1)
+    ukeys = np.unique(key[key >= 0])
+    np.testing.assert_array_equal(st.entry_pt * nv + st.entry_cam, ukeys)
+    np.testing.assert_array_equal(
+        st.slot_entry, np.where(key >= 0, np.searchsorted(ukeys, np.maximum(key, 0)), -1))
+    ukey = np.where(vc[0] >= 0, vc[0] * nv + vc[0], -1)
+    allk = np.unique(ukey[ukey >= 0])
+    np.testing.assert_array_equal(st.u_ca * nv + st.u_cb, allk)
+    np.testing.assert_array_equal(
+        st.u_pairs[0][2], np.where(ukey >= 0, np.searchsorted(allk, np.maximum(ukey, 0)), -1))
+    obs_e = st.slot_entry[0][st.slot_entry[0] >= 0]
+    assert st.observer_unique == (len(np.unique(obs_e)) == len(obs_e))
