@@ -5,6 +5,7 @@ searchsorted definition of its entry and U-block indices."""
 import numpy as np
 import pytest
 
+from polarref.ba import schur_panel
 from polarref.ba.schur import SchurStructure, unique_inverse
 
 
@@ -41,3 +42,32 @@ def test_structure_indices_by_definition():
         st.u_pairs[0][2], np.where(ukey >= 0, np.searchsorted(allk, np.maximum(ukey, 0)), -1))
     obs_e = st.slot_entry[0][st.slot_entry[0] >= 0]
     assert st.observer_unique == (len(np.unique(obs_e)) == len(obs_e))
+
+
+def _choose_width_unpruned(entry_bounds, entry_cam, num_pairs, nv):
+    """choose_width's rule with every width's exact count (no lower-bound skip)."""
+    best, best_s = 0, num_pairs * schur_panel._PAIR_KERNEL_S
+    for w in schur_panel.WIDTHS:
+        if w > nv:
+            break
+        s = schur_panel.estimate_s(schur_panel.window_triples(entry_bounds, entry_cam, w), w,
+                                   -(-nv // w))
+        if s < best_s:
+            best, best_s = w, s
+    return best
+
+
+@pytest.mark.parametrize("track, spread", [(3, 200), (4, 200), (12, 16), (30, 40), (8, 8)])
+def test_choose_width_pruning_keeps_the_choice(track, spread):
+    rng = np.random.default_rng(track * 1000 + spread)
+    P, nv = 400, spread
+    cams = [np.sort(rng.choice(nv, size=min(track, nv), replace=False)) for _ in range(P)]
+    if spread <= 40:  # runs of consecutive cameras (SfM-like): windows can win
+        cams = [np.arange(s0, s0 + min(track, nv)) % nv for s0 in rng.integers(0, nv, P)]
+        cams = [np.sort(c) for c in cams]
+    entry_cam = np.concatenate(cams).astype(np.int64)
+    counts = np.array([len(c) for c in cams])
+    entry_bounds = np.r_[0, np.cumsum(counts)].astype(np.int64)
+    num_pairs = int((counts * (counts + 1) // 2).sum())
+    assert schur_panel.choose_width(entry_bounds, entry_cam, num_pairs, nv) == \
+        _choose_width_unpruned(entry_bounds, entry_cam, num_pairs, nv)
