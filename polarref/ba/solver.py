@@ -138,9 +138,20 @@ def solve(problem: BAProblem, options: BAOptions, *, prepared: bool = False,
                          f"{','.join(options.refine)}")
     if options.blas_threads is None:
         return _solve(problem, options, prepared, param)
-    from threadpoolctl import threadpool_limits
-    with threadpool_limits(limits=options.blas_threads, user_api="blas"):
+    with _blas_controller().limit(limits=options.blas_threads, user_api="blas"):
         return _solve(problem, options, prepared, param)
+
+
+_BLAS: list = []  # threadpoolctl's controller of the process's BLAS, made at the first solve
+
+
+def _blas_controller():
+    """Entering ``threadpool_limits`` scans the loaded libraries again (~2.4 ms per call, as
+    long as a warm synth-20 solve's structure build); the controller is made once."""
+    if not _BLAS:
+        from threadpoolctl import ThreadpoolController
+        _BLAS.append(ThreadpoolController())
+    return _BLAS[0]
 
 
 def _solve(problem: BAProblem, options: BAOptions, prepared: bool, param) -> BASummary:

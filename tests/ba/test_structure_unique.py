@@ -1,12 +1,19 @@
-"""The structure build's unique/inverse (schur.unique_inverse) against numpy's sort-based
-np.unique, on both of its branches, and a whole structure built from it against the
-searchsorted definition of its entry and U-block indices."""
+"""Per-solve fixed costs cut without changing results (issue 35): the structure build's
+unique/inverse against numpy's sort-based np.unique and the searchsorted definition of the
+indices; choose_width's lower-bound skip against the unpruned rule; the dsyrk path's kept
+buffer against a fresh structure and a dense reference; the cached BLAS controller."""
+
+from unittest import mock
 
 import numpy as np
 import pytest
+from threadpoolctl import threadpool_info
 
-from polarref.ba import schur_panel
+from polarref.ba import schur_panel, solver
+from polarref.ba.options import BAOptions
+from polarref.ba.problem import prepare
 from polarref.ba.schur import SchurStructure, unique_inverse
+from polarref.ba.synthetic import ring_problem
 
 
 @pytest.mark.parametrize("n, bound", [(5000, 400), (5000, 10_000_000), (0, 10), (1, 1)])
@@ -119,3 +126,23 @@ def test_dsyrk_buffer_reused_across_builds_equals_fresh(fast):
     ref = ref.reshape(6 * st.Nv, -1) + np.diag(dc.reshape(-1))
     lo = np.tril_indices(len(b1))
     np.testing.assert_allclose(S1.T[lo], ref[lo], rtol=1e-10, atol=1e-9)
+
+
+def test_solve_limits_blas_threads_and_restores_them():
+    """The cached threadpool controller still limits BLAS inside a solve and restores the
+    process's setting afterwards."""
+    before = [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+    seen = []
+    real = solver._solve
+
+    def spy(*a):
+        seen.append([i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"])
+        return real(*a)
+
+    p = ring_problem(6, 60, 4.0, seed=0)
+    prepare(p)
+    with mock.patch.object(solver, "_solve", spy):
+        for _ in range(2):
+            solver.solve(p.copy(), BAOptions(max_iterations=2, blas_threads=1), prepared=True)
+    assert seen and all(t == 1 for s in seen for t in s)
+    assert [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"] == before
