@@ -103,8 +103,11 @@ def pixel_cost(res_px: np.ndarray, loss: str, scale: float) -> tuple[float, floa
 
 def behind_camera_xyz(R, C, X, obs_cam, obs_pt) -> int:
     """Observations whose point X (P, 3) has depth <= 0 in its camera (R (N,3,3), C (N,3))."""
-    z = np.einsum("mj,mj->m", R[obs_cam, 2], X[obs_pt] - C[obs_cam])
-    return int((z <= 0).sum())
+    # row gathers by take (the same numbers as R[obs_cam, 2]): a third of the time, and this
+    # runs twice per solve (~1 ms each on synth-200-sparse before)
+    Rz = np.ascontiguousarray(R[:, 2])
+    z = np.einsum("mj,mj->m", Rz.take(obs_cam, 0), X.take(obs_pt, 0) - C.take(obs_cam, 0))
+    return int(np.count_nonzero(z <= 0))
 
 
 def _reduced_solver(options: BAOptions, nv: int) -> tuple[ReducedSolver, int]:
