@@ -1,12 +1,11 @@
 """The before/after report of our fixed per-solve costs (polarref.bench.ba_fixed_cost): the
 medians it takes from a bench problem, and the committed markdown regenerated from its JSON."""
 
-import json
 from pathlib import Path
 
 import pytest
 
-from polarref.bench.ba_fixed_cost import render, side
+from polarref.bench.ba_fixed_cost import load, render, side
 from polarref.bench.ba_records import ProblemResult, SolverKind, SolverRow, SolveRun, Stats
 
 REPORT = Path(__file__).resolve().parents[2] / "reports" / "bench-ba"
@@ -31,8 +30,8 @@ def test_side_takes_medians_of_the_full_runs():
 
 @pytest.mark.skipif(not (REPORT / "fixed-cost.json").exists(), reason="no committed report")
 def test_committed_markdown_is_generated_from_its_json():
-    doc = json.loads((REPORT / "fixed-cost.json").read_text())
+    doc = load(REPORT / "fixed-cost.json")
     assert (REPORT / "fixed-cost.md").read_text() == render(doc)
-    for p in doc["problems"]:  # results unchanged by the change being measured
-        assert p["before"]["final_cost"] == p["after"]["final_cost"]
-        assert p["before"]["iterations"] == p["after"]["iterations"]
+    for p in doc.problems:  # results unchanged by the change being measured
+        assert p.before.final_cost == p.after.final_cost
+        assert p.before.iterations == p.after.iterations
