@@ -103,8 +103,11 @@ def pixel_cost(res_px: np.ndarray, loss: str, scale: float) -> tuple[float, floa
 
 def behind_camera_xyz(R, C, X, obs_cam, obs_pt) -> int:
     """Observations whose point X (P, 3) has depth <= 0 in its camera (R (N,3,3), C (N,3))."""
-    z = np.einsum("mj,mj->m", R[obs_cam, 2], X[obs_pt] - C[obs_cam])
-    return int((z <= 0).sum())
+    # row gathers by take (the same numbers as R[obs_cam, 2]): a third of the time, and this
+    # runs twice per solve (~1 ms each on synth-200-sparse before)
+    Rz = np.ascontiguousarray(R[:, 2])
+    z = np.einsum("mj,mj->m", Rz.take(obs_cam, 0), X.take(obs_pt, 0) - C.take(obs_cam, 0))
+    return int(np.count_nonzero(z <= 0))
 
 
 def _reduced_solver(options: BAOptions, nv: int) -> tuple[ReducedSolver, int]:
@@ -138,9 +141,20 @@ def solve(problem: BAProblem, options: BAOptions, *, prepared: bool = False,
                          f"{','.join(options.refine)}")
     if options.blas_threads is None:
         return _solve(problem, options, prepared, param)
-    from threadpoolctl import threadpool_limits
-    with threadpool_limits(limits=options.blas_threads, user_api="blas"):
+    with _blas_controller().limit(limits=options.blas_threads, user_api="blas"):
         return _solve(problem, options, prepared, param)
+
+
+_BLAS: list = []  # threadpoolctl's controller of the process's BLAS, made at the first solve
+
+
+def _blas_controller():
+    """Entering ``threadpool_limits`` scans the loaded libraries again (~2.4 ms per call, as
+    long as a warm synth-20 solve's structure build); the controller is made once."""
+    if not _BLAS:
+        from threadpoolctl import ThreadpoolController
+        _BLAS.append(ThreadpoolController())
+    return _BLAS[0]
 
 
 def _solve(problem: BAProblem, options: BAOptions, prepared: bool, param) -> BASummary:
