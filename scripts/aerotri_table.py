@@ -177,10 +177,7 @@ def _monte_carlo(rec, gt_imgs, georef: Georef, pp: PriorParams, form: str, draws
         err = (X - np.array([p.xyz for p in found]).reshape(-1, 3)) ** 2
         sq += list(err)
         per.append(_rmse(err))
-        att = pp.rotation_sigma_deg > 0
-        d_rot = np.array([so3_log(p.R @ R.T) for p, R in zip(pri, Rt)]) if att else None
-        lin.append(datum_error(C, np.array([p.sigma for p in pri]), G, np.array([p.centre for p in pri]) - C,
-                               Rt if att else None, np.radians(pp.rotation_sigma_deg), d_rot) ** 2)
+        lin.append(_linear_error(pri, C, Rt, G, pp) ** 2)
     return MonteCarlo(draws, seed, form, _rmse(np.array(sq)), _rmse(np.concatenate(lin)), tuple(per))
 
 
@@ -191,12 +188,17 @@ def _realised(gt_imgs, georef: Georef, pp: PriorParams) -> PredictedRMSE:
     pri = [by_name[im.name] for im in gt_imgs]
     poses = [im.cam_from_world for im in gt_imgs]
     C, Rt = np.array([q.center for q in poses]), np.array([q.R for q in poses])
+    G = np.array([p.xyz for p in georef.of_role(Role.CHECK)])
+    return _rmse(_linear_error(pri, C, Rt, G, pp) ** 2)
+
+
+def _linear_error(pri, C: np.ndarray, Rt: np.ndarray, G: np.ndarray, pp: PriorParams) -> np.ndarray:
+    """(G, 3) check-point error of the linear datum model for the prior errors of ``pri``
+    (true centres C, rotations Rt); attitude rows where the priors carry one."""
     att = pp.rotation_sigma_deg > 0 and all(p.R is not None for p in pri)
     d_rot = np.array([so3_log(p.R @ R.T) for p, R in zip(pri, Rt)]) if att else None
-    G = np.array([p.xyz for p in georef.of_role(Role.CHECK)])
-    err = datum_error(C, np.array([p.sigma for p in pri]), G, np.array([p.centre for p in pri]) - C,
-                      Rt if att else None, np.radians(pp.rotation_sigma_deg), d_rot)
-    return _rmse(err**2)
+    return datum_error(C, np.array([p.sigma for p in pri]), G, np.array([p.centre for p in pri]) - C,
+                       Rt if att else None, np.radians(pp.rotation_sigma_deg), d_rot)
 
 
 def _rmse(sq: np.ndarray) -> PredictedRMSE:
