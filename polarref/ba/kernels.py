@@ -72,7 +72,7 @@ def warm_up() -> float:
     """Compile (or load from the disk cache) every kernel on tiny inputs; seconds taken."""
     if not available():
         return 0.0
-    from polarref.ba.forms_jit import (angular_obs, angular_rows, euclidean_jacobians,
+    from polarref.ba.forms_jit import (angular_obs, angular_rows, best_associates, euclidean_jacobians,
                                        euclidean_rays, parallax_jacobians, parallax_points,
                                        parallax_rays, parallax_xyz, pixel_rows, theta_row_into)
     from polarref.ba.kernels_jit import (add_cross, back_substitute_rhs, build_anchored,
@@ -107,6 +107,7 @@ def warm_up() -> float:
     R, x1 = np.eye(3)[None].copy(), f(1)
     euclidean_jacobians(Jp, euclidean_rays(R, x3, x3, one, one), R, one)
     parallax_points(R, x3, x3, one, one, True)
+    best_associates(one, one, x3, x3)
     parallax_rays(R, x3, one, one, x3, x1, x3)
     parallax_xyz(R, x3, x3, one, one, 1e8)
     for dense in (True, False):

@@ -370,11 +370,13 @@ def point_sums(Jp, res, obs_pt, V, g):
             for r in range(k):
                 s += Jp[m, r, i] * res[m, r]
             g[p, i] += s
-            for j in range(3):
+            for j in range(i + 1):  # the upper triangle mirrored: products commute exactly
                 s = 0.0
                 for r in range(k):
                     s += Jp[m, r, i] * Jp[m, r, j]
                 V[p, i, j] += s
+                if j != i:
+                    V[p, j, i] += s
 
 
 @_njit

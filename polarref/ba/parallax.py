@@ -44,7 +44,7 @@ FAR = 1e8  # points at infinity are written back this many baselines from the ma
 OMEGA_MARGIN = 1e-6
 
 
-def choose_anchors(problem: BAProblem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def choose_anchors(problem: BAProblem, compiled: bool = False) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Main anchor = first observation's camera; associate = the observing camera whose ray to
     the point makes the parallax angle closest to 90 degrees with the main ray (largest
     ``sin(omega)``). Returns (main (P,), assoc (P,), omega (P,)).
@@ -54,30 +54,46 @@ def choose_anchors(problem: BAProblem) -> tuple[np.ndarray, np.ndarray, np.ndarr
     point sits almost on the anchors' baseline and its position becomes extremely nonlinear
     in (direction, omega). On synth-20 (omega up to 179.3 degrees) LM then needed 81/62/76
     iterations (parallax/polar/angular) instead of 4-5. Observations are sorted by point.
+    ``compiled``: the same choice by forms_jit's one-pass kernel (tests compare the two).
     """
     p = problem
     starts = np.flatnonzero(np.r_[True, p.obs_pt[1:] != p.obs_pt[:-1]])
     main = p.obs_cam[starts]
-    Xo = p.X[p.obs_pt]
-    rm = Xo - p.C[main][p.obs_pt]
-    ri = Xo - p.C[p.obs_cam]
+    if compiled:
+        from polarref.ba import kernels
+        best = kernels.best_associates(p.obs_cam, p.obs_pt, p.C, p.X)
+        # omega by the reference's own arithmetic on the chosen observations: the kernel's
+        # last-bit differences part chaotic solves (test_ba_bounds' held components)
+        omega = _parallax_angles(p, main[p.obs_pt[best]], best)
+    else:
+        ang = _parallax_angles(p, main[p.obs_pt], np.arange(p.num_observations))
+        # arg-max per point over its sorted run of observations
+        score = np.where(ang >= 0, np.sin(ang), -1.0)
+        best = np.lexsort((-score, p.obs_pt))[starts]
+        omega = ang[best]
+    _check_associates(omega)
+    assoc = p.obs_cam[best]
+    assert len(assoc) == len(p.X)
+    return main, assoc, omega
+
+
+def _parallax_angles(p: BAProblem, main_cam: np.ndarray, obs: np.ndarray) -> np.ndarray:
+    """Angle between the main anchor's ray and observation ``obs``'s ray to its point (n,);
+    -1 where the two centres coincide (unusable). main_cam, obs (n,)."""
+    Xo = p.X[p.obs_pt[obs]]
+    rm = Xo - p.C[main_cam]
+    ri = Xo - p.C[p.obs_cam[obs]]
     cosang = np.einsum("mi,mi->m", rm, ri) / np.maximum(
         np.linalg.norm(rm, axis=1) * np.linalg.norm(ri, axis=1), 1e-300)
     ang = np.arccos(np.clip(cosang, -1.0, 1.0))
-    base = np.linalg.norm(p.C[p.obs_cam] - p.C[main][p.obs_pt], axis=1)
-    ang = np.where(base > 0, ang, -1.0)  # same centre as the main anchor: unusable
-    # arg-max per point over its sorted run of observations
-    P = len(p.X)
-    score = np.where(ang >= 0, np.sin(ang), -1.0)
-    order = np.lexsort((-score, p.obs_pt))
-    best = order[starts]
-    assoc = p.obs_cam[best]
-    omega = ang[best]
+    base = np.linalg.norm(p.C[p.obs_cam[obs]] - p.C[main_cam], axis=1)
+    return np.where(base > 0, ang, -1.0)
+
+
+def _check_associates(omega: np.ndarray) -> None:
     if (omega < 0).any():
         raise PolarrefError(f"parallax landmarks: {int((omega < 0).sum())} points are seen only "
                             "from one camera centre (no associate anchor)")
-    assert len(assoc) == P
-    return main, assoc, omega
 
 
 def direction_frames(v: np.ndarray) -> np.ndarray:
@@ -109,7 +125,7 @@ class Parallax:
         # the anchors' maps for the X-space elimination (xspace.py), with the factored kernels
         self.want_maps = options is None or options.anchor_schur == "xspace"
         self.proj = Projector(problem.cameras, problem.obs_cam, compiled=self.fast)
-        self.main, self.assoc, omega0 = choose_anchors(problem)
+        self.main, self.assoc, omega0 = choose_anchors(problem, compiled=self.fast)
         self.omega0 = omega0
         op = problem.obs_pt
         self.slot_cams = np.stack([problem.obs_cam, self.main[op], self.assoc[op]])

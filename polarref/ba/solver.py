@@ -310,8 +310,12 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
                                                pt_free if any_pt_fixed else None, xs, mask_v)
             else:
                 if w is not None:
-                    r_w, Jp_w = r * w, Jp * w[:, :, None]
-                    Jc_w = [J * w[:, :, None] if isinstance(J, np.ndarray) else J.scaled(w)
+                    # weighted in place: evaluate's arrays are this build's alone (dropped
+                    # below); fresh copies were a tenth of a mapper's local BA. The factored
+                    # anchors are weighted below, only for a build that reads their Ad.
+                    wm = w[:, :, None]
+                    r_w, Jp_w = np.multiply(r, w, out=r), np.multiply(Jp, wm, out=Jp)
+                    Jc_w = [np.multiply(J, wm, out=J) if isinstance(J, np.ndarray) else J
                             for J in Jc]
                 else:
                     r_w, Jp_w, Jc_w = r, Jp, Jc
@@ -348,6 +352,8 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             # gauge-fixed columns and fixed cameras are masked on the assembled blocks
             if not lazy:
                 use_x = xs is not None and xs.carries(Jc_w[1], active)
+                if w is not None and not use_x:  # the reference build reads the weighted Ad
+                    Jc_w = [J if isinstance(J, np.ndarray) else J.scaled(w) for J in Jc_w]
                 blocks = (xs.build(Jc_w[0], Jc_w[1], Jp_w, r_w, V, g_p, mask_v) if use_x
                           else builder.build(Jc_w, Jp_w, r_w))
                 builds_x += use_x

@@ -18,7 +18,7 @@ import pytest
 from _dense_jacobian import dense_lm_step
 
 import polarref.ba.schur as schur_mod
-from polarref.ba import BAOptions, adjust, prepare, solve
+from polarref.ba import BAOptions, adjust, kernels, prepare, solve
 from polarref.ba.adapter import problem_from_reconstruction
 from polarref.ba.anchor_terms import AnchorTerms
 from polarref.ba.angular_obs import axis_chart_rows, phi_rows, theta_rows
@@ -26,6 +26,7 @@ from polarref.ba.parallax import choose_anchors
 from polarref.ba.schur import SchurStructure, chol_inv3
 from polarref.ba.solver import _robust, make_param
 from polarref.ba.synthetic import synthetic_reconstruction
+from polarref.core.errors import PolarrefError
 from polarref.ba.parameterization import PARAMS as FORM_NAMES
 
 PARAMS = list(FORM_NAMES)
@@ -60,12 +61,16 @@ def test_iterations_comparable_to_euclidean(iterations, param):
     assert 0.4 <= s.final_rms_px <= 0.6
 
 
-def test_associate_anchor_maximizes_sin_parallax(surround):
+@pytest.mark.parametrize("compiled", [False, True])
+def test_associate_anchor_maximizes_sin_parallax(surround, compiled):
     """Brute force over each point's observations: the associate anchor's parallax angle is
-    the one closest to 90 degrees (not the largest, which is near 180 for surrounding cameras)."""
+    the one closest to 90 degrees (not the largest, which is near 180 for surrounding cameras);
+    the compiled one-pass kernel and the numpy reference alike."""
+    if compiled and not kernels.available():
+        pytest.skip("numba kernels unavailable")
     p = problem_from_reconstruction(copy.deepcopy(surround[0]))
     prepare(p)
-    main, assoc, omega = choose_anchors(p)
+    main, assoc, omega = choose_anchors(p, compiled=compiled)
     for j in range(0, p.num_points, 11):
         cams = p.obs_cam[p.obs_pt == j]
         rm = p.X[j] - p.C[main[j]]
@@ -259,3 +264,30 @@ def test_camera_pair_blocks_gathered_in_runs_equal_the_direct_sum(chunk, monkeyp
         for q in range(st.seg_starts[i], st.seg_ends[i]):
             want[i] += Z[st.pair_a[q]] @ Z[st.pair_b[q]].T
     np.testing.assert_allclose(st._pair_blocks(Z), want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
+
+
+@pytest.mark.skipif(not kernels.available(), reason="numba kernels unavailable")
+def test_compiled_anchors_equal_reference_and_refuse_one_centre(surround):
+    """The kernel picks the reference's anchors on every point (ties too: both take the first
+    of equal scores) and omega bit for bit (the reference's arithmetic on the chosen
+    observations); a point seen from one centre only is refused by both."""
+    p = problem_from_reconstruction(copy.deepcopy(surround[0]))
+    prepare(p)
+    ref, ker = choose_anchors(p), choose_anchors(p, compiled=True)
+    for a, b in zip(ref, ker):
+        assert np.array_equal(a, b)
+    # ties: every camera of point 0 moved to one of two centres, so several share the score
+    first = np.flatnonzero(p.obs_pt == 0)
+    C = p.C.copy()
+    for i, c in enumerate(p.obs_cam[first]):
+        C[c] = p.C[p.obs_cam[first[0]]] if i % 2 == 0 else p.C[p.obs_cam[first[1]]]
+    q = copy.copy(p)
+    q.C = C
+    assert np.array_equal(choose_anchors(q)[1], choose_anchors(q, compiled=True)[1])
+    C[p.obs_cam[first]] = C[p.obs_cam[first[0]]]  # point 0: one centre for all its cameras
+    said = []
+    for compiled in (False, True):
+        with pytest.raises(PolarrefError, match="points are seen only from one camera centre") as exc:
+            choose_anchors(q, compiled=compiled)
+        said.append(str(exc.value))
+    assert said[0] == said[1]
