@@ -23,3 +23,5 @@ $P --no-progress report --index reports
 .venv/bin/python -m polarref.compare.report.readme_findings reports README.md
 .venv/bin/python -m polarref.compare.report.readme_runtime reports README.md
 .venv/bin/python -m polarref.georef.readme reports README.md
+.venv/bin/python -m polarref.compare.twins.readme_scale reports/paper-tables README.md
+.venv/bin/python -m polarref.compare.twins.readme_campaign reports/paper-tables/campaign README.md

@@ -1,0 +1,70 @@
+"""The README's finding of the twin campaign, generated from its committed cells.
+
+``python -m polarref.compare.twins.readme_campaign reports/paper-tables/campaign README.md`` rewrites
+the block between the README's markers: one line per full-size twin of each pinned commit's folder
+(reduced sizes are dry runs of the machinery, never a result about the twins), C4 and C5 paired over
+the seeds by :func:`polarref.compare.twins.campaign_table.build`. ``tests/compare/twins/
+test_readme_campaign.py`` fails when the README and the cells differ.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from polarref.compare.twins.campaign_table import CampaignTable, MethodSummary, TwinCampaign, build, rules
+from polarref.core.markers import rewrite_block
+
+BEGIN = "<!-- campaign-findings: generated from reports/paper-tables/campaign/*/ cells, do not edit by hand -->"
+END = "<!-- /campaign-findings -->"
+LABELS = (("ours-euclidean", "ours Euclidean"), ("ours-polar", "ours polar"))
+
+
+def _span(xs, spec: str) -> str:
+    lo, hi = format(min(xs), spec), format(max(xs), spec)
+    return lo if lo == hi else f"{lo}-{hi}"
+
+
+def _method(m: MethodSummary | None, label: str) -> str:
+    if m is None or not m.minutes:
+        return f"{label} not run"
+    failed = f", {len(m.failed)} failed" if m.failed else ""
+    return (f"{label} {_span(m.minutes, '.1f')} min per seed (median {m.median_min:.1f}{failed}), "
+            f"{_span(m.tie_points, ',')} tie points, rotation error {_span(m.rotation_error_deg, '.4f')} deg")
+
+
+def twin_line(t: CampaignTable, tw: TwinCampaign, where: str) -> str:
+    by = {m.key: m for m in tw.methods}
+    c4, pct = tw.c4, (lambda v: "-" if v is None else f"{100 * v:+.3f}")
+    seeds = ", ".join(map(str, c4.seeds)) or "none paired"
+    head = f"- `{where}/{t.commit[:12]}/` `{tw.twin}` ({tw.views} views, paired seeds {seeds}): "
+    body = "; ".join(_method(by.get(k), label) for k, label in LABELS)
+    if c4.geometric_mean is None:
+        return head + body + "; C4 and C5 not tested (no seed with both BAs)."
+    ci = "" if c4.lo is None else f", 95% CI {c4.lo:.3f}-{c4.hi:.3f}"
+    c5 = ", ".join(f"{s.count.replace('_', ' ')} {pct(s.mean)} % (90% CI {pct(s.lo)} to {pct(s.hi)}, {s.outcome})"
+                   for s in tw.c5)
+    ba = "" if not c4.ba_ratios else (f"; mapper BA polar/Euclidean x{_span(c4.ba_ratios, '.2f')} (target <= "
+                                      f"x{c4.ba_ratio_max:.1f} {'met' if c4.ba_target_met else 'not met'})")
+    peak = "" if tw.peak_mb_max is None else f"; peak memory {tw.peak_mb_max:,.0f} MiB"
+    return (head + body + f"; C4 **{c4.verdict}** (whole-method speed-up Euclidean/polar x{c4.geometric_mean:.3f}"
+            f"{ci}; bar x{c4.bar:.2f}){ba}; C5 **{tw.c5_verdict}** ({c5}){peak}.")
+
+
+def findings_block(root: Path) -> str:
+    """One line per full-size twin per commit folder under ``root`` (folders in name order)."""
+    where = "/".join(root.parts[-3:]) if len(root.parts) >= 3 else str(root)
+    full, lines = set(rules().twins), []  # a reduced size is named "<twin>-<size>"
+    for d in sorted(p for p in root.iterdir() if p.is_dir()):
+        t = build(d)
+        lines += [twin_line(t, tw, where) for tw in t.twins if tw.twin in full]
+    return "\n".join(lines or ["- no full-size campaign cell committed (not tested)."]) + "\n"
+
+
+def update_readme(readme: Path, root: Path) -> Path:
+    return rewrite_block(readme, BEGIN, END, findings_block(root))
+
+
+if __name__ == "__main__":  # python -m polarref.compare.twins.readme_campaign reports/paper-tables/campaign README.md
+    print(update_readme(Path(sys.argv[2] if len(sys.argv) > 2 else "README.md"),
+                        Path(sys.argv[1] if len(sys.argv) > 1 else "reports/paper-tables/campaign")))

@@ -1,0 +1,53 @@
+"""The README's campaign finding is generated from the committed campaign cells (issue 34)."""
+
+import json
+import math
+from pathlib import Path
+
+from polarref.compare.twins.readme_campaign import BEGIN, END, findings_block, update_readme
+from polarref.core.markers import read_block
+
+ROOT = Path(__file__).resolve().parents[3]
+CELLS = ROOT / "reports" / "paper-tables" / "campaign"
+
+
+def test_readme_block_matches_the_committed_cells():
+    block = read_block((ROOT / "README.md").read_text(), BEGIN, END)
+    assert block is not None, "README lost its campaign-findings markers"
+    assert block == findings_block(CELLS), (
+        "README campaign finding differs from the cells: run python -m "
+        "polarref.compare.twins.readme_campaign reports/paper-tables/campaign README.md")
+
+
+def test_quoted_speedup_is_the_cells_geometric_mean():
+    """Independently of the table code: per twin and commit, the geometric mean over the seeds
+    of the raw cells' wall times (Euclidean / polar), and the mapper BA ratios' range."""
+    block = findings_block(CELLS)
+    checked = 0
+    for twin_dir in sorted(p for p in CELLS.glob("*/*") if p.is_dir() and p.name in ("mappilot", "rosetta", "poets-park")):
+        ratios, ba = [], []
+        for seed in sorted(twin_dir.glob("seed*")):
+            e, p = seed / "ours-euclidean.json", seed / "ours-polar.json"
+            if e.is_file() and p.is_file():
+                de, dp = json.loads(e.read_text()), json.loads(p.read_text())
+                if de["status"] == dp["status"] == "ok":
+                    ratios.append(de["wall_s"] / dp["wall_s"])
+                    ba.append(dp["ba_s"] / de["ba_s"])
+        if not ratios:
+            continue
+        gm = math.exp(sum(map(math.log, ratios)) / len(ratios))
+        line = next(x for x in block.splitlines() if f"/{twin_dir.parent.name[:12]}/` `{twin_dir.name}`" in x)
+        assert f"Euclidean/polar x{gm:.3f}" in line
+        lo, hi = f"{min(ba):.2f}", f"{max(ba):.2f}"
+        assert f"polar/Euclidean x{lo if lo == hi else lo + '-' + hi} " in line
+        checked += 1
+    assert checked >= 1, "no full-size campaign twin with both BAs committed"
+
+
+def test_update_rewrites_only_between_the_markers(tmp_path):
+    readme = tmp_path / "README.md"
+    readme.write_text(f"intro\n{BEGIN}\nstale\n{END}\ntail\n")
+    update_readme(readme, CELLS)
+    text = readme.read_text()
+    assert text.startswith("intro\n") and text.endswith("tail\n") and "stale" not in text
+    assert read_block(text, BEGIN, END) == findings_block(CELLS)
