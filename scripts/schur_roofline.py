@@ -135,7 +135,7 @@ def measure(spec: str, repeat: int) -> dict:
     cv = base.cam_mask.any(1)
     st = SchurStructure(prm.slot_cams, prm.slot_cols, base.obs_pt, cv, base.num_points, 10**6, fast=True)
     st.use_gemm, st.dense_blocks = False, True   # the entry-pair paths, whatever the size rule says
-    if not hasattr(st, "pair_blk"):
+    if st.pair_blk is None:
         st._build_blocks()
     r, Jp, Jc = prm.evaluate(base.R, base.C, prm.init_points(), True, factored=False)
     mask_v = base.cam_mask[st.var_cams].astype(float)

@@ -218,13 +218,14 @@ class SchurStructure:
         # (scattered into the dense S once per step): 1.7x the rate of writing them into
         # six rows of the dense S on scale-1e5 (reports/bench-ba-scale/schur-roofline.md)
         self.dense_blocks = fast and not self.sparse_S and not self.use_gemm and not self.fused
+        self.pair_blk = None  # the block layout (_build_blocks), built once where a path needs it
         # dense S with long runs of shared cameras: GEMMs over camera windows (schur_panel.py)
         self.panel = None
         self._zd = None  # dsyrk path: the scattered Z, kept across builds (_scatter_zd)
         if fast and not self.sparse_S and not self.use_gemm and E:
             self.use_panels(schur_panel.choose_width(self.entry_bounds, self.entry_cam,
                                                      self.num_pairs, Nv))
-        if fast and (self.sparse_S or self.dense_blocks) and not hasattr(self, "pair_blk"):
+        if fast and (self.sparse_S or self.dense_blocks) and self.pair_blk is None:
             self._build_blocks()
         elif not self.use_gemm and (self.sparse_S or not fast):
             self._build_pairs(counts)
@@ -234,7 +235,7 @@ class SchurStructure:
         (schur_panel.py), or 0: the entry-pair kernel."""
         self.panel = schur_panel.plan(self.entry_bounds, self.entry_cam, width) if width else None
         self.dense_blocks = self.panel is None and not self.use_gemm and not self.fused
-        if self.dense_blocks and not hasattr(self, "pair_blk"):
+        if self.dense_blocks and self.pair_blk is None:
             self._build_blocks()
 
     def _build_u_reducers(self, vc: np.ndarray, slot_entry: np.ndarray) -> None:

@@ -37,7 +37,7 @@ def test_schur_traffic_matches_the_solvers_block_structure():
     cv = base.cam_mask.any(1)
     prm = make_param(base, BAOptions(param="euclidean"))
     st = SchurStructure(prm.slot_cams, prm.slot_cols, base.obs_pt, cv, base.num_points, 10**6, fast=True)
-    if not hasattr(st, "pair_blk"):
+    if st.pair_blk is None:
         st._build_blocks()
     t = schur_traffic(base.obs_cam, base.obs_pt, cv)
     assert (t.entries, t.pairs, t.blocks) == (st.E, st.num_pairs, st.K)
