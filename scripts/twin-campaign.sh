@@ -13,6 +13,12 @@ set -u
 cd "$(dirname "$0")/.."
 : "${COMMIT:?set COMMIT to the pinned commit}"
 PY=${PY:-.venv/bin/python}
+# the cells run in a worktree under $WORK, whose ../shared is not this checkout's: name the data
+# (rosetta's shape model) by this checkout's default unless the caller set it
+if [ -z "${POLARREF_DATA:-}" ] && [ -d ../shared/data ]; then
+  POLARREF_DATA=$(cd ../shared/data && pwd)
+  export POLARREF_DATA
+fi
 WORK=${WORK:-polarref-out/campaign}
 TWINS=${TWINS:-"mappilot rosetta poets-park"}
 SEEDS=${SEEDS:-"0 1 2"}

@@ -15,6 +15,7 @@ original images stays valid (COLMAP does the same).
 from __future__ import annotations
 
 import logging
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -135,18 +136,26 @@ def extract(image: np.ndarray, name: str, config: FeatureConfig) -> Features:
     )
 
 
-def save(path: Path, feats: list[Features]) -> None:
-    """Store features of several images in one ``.npz`` (atomic rename)."""
-    arrays: dict[str, np.ndarray] = {"names": np.array([f.name for f in feats]),
-                                     "sizes": np.array([[f.width, f.height] for f in feats]).reshape(-1, 2)}
+def _arrays(feats: list[Features]):
+    """(name, array) of the ``.npz`` members, one image at a time."""
+    yield "names", np.array([f.name for f in feats])
+    yield "sizes", np.array([[f.width, f.height] for f in feats]).reshape(-1, 2)
     for i, f in enumerate(feats):
-        arrays[f"kp{i}"] = f.keypoints
-        arrays[f"de{i}"] = f.descriptors.astype(np.float16)  # exact: extract() already rounded
-        arrays[f"sc{i}"] = f.scales
-        arrays[f"or{i}"] = f.orientations
-        arrays[f"co{i}"] = f.colors
-    with atomic_open(path) as fh:
-        np.savez(fh, **arrays)
+        yield f"kp{i}", f.keypoints
+        yield f"de{i}", f.descriptors.astype(np.float16)  # exact: extract() already rounded
+        yield f"sc{i}", f.scales
+        yield f"or{i}", f.orientations
+        yield f"co{i}", f.colors
+
+
+def save(path: Path, feats: list[Features]) -> None:
+    """Store features of several images in one ``.npz`` (atomic rename), written member by
+    member as ``np.savez`` lays them out: its dict of every float16 copy at once was a quarter
+    of the features stage's peak memory at 493 views (2.0 GB)."""
+    with atomic_open(path) as fh, zipfile.ZipFile(fh, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
+        for name, arr in _arrays(feats):
+            with zf.open(name + ".npy", "w", force_zip64=True) as member:
+                np.lib.format.write_array(member, np.asanyarray(arr), allow_pickle=False)
 
 
 def load(path: Path) -> list[Features]:
