@@ -18,7 +18,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import statistics
 import sys
 import time
 from pathlib import Path
@@ -26,6 +25,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from polarref.bench.paired import ratio_summary  # noqa: E402
 from polarref.compare.run import jobs, presets  # noqa: E402
 from polarref.compare.run.scenes import prepare  # noqa: E402
 from polarref.core.atomic import atomic_write  # noqa: E402
@@ -62,16 +62,7 @@ def measure(seed_dir: Path, render: Path, forms: list[str], repeat: int, work: P
 
 def summarize(runs: list[dict]) -> dict:
     """Per form: median mapper BA seconds, its ratio to the Euclidean median, paired range."""
-    out = {}
-    eu = statistics.median(r["ba_s"] for r in runs if r["form"] == "euclidean")
-    for form in dict.fromkeys(r["form"] for r in runs):
-        mine = [r for r in runs if r["form"] == form]
-        paired = [r["ba_s"] / e["ba_s"] for r in mine for e in runs
-                  if e["form"] == "euclidean" and e["repeat"] == r["repeat"]]
-        med = statistics.median(r["ba_s"] for r in mine)
-        out[form] = {"ba_s_median": med, "ratio_to_euclidean": med / eu, "ratio_paired_min": min(paired),
-                     "ratio_paired_max": max(paired), "within_threshold": med / eu <= THRESHOLD}
-    return out
+    return ratio_summary(runs, "ba_s", "ba_s_median", THRESHOLD)
 
 
 def markdown(doc: dict) -> str:

@@ -31,6 +31,7 @@ from polarref.ba import BAOptions, kernels, prepare  # noqa: E402
 from polarref.ba.entry import solve  # noqa: E402
 from polarref.ba.export_problem import read_problem_file  # noqa: E402
 from polarref.ba.parameterization import PARAMS  # noqa: E402
+from polarref.bench.paired import ratio_summary  # noqa: E402
 from polarref.core.atomic import atomic_write  # noqa: E402
 from polarref.core.provenance import collect  # noqa: E402
 
@@ -103,17 +104,7 @@ def measure(path: Path, iterations: int, repeat: int) -> tuple[dict, list[dict]]
 def summarize(runs: list[dict]) -> dict:
     """Per form: median per-iteration cost, its ratio to the Euclidean median, and the range of
     the ratios paired within a repeat."""
-    by = {}
-    for form in dict.fromkeys(r["form"] for r in runs):
-        mine = [r for r in runs if r["form"] == form]
-        paired = [r["per_iteration_s"] / e["per_iteration_s"] for r in mine
-                  for e in runs if e["form"] == "euclidean" and e["repeat"] == r["repeat"]]
-        med = statistics.median(r["per_iteration_s"] for r in mine)
-        eu = statistics.median(r["per_iteration_s"] for r in runs if r["form"] == "euclidean")
-        by[form] = {"per_iteration_s_median": med, "ratio_to_euclidean": med / eu,
-                    "ratio_paired_min": min(paired), "ratio_paired_max": max(paired),
-                    "within_threshold": med / eu <= THRESHOLD}
-    return by
+    return ratio_summary(runs, "per_iteration_s", "per_iteration_s_median", THRESHOLD)
 
 
 def markdown(doc: dict) -> str:

@@ -3,11 +3,11 @@ JSON, the summary is recomputed from the stored runs, and the figures come from 
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import re
 
 import pytest
+from _scripts import load_script
 
 from polarref.ba.parameterization import PARAMS
 from polarref.core.data import REPO_ROOT
@@ -16,10 +16,7 @@ REPORT = REPO_ROOT / "reports" / "bench-ba-scale" / "twin-problems"
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location("twin_ba_forms", REPO_ROOT / "scripts" / "twin_ba_forms.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("twin_ba_forms")
 
 
 @pytest.fixture(scope="module")

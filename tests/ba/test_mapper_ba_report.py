@@ -4,11 +4,11 @@ come from a clean commit, and the forms' results agree across repeats (the runs 
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import statistics
 
 import pytest
+from _scripts import load_script
 
 from polarref.core.data import REPO_ROOT
 
@@ -16,10 +16,7 @@ REPORT = REPO_ROOT / "reports" / "bench-ba-scale" / "mapper-ba"
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location("mapper_ba_forms", REPO_ROOT / "scripts" / "mapper_ba_forms.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_script("mapper_ba_forms")
 
 
 @pytest.fixture(scope="module")

@@ -3,24 +3,19 @@
 from __future__ import annotations
 
 import copy
-import importlib.util
 import json
 import re
-import sys
 from pathlib import Path
 
 import pytest
+from _scripts import load_script
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
 def diff_reports():
-    spec = importlib.util.spec_from_file_location("diff_reports", ROOT / "scripts" / "diff_reports.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["diff_reports"] = module   # its dataclasses look their module up there
-    spec.loader.exec_module(module)
-    return module
+    return load_script("diff_reports")
 
 
 def _write(path: Path, data) -> Path:

@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 import pytest
+from _scripts import load_script
 
 from polarref.compare.twins import scale as PS
 from polarref.compare.twins import readme as PR
@@ -192,15 +193,7 @@ def test_twin_comparison_runs_every_method_and_resumes(tmp_path):
     assert f"| #Tie point | 670,355 | 671,331 | {table.methods[PT.BASELINE].tie_points:,} |" in readme
     # The variant script with the tables' own setting reproduces the stage's model's figures
     # (same code, same caches), and refuses to overwrite its JSON.
-    import importlib.util
-
-    def script(name):
-        spec = importlib.util.spec_from_file_location(name, Path(__file__).parents[3] / "scripts" / f"{name}.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-        return module
-
-    tv, tm = script("twin_variant"), script("twin_memory")
+    tv, tm = load_script("twin_variant"), load_script("twin_memory")
     out_json = tmp_path / "variant.json"
     assert tv.main([str(tmp_path / "out"), "euclidean", str(out_json), "--track-conflicts", "drop"]) == 0
     rec = json.loads(out_json.read_text())
