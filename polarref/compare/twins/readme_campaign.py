@@ -29,8 +29,16 @@ def _method(m: MethodSummary | None, label: str) -> str:
     if m is None or not m.minutes:
         return f"{label} not run"
     failed = f", {len(m.failed)} failed" if m.failed else ""
-    return (f"{label} {_span(m.minutes, '.1f')} min per seed (median {m.median_min:.1f}{failed}), "
-            f"{_span(m.tie_points, ',')} tie points, rotation error {_span(m.rotation_error_deg, '.4f')} deg")
+    when = (f"{_span(m.minutes, '.1f')} min per seed (median {m.median_min:.1f}{failed})" if len(m.seeds) > 1
+            else f"seed {m.seeds[0]} only, {m.minutes[0]:.1f} min{failed}")
+    return (f"{label} {when}, {_span(m.tie_points, ',')} tie points, rotation error "
+            f"{_span(m.rotation_error_deg, '.4f')} deg")
+
+
+def _peer_label(m: MethodSummary) -> str:
+    """``pycolmap-incremental-sift-t2`` -> ``pycolmap incremental (2 threads)``."""
+    name = m.key.split("-sift")[0].replace("-", " ")
+    return name if m.threads is None else f"{name} ({m.threads} thread{'s' if m.threads != 1 else ''})"
 
 
 def twin_line(t: CampaignTable, tw: TwinCampaign, where: str) -> str:
@@ -38,7 +46,8 @@ def twin_line(t: CampaignTable, tw: TwinCampaign, where: str) -> str:
     c4, pct = tw.c4, (lambda v: "-" if v is None else f"{100 * v:+.3f}")
     seeds = ", ".join(map(str, c4.seeds)) or "none paired"
     head = f"- `{where}/{t.commit[:12]}/` `{tw.twin}` ({tw.views} views, paired seeds {seeds}): "
-    body = "; ".join(_method(by.get(k), label) for k, label in LABELS)
+    peers = [(k, _peer_label(by[k])) for k in sorted(by) if k.startswith("pycolmap")]
+    body = "; ".join(_method(by.get(k), label) for k, label in (*LABELS, *peers))
     if c4.geometric_mean is None:
         return head + body + "; C4 and C5 not tested (no seed with both BAs)."
     ci = "" if c4.lo is None else f", 95% CI {c4.lo:.3f}-{c4.hi:.3f}"

@@ -51,3 +51,23 @@ def test_update_rewrites_only_between_the_markers(tmp_path):
     text = readme.read_text()
     assert text.startswith("intro\n") and text.endswith("tail\n") and "stale" not in text
     assert read_block(text, BEGIN, END) == findings_block(CELLS)
+
+
+def test_peers_quoted_from_their_cells():
+    """A pycolmap cell of one seed: its minutes, tie points and thread count in the twin's line."""
+    block = findings_block(CELLS)
+    checked = 0
+    for cell in sorted(CELLS.glob("*/*/seed*/pycolmap-*.json")):
+        d = json.loads(cell.read_text())
+        if d["status"] != "ok" or d["twin"] not in ("mappilot", "rosetta", "poets-park"):
+            continue
+        seeds = sorted(p.name for p in cell.parent.parent.glob(f"seed*/{cell.name}"))
+        if len(seeds) != 1:
+            continue
+        commit = cell.parents[2].name[:12]
+        line = next(x for x in block.splitlines() if f"/{commit}/` `{d['twin']}`" in x)
+        threads = cell.stem.rsplit("-t", 1)[1]
+        assert (f"({threads} thread{'s' if threads != '1' else ''}) seed {d['seed']} only, "
+                f"{d['wall_s'] / 60:.1f} min, {d['metrics']['tie_points']:,} tie points") in line
+        checked += 1
+    assert checked >= 1, "no single-seed pycolmap cell committed"
