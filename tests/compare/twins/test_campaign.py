@@ -218,3 +218,14 @@ def test_settings_of_both_pycolmap_mappers_flatten_to_json():
         s = _colmap_settings(ColmapSfMOptions(num_threads=2, max_num_features=4096), mapper, "file: p.txt")
         assert s.parallel == 2 and s.max_num_features == 4096 and s.ignore_two_view_tracks is ignore
         assert all(json.loads(x.value) is not None or x.value == "null" for x in s.options) and len(s.options) > 50
+
+
+def test_memory_target_judges_our_pipeline_not_the_peer(tmp_path):
+    """A peer's larger peak stays in its own row; the twin's peak (and its target) is ours."""
+    import dataclasses
+
+    _three_seeds(tmp_path)
+    _save(tmp_path, dataclasses.replace(_cell("pycolmap-global-sift-t2", 0, 5.0, 900, 4000), peak_rss_mb=9000.0))
+    (tw,) = T.build(tmp_path / COMMIT).twins
+    assert tw.peak_mb_max == 502.0
+    assert next(m for m in tw.methods if m.key.startswith("pycolmap")).peak_mb == 9000.0
