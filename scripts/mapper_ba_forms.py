@@ -62,7 +62,9 @@ def measure(seed_dir: Path, render: Path, forms: list[str], repeat: int, work: P
 
 def summarize(runs: list[dict]) -> dict:
     """Per form: median mapper BA seconds, its ratio to the Euclidean median, paired range."""
-    return ratio_summary(runs, "ba_s", "ba_s_median", THRESHOLD)
+    return {form: {"ba_s_median": p.median, "ratio_to_euclidean": p.ratio, "ratio_paired_min": p.paired_min,
+                   "ratio_paired_max": p.paired_max, "within_threshold": p.within}
+            for form, p in ratio_summary([(r["form"], r["repeat"], r["ba_s"]) for r in runs], THRESHOLD)}
 
 
 def markdown(doc: dict) -> str:

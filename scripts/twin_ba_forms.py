@@ -104,7 +104,9 @@ def measure(path: Path, iterations: int, repeat: int) -> tuple[dict, list[dict]]
 def summarize(runs: list[dict]) -> dict:
     """Per form: median per-iteration cost, its ratio to the Euclidean median, and the range of
     the ratios paired within a repeat."""
-    return ratio_summary(runs, "per_iteration_s", "per_iteration_s_median", THRESHOLD)
+    return {form: {"per_iteration_s_median": p.median, "ratio_to_euclidean": p.ratio, "ratio_paired_min": p.paired_min,
+                   "ratio_paired_max": p.paired_max, "within_threshold": p.within}
+            for form, p in ratio_summary([(r["form"], r["repeat"], r["per_iteration_s"]) for r in runs], THRESHOLD)}
 
 
 def markdown(doc: dict) -> str:

@@ -4,20 +4,30 @@ summaries of per-form timings: twin_ba_forms.py, mapper_ba_forms.py)."""
 from __future__ import annotations
 
 import statistics
+from dataclasses import dataclass
+from typing import Sequence
 
 
-def ratio_summary(runs: list[dict], value: str, median_key: str, threshold: float,
-                  baseline: str = "euclidean") -> dict[str, dict]:
-    """Per form of ``runs`` (dicts with "form", "repeat" and ``value``): the median of ``value``
-    (stored under ``median_key``), its ratio to the baseline's median, the range of the ratios
-    paired within a repeat, and whether the ratio is within ``threshold``."""
-    base = statistics.median(r[value] for r in runs if r["form"] == baseline)
-    out = {}
-    for form in dict.fromkeys(r["form"] for r in runs):
-        mine = [r for r in runs if r["form"] == form]
-        paired = [r[value] / b[value] for r in mine for b in runs
-                  if b["form"] == baseline and b["repeat"] == r["repeat"]]
-        med = statistics.median(r[value] for r in mine)
-        out[form] = {median_key: med, "ratio_to_euclidean": med / base, "ratio_paired_min": min(paired),
-                     "ratio_paired_max": max(paired), "within_threshold": med / base <= threshold}
-    return out
+@dataclass(frozen=True)
+class PairedRatio:
+    """One form against the baseline: its median, the ratio of the medians, the range of the
+    ratios paired within a repeat, and whether the ratio is within the threshold."""
+
+    median: float
+    ratio: float
+    paired_min: float
+    paired_max: float
+    within: bool
+
+
+def ratio_summary(samples: Sequence[tuple[str, int, float]], threshold: float,
+                  baseline: str = "euclidean") -> tuple[tuple[str, PairedRatio], ...]:
+    """Per form, in first-seen order, from (form, repeat, value) samples."""
+    base = statistics.median(v for f, _, v in samples if f == baseline)
+    out = []
+    for form in dict.fromkeys(f for f, _, _ in samples):
+        mine = [(r, v) for f, r, v in samples if f == form]
+        paired = [v / b for r, v in mine for f, rb, b in samples if f == baseline and rb == r]
+        med = statistics.median(v for _, v in mine)
+        out.append((form, PairedRatio(med, med / base, min(paired), max(paired), med / base <= threshold)))
+    return tuple(out)
