@@ -25,7 +25,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from polarref.bench.paired import ratio_summary  # noqa: E402
+from polarref.bench.paired import summary_to_json  # noqa: E402
 from polarref.compare.run import jobs, presets  # noqa: E402
 from polarref.compare.run.scenes import prepare  # noqa: E402
 from polarref.core.atomic import atomic_write  # noqa: E402
@@ -62,9 +62,7 @@ def measure(seed_dir: Path, render: Path, forms: list[str], repeat: int, work: P
 
 def summarize(runs: list[dict]) -> dict:
     """Per form: median mapper BA seconds, its ratio to the Euclidean median, paired range."""
-    return {form: {"ba_s_median": p.median, "ratio_to_euclidean": p.ratio, "ratio_paired_min": p.paired_min,
-                   "ratio_paired_max": p.paired_max, "within_threshold": p.within}
-            for form, p in ratio_summary([(r["form"], r["repeat"], r["ba_s"]) for r in runs], THRESHOLD)}
+    return summary_to_json(runs, "ba_s", "ba_s_median", THRESHOLD)
 
 
 def markdown(doc: dict) -> str:

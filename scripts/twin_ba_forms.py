@@ -31,7 +31,7 @@ from polarref.ba import BAOptions, kernels, prepare  # noqa: E402
 from polarref.ba.entry import solve  # noqa: E402
 from polarref.ba.export_problem import read_problem_file  # noqa: E402
 from polarref.ba.parameterization import PARAMS  # noqa: E402
-from polarref.bench.paired import ratio_summary  # noqa: E402
+from polarref.bench.paired import summary_to_json  # noqa: E402
 from polarref.core.atomic import atomic_write  # noqa: E402
 from polarref.core.provenance import collect  # noqa: E402
 
@@ -104,9 +104,7 @@ def measure(path: Path, iterations: int, repeat: int) -> tuple[dict, list[dict]]
 def summarize(runs: list[dict]) -> dict:
     """Per form: median per-iteration cost, its ratio to the Euclidean median, and the range of
     the ratios paired within a repeat."""
-    return {form: {"per_iteration_s_median": p.median, "ratio_to_euclidean": p.ratio, "ratio_paired_min": p.paired_min,
-                   "ratio_paired_max": p.paired_max, "within_threshold": p.within}
-            for form, p in ratio_summary([(r["form"], r["repeat"], r["per_iteration_s"]) for r in runs], THRESHOLD)}
+    return summary_to_json(runs, "per_iteration_s", "per_iteration_s_median", THRESHOLD)
 
 
 def markdown(doc: dict) -> str:

@@ -5,10 +5,10 @@ at the package top level but its face and the CLI entry."""
 from __future__ import annotations
 
 import ast
-import sys
 from pathlib import Path
 
 import pytest
+from _scripts import load_script
 
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("polarref", "synth", "derivations")
@@ -161,13 +161,7 @@ MAX_STRING_SUBSCRIPTS = 65  # x["key"] outside JSON (de)serialisers (was 477)
 
 
 def _layout_counts():
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("layout_counts", ROOT / "scripts" / "layout_counts.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module   # its dataclasses resolve their module while it loads
-    spec.loader.exec_module(module)
-    return module
+    return load_script("layout_counts")
 
 
 def test_layout_counter_counts_what_it_says(tmp_path):

@@ -64,7 +64,7 @@ def choose_anchors(problem: BAProblem, compiled: bool = False) -> tuple[np.ndarr
         best = kernels.best_associates(p.obs_cam, p.obs_pt, p.C, p.X)
         # omega by the reference's own arithmetic on the chosen observations: the kernel's
         # last-bit differences part chaotic solves (test_ba_bounds' held components)
-        omega = _parallax_angles(p, main[p.obs_pt[best]], best)
+        omega = _parallax_angles(p, main, best)  # best (P,): one observation per point, in order
     else:
         ang = _parallax_angles(p, main[p.obs_pt], np.arange(p.num_observations))
         # arg-max per point over its sorted run of observations

@@ -31,3 +31,12 @@ def ratio_summary(samples: Sequence[tuple[str, int, float]], threshold: float,
         med = statistics.median(v for _, v in mine)
         out.append((form, PairedRatio(med, med / base, min(paired), max(paired), med / base <= threshold)))
     return tuple(out)
+
+
+def summary_to_json(runs: list[dict], value: str, median_key: str, threshold: float) -> dict[str, dict]:
+    """The per-form summary of the scripts' JSON runs (dicts with "form", "repeat" and ``value``),
+    in their file format: ``{form: {median_key, ratio_to_euclidean, ratio_paired_min,
+    ratio_paired_max, within_threshold}}``."""
+    return {form: {median_key: p.median, "ratio_to_euclidean": p.ratio, "ratio_paired_min": p.paired_min,
+                   "ratio_paired_max": p.paired_max, "within_threshold": p.within}
+            for form, p in ratio_summary([(r["form"], r["repeat"], r[value]) for r in runs], threshold)}
