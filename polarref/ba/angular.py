@@ -64,6 +64,10 @@ class Angular(Parallax):
             self.chart_whiten = np.linalg.inv(B[good])  # (n, 2, 2)
         self.set_stage(theta_only=False)
 
+    def pixel_part(self, res):
+        """None: the angular residuals hold no pixel rows (solver.py evaluates them)."""
+        return None
+
     def set_stage(self, theta_only: bool) -> None:
         self.use_phi = np.zeros_like(self.phi_ok) if theta_only else self.phi_ok.copy()
         self.use_chart = not theta_only and len(self.chart_idx) > 0

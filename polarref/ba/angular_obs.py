@@ -25,8 +25,26 @@ def observed_angles(problem: BAProblem) -> tuple[np.ndarray, np.ndarray]:
     M = problem.num_observations
     ang = np.full((M, 2), np.nan)
     J = np.full((M, 2, 2), np.nan)
-    # one call per camera object, not per image: a mapper's local BA has ~26 images of one
-    # camera, and 26 calls were a sixth of the polar form's set-up there
+    for cam, idx in _camera_object_groups(problem):
+        ang[idx], J[idx] = cam.to_angular_with_jacobian(problem.obs_uv[idx])
+    return ang, J
+
+
+def observed_view_angles(problem: BAProblem) -> tuple[np.ndarray, np.ndarray]:
+    """theta (M,) of the observed pixels and ``theta_D_uv`` (M, 2): :func:`observed_angles`'
+    first rows, bitwise, without phi (the polar form's set-up reads only these)."""
+    M = problem.num_observations
+    theta = np.full(M, np.nan)
+    grad = np.full((M, 2), np.nan)
+    for cam, idx in _camera_object_groups(problem):
+        theta[idx], grad[idx] = cam.view_angle_with_gradient(problem.obs_uv[idx])
+    return theta, grad
+
+
+def _camera_object_groups(problem: BAProblem):
+    """(camera, observation indices) per distinct camera object: one call per camera object,
+    not per image (a mapper's local BA has ~26 images of one camera, and 26 calls were a
+    sixth of the polar form's set-up there)."""
     reps, index = [], {}
     model_of = np.full(len(problem.cameras) + 1, -1, np.int64)  # [-1]: no camera
     for i, c in enumerate(problem.cameras):
@@ -34,10 +52,10 @@ def observed_angles(problem: BAProblem) -> tuple[np.ndarray, np.ndarray]:
             index[id(c)] = len(reps)
             reps.append(c)
         model_of[i] = index[id(c)]
+    if len(reps) == 1 and (problem.obs_cam >= 0).all():  # no sort to find the one group
+        return [(reps[0], slice(None))]
     obs_model = model_of[np.where(problem.obs_cam >= 0, problem.obs_cam, -1)]
-    for cam, idx in camera_groups(reps, obs_model):
-        ang[idx], J[idx] = cam.to_angular_with_jacobian(problem.obs_uv[idx])
-    return ang, J
+    return camera_groups(reps, obs_model)
 
 
 def _projective(Xc: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -69,6 +69,12 @@ class Euclidean:
     def pixel_residuals(self, R, C, pts) -> np.ndarray:
         return self.evaluate(R, C, pts, jac=False)[0]
 
+    def pixel_part(self, res: np.ndarray) -> np.ndarray | None:
+        """The pixel residuals inside :meth:`evaluate`'s residuals: all of them, bitwise
+        :meth:`pixel_residuals` on the compiled path (the same rays and pixel rows with and
+        without Jacobians); None on numpy's (its jac path projects by another route)."""
+        return res if self.proj.compiled else None
+
     def retract_points(self, pts, dp):
         return pts + dp
 

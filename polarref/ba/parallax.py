@@ -306,6 +306,12 @@ class Parallax:
         Xc, _ = self.rays(R, C, pts, False)
         return self.proj.residuals(Xc, self.p.obs_uv, 2, False)[0]
 
+    def pixel_part(self, res: np.ndarray) -> np.ndarray | None:
+        """The pixel residuals inside :meth:`evaluate`'s residuals (rows 0:2; polar's third
+        row is the view angle), bitwise :meth:`pixel_residuals` on the compiled path (the
+        same per-point terms, rays and pixel rows with and without Jacobians); None else."""
+        return res[:, :2] if self.fast and self.proj.compiled else None
+
     def retract_points(self, pts, dp):
         return pts + dp
 

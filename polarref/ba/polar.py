@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from polarref.ba.angular_obs import observed_angles, theta_rows
+from polarref.ba.angular_obs import observed_view_angles, theta_rows
 from polarref.ba.parallax import Parallax
 from polarref.core.errors import PolarrefError
 
@@ -24,13 +24,13 @@ class Polar(Parallax):
 
     def __init__(self, problem, options=None):
         super().__init__(problem, options)
-        ang, J = observed_angles(problem)
-        s_theta = np.linalg.norm(J[:, 0, :], axis=1)
-        bad = ~(np.isfinite(ang[:, 0]) & np.isfinite(s_theta) & (s_theta > 0))
+        theta, grad = observed_view_angles(problem)
+        s_theta = np.linalg.norm(grad, axis=1)
+        bad = ~(np.isfinite(theta) & np.isfinite(s_theta) & (s_theta > 0))
         if bad.any():
             raise PolarrefError(f"polar BA: {int(bad.sum())} observations outside the camera "
                                 "model's angular range")
-        self.theta_obs = np.ascontiguousarray(ang[:, 0])  # (the kernels' compiled layout)
+        self.theta_obs = theta
         self.w_theta = 1.0 / s_theta
 
     def residual_rows(self, Xc, jac):

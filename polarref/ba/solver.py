@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import sys
 import time
 
 import numpy as np
@@ -94,6 +95,15 @@ def _robust(r: np.ndarray, groups, loss: str, scale: float):
     return cost, w
 
 
+def _pixel_residuals(param, R, C, pts, r: np.ndarray | None) -> np.ndarray:
+    """Pixel residuals (M, 2) at (R, C, pts): the rows of ``r`` (the unweighted residuals
+    evaluated there, or None) where the form says they hold them bitwise (``pixel_part``),
+    else evaluated again (two ray passes per solve that a mapper's ~500 local BAs paid)."""
+    part = getattr(param, "pixel_part", None)
+    px = part(r) if part is not None and r is not None else None
+    return px if px is not None else param.pixel_residuals(R, C, pts)
+
+
 def pixel_cost(res_px: np.ndarray, loss: str, scale: float) -> tuple[float, float]:
     """(1/2 sum rho(|r|^2), RMS of residual components) of pixel residuals (M, 2)."""
     s = np.einsum("mk,mk->m", res_px, res_px)
@@ -145,16 +155,18 @@ def solve(problem: BAProblem, options: BAOptions, *, prepared: bool = False,
         return _solve(problem, options, prepared, param)
 
 
-_BLAS: list = []  # threadpoolctl's controller of the process's BLAS, made at the first solve
+_BLAS: list = []  # (len(sys.modules) when made, threadpoolctl's controller of the BLAS)
 
 
 def _blas_controller():
     """Entering ``threadpool_limits`` scans the loaded libraries again (~2.4 ms per call, as
-    long as a warm synth-20 solve's structure build); the controller is made once."""
-    if not _BLAS:
+    long as a warm synth-20 solve's structure build); the controller is made once, and again
+    after an import: a BLAS loaded later (another extension's) would escape the limit (the
+    test suite's order once showed one at 2 threads inside a 1-thread solve)."""
+    if not _BLAS or _BLAS[0][0] != len(sys.modules):
         from threadpoolctl import ThreadpoolController
-        _BLAS.append(ThreadpoolController())
-    return _BLAS[0]
+        _BLAS[:] = [(len(sys.modules), ThreadpoolController())]
+    return _BLAS[0][1]
 
 
 def _solve(problem: BAProblem, options: BAOptions, prepared: bool, param) -> BASummary:
@@ -275,7 +287,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     if prior is not None:
         cost += prior.cost(R, C, Xg)
     initial_cost = cost
-    init_px_cost, init_rms = pixel_cost(param.pixel_residuals(R, C, pts), loss, scale)
+    init_px_cost, init_rms = pixel_cost(_pixel_residuals(param, R, C, pts, r), loss, scale)
     behind0 = behind_camera_xyz(problem.R, problem.C, problem.X, problem.obs_cam, problem.obs_pt)
     setup_s = time.perf_counter() - t0
     damping = resolve_damping(options)
@@ -522,7 +534,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
     if Xg is not None:
         problem.control_X = Xg
     param.store(R, C, pts)
-    final_px_cost, final_rms = pixel_cost(param.pixel_residuals(R, C, pts), loss, scale)
+    final_px_cost, final_rms = pixel_cost(_pixel_residuals(param, R, C, pts, r), loss, scale)
     summary = BASummary(
         param=options.param, loss=loss, initial_cost=initial_cost, final_cost=cost,
         initial_pixel_cost=init_px_cost, final_pixel_cost=final_px_cost,

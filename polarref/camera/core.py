@@ -316,6 +316,24 @@ class Camera:
         return _masked(ang, valid, strict, "Camera.to_angular"), \
             _masked(J, valid, strict, "Camera.to_angular")
 
+    def view_angle_with_gradient(self, uv) -> tuple[Array, Array]:
+        """``theta`` (...) and ``theta_D_uv`` (..., 2): the first row of
+        :meth:`to_angular_with_jacobian` with the same arithmetic, without phi (the polar BA
+        form reads only these, once per local BA of a mapper); NaN where that has NaN."""
+        uv = _last(uv, 2, "uv")
+        if self._spec.kind == "opencv":
+            ang, J = self.to_angular_with_jacobian(uv)
+            return ang[..., 0], J[..., 0, :]
+        x, y = self._normalized(uv)
+        with np.errstate(**_ERR):
+            rd = np.hypot(x, y)
+            theta, dtheta = self._radial.theta(rd)
+            ird = 1.0 / rd
+            g = np.stack([dtheta * x * ird / self.fx, dtheta * y * ird / self.fy], -1)
+        valid = np.isfinite(theta)
+        return (np.where(valid, theta, np.nan),
+                np.where((valid & (rd > 0))[..., None], g, np.nan))
+
     def from_angular(self, theta, phi, *, strict: bool = False) -> Array:
         """``(theta, phi)`` (...) -> pixels (..., 2); NaN for theta outside ``[0, theta_max)``."""
         return self.from_angular_with_jacobian(theta, phi, strict=strict)[0]

@@ -146,3 +146,38 @@ def test_solve_limits_blas_threads_and_restores_them():
             solver.solve(p.copy(), BAOptions(max_iterations=2, blas_threads=1), prepared=True)
     assert seen and all(t == 1 for s in seen for t in s)
     assert [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"] == before
+
+
+def test_blas_controller_is_made_again_after_an_import():
+    """A BLAS loaded by a later import must not escape the limit: the cached controller is
+    rebuilt when the module table grows, and reused while it does not."""
+    first = solver._blas_controller()
+    assert solver._blas_controller() is first
+    with mock.patch.dict("sys.modules", {"polarref_test_fake_module": object()}):
+        again = solver._blas_controller()
+    assert again is not first
+
+
+@pytest.mark.parametrize("param", ["euclidean", "parallax", "polar", "angular"])
+@pytest.mark.parametrize("loss", ["trivial", "cauchy"])
+def test_summary_pixel_costs_equal_a_fresh_evaluation(param, loss):
+    """The solver reads the pixel residuals out of its own evaluations where the form holds
+    them (pixel_part): the summary's initial and final pixel costs are bitwise those of a
+    separate pixel_residuals pass at the start and at the solution."""
+    from polarref.ba.parameterization import make_param
+    p = ring_problem(8, 120, 4.0, seed=2)
+    prepare(p)
+    rng = np.random.default_rng(0)
+    p.X = p.X + rng.normal(0, 0.01, p.X.shape)
+    opts = BAOptions(param=param, loss=loss, max_iterations=4, function_tolerance=0.0)
+    start = make_param(p.copy(), opts)
+    want0 = solver.pixel_cost(start.pixel_residuals(p.R, p.C, start.init_points()), loss, 1.0)
+    q = p.copy()
+    par = make_param(q, opts)
+    s = solver.solve(q, opts, prepared=True, param=par)
+    want1 = solver.pixel_cost(par.pixel_residuals(q.R, q.C, s.points_state), loss, 1.0)
+    assert (s.initial_pixel_cost, s.initial_rms_px) == want0
+    assert (s.final_pixel_cost, s.final_rms_px) == want1
+    assert s.final_pixel_cost < s.initial_pixel_cost
+    holds = par.pixel_part(np.zeros((3, par.k)))
+    assert (holds is None) == (param == "angular")

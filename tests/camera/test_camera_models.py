@@ -165,6 +165,26 @@ def test_angular_jacobians_fd(model):
     np.testing.assert_allclose(Ju, fd(camera.unproject, uv, 1e-5), rtol=1e-6, atol=1e-10)
 
 
+@pytest.mark.parametrize("model", list(MODELS))
+def test_view_angle_with_gradient_is_the_first_angular_row(model):
+    """The polar BA's lean set-up path: theta and theta_D_uv bitwise as the full angular
+    Jacobian's first row, NaN at the principal point and beyond the reachable radius; the
+    gradient against finite differences of theta."""
+    camera = cam(model)
+    rng = np.random.default_rng(5)
+    theta, phi = random_rays(rng, camera, 300, 0.8)
+    uv = np.concatenate([camera.from_angular(np.maximum(theta, 0.02), phi),
+                         [camera.principal_point, [1e7, -1e7]]])
+    th, g = camera.view_angle_with_gradient(uv)
+    ang, J = camera.to_angular_with_jacobian(uv)
+    assert th.shape == (len(uv),) and g.shape == (len(uv), 2)
+    np.testing.assert_array_equal(th, ang[:, 0])
+    np.testing.assert_array_equal(g, J[:, 0, :])
+    assert np.isnan(g[-2]).all()
+    theta_of = lambda p: camera.to_angular(p)[0][..., None]  # noqa: E731
+    np.testing.assert_allclose(g[:-2], fd(theta_of, uv[:-2], 1e-5)[:, 0, :], rtol=1e-6, atol=1e-9)
+
+
 def test_unproject_jacobian_at_principal_point():
     for model in MODELS:
         camera = cam(model)
