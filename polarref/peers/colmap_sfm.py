@@ -258,7 +258,7 @@ def import_features(db_path: Path, cameras, image_names: Sequence[str], keypoint
             ids.append(image_id)
             db.write_keypoints(image_id, np.ascontiguousarray(np.asarray(kps)[:, :2], dtype=np.float32))
             if descriptors is not None:
-                d = np.clip(np.round(np.asarray(descriptors[k]) * 512.0), 0, 255).astype(np.uint8)
+                d = np.clip(np.round(np.asarray(descriptors[k], np.float32) * 512.0), 0, 255).astype(np.uint8)
                 db.write_descriptors(image_id, d)
         for i, j, m in pairs:
             db.write_matches(ids[i], ids[j], m)

@@ -74,7 +74,8 @@ def _extend_image(state, image: int, descriptors: list[np.ndarray], cfg: GuidedC
         return 0
     p_idx = np.repeat(np.arange(len(pts)), cnt)                 # candidate pairs: point slot
     k_idx = free[np.concatenate([np.asarray(n, np.int64) for n in near if len(n)])]  # keypoint
-    dist = _track_descriptor_distance(state, pts[p_idx], descriptors, descriptors[image][k_idx])
+    dist = _track_descriptor_distance(state, pts[p_idx], descriptors,
+                                      np.asarray(descriptors[image][k_idx], np.float32))
     # ratio test per point among its candidates
     order = np.lexsort((dist, p_idx))
     p_s, k_s, d_s = p_idx[order], k_idx[order], dist[order]

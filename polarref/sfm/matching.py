@@ -110,10 +110,13 @@ def match_descriptors(desc1: np.ndarray, desc2: np.ndarray, config: MatchConfig)
     """Match two descriptor sets.
 
     Args:
-        desc1: (K1, D) unit-norm float32; desc2: (K2, D).
+        desc1: (K1, D) unit-norm float32 or float16 (the features' storage; the similarities
+            are taken in float32, ~1 ms per 4096 x 128 conversion beside a 56-75 ms product);
+            desc2: (K2, D).
     Returns:
         (M, 2) int32 index pairs (into desc1, desc2), sorted by the first index.
     """
+    desc1, desc2 = np.asarray(desc1, np.float32), np.asarray(desc2, np.float32)
     if len(desc1) < 2 or len(desc2) < 2:
         return np.zeros((0, 2), np.int32)
     if config.mutual:

@@ -56,3 +56,18 @@ def test_tied_columns_take_the_argmax_path_and_its_first_row_rule():
     got = M.match_descriptors(d1, d2, cfg)
     np.testing.assert_array_equal(got, _brute(d1, d2, cfg))
     assert 50 in got[:, 0] and 200 not in got[:, 0]     # the first of the tied rows keeps the match
+
+
+def test_float16_descriptors_match_as_their_float32_values():
+    """The features hold float16 descriptors (memory at 631 views): matching them gives the
+    matches of their exact float32 values, and the independent brute force agrees."""
+    rng = np.random.default_rng(11)
+    a = _unit(rng, 700).astype(np.float16)
+    b = np.concatenate([a[:400].astype(np.float32) + 0.01 * _unit(rng, 400), _unit(rng, 300)])
+    b = (b / np.linalg.norm(b, axis=1, keepdims=True)).astype(np.float16)
+    cfg = M.MatchConfig()
+    got = M.match_descriptors(a, b, cfg)
+    want = M.match_descriptors(a.astype(np.float32), b.astype(np.float32), cfg)
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(got, _brute(a.astype(np.float32), b.astype(np.float32), cfg))
+    assert 300 <= len(got) <= 400
