@@ -203,8 +203,9 @@ class SchurStructure:
         # then takes the anchors' Jacobians factored ([J_obs, AnchorJacobian], anchor_terms.py)
         # and computes those blocks once per build (kernels.build_anchored), not per LM step.
         # With the dsyrk (dense visibility) they are added to S after it (kernels.add_cross).
-        self.fused = (fast and anchored and self.slot_cols == [(0, 6), (3, 6), (3, 6)]
-                      and not self.sparse_S)
+        # Block-sparse S (sparse_S) too: those cross blocks are pairs of the point's entries
+        # (the anchors observe it), so they have their blocks (schur_sparse_jit.py).
+        self.fused = fast and anchored and self.slot_cols == [(0, 6), (3, 6), (3, 6)]
         if fast:
             obs_e = slot_entry[0][slot_entry[0] >= 0]
             # no entry observes its point twice: build_anchored writes its cross blocks once
@@ -500,7 +501,7 @@ class SchurStructure:
         b = -g_c.copy()
         fused = self.fused and cross
         if self.fast and self.sparse_S:
-            return self._bsr(self._blocks(U_blocks, W, Li, q, b, diag_c)), b.reshape(-1), Li
+            return self._bsr(self._blocks(U_blocks, W, Li, q, b, diag_c, fused)), b.reshape(-1), Li
         if self.panel is not None:
             return self._panel_system(U_blocks, W, Li, q, b, diag_c, fused), b.reshape(-1), Li
         if self.dense_blocks:  # the upper block triangle (ca <= cb), what the Cholesky reads
@@ -583,18 +584,46 @@ class SchurStructure:
         S[np.diag_indices_from(S)] += diag_c.reshape(-1)
         return S
 
-    def _blocks(self, U_blocks, W, Li, q, b, diag_c) -> np.ndarray:
-        """(K, 6, 6): U, the entry-pair Schur products and the damping in the blocks of the
-        pattern (:meth:`_build_blocks`); b (Nv, 6) gets the points' share in place."""
-        from polarref.ba import kernels
-        blocks = np.zeros((self.K, 6, 6))
-        blocks[self.u_blk] = U_blocks[self.u_up]
-        if self.E:
+    def _blocks(self, U_blocks, W, Li, q, b, diag_c, fused: bool = False) -> np.ndarray:
+        """(K, 6, 6): U, the entry-pair Schur products (with ``fused``, the three-slot cross
+        blocks too) and the damping in the blocks of the pattern (:meth:`_build_blocks`); b
+        (Nv, 6) gets the points' share in place."""
+        from polarref.ba import kernels, schur_sparse_jit
+        blocks = self.blocks_with_u(U_blocks)
+        if self.E and fused:
+            X, h, Xma = self._cross()
+            schur_sparse_jit.schur_blocks_cross(_c(W), Li, q, self.entry_bounds, self.entry_pt,
+                                                self.entry_cam, self.pair_blk, blocks, b, X, h,
+                                                Xma, self.slot_entry, self.obs_bounds)
+        elif self.E:
             kernels.schur_blocks(_c(W), Li, q, self.entry_bounds, self.entry_pt, self.pair_blk,
                                  blocks, b, self.entry_cam)
+        if fused:
+            self.zero_held_blocks(blocks)
+        self.add_diagonal_blocks(blocks, diag_c)
+        return blocks
+
+    def blocks_with_u(self, U_blocks) -> np.ndarray:
+        """Block-sparse S's (K, 6, 6) blocks holding U's upper blocks, the rest zero."""
+        blocks = np.zeros((self.K, 6, 6))
+        blocks[self.u_blk] = U_blocks[self.u_up]
+        return blocks
+
+    def add_diagonal_blocks(self, blocks: np.ndarray, diag_c: np.ndarray) -> None:
+        """The camera damping diag_c (Nv, 6) onto the diagonal blocks, in place."""
         i6 = np.arange(6)
         blocks[self.diag_blk[:, None], i6, i6] += diag_c
-        return blocks
+
+    def zero_held_blocks(self, blocks: np.ndarray) -> None:
+        """:meth:`_zero_held` for the blocks of a block-sparse S."""
+        from polarref.ba import schur_sparse_jit
+        mask_v = getattr(self, "mask_v", None)
+        if mask_v is not None and not (mask_v > 0).all():
+            schur_sparse_jit.zero_held_blocks(blocks, self.blk_ca, self.blk_cb, _c(mask_v))
+
+    def bsr(self, blocks: np.ndarray):
+        """The symmetric BSR matrix (6 Nv, 6 Nv) of the upper blocks (xspace.py's way in)."""
+        return self._bsr(blocks)
 
     def _bsr(self, blocks: np.ndarray):
         """The symmetric BSR matrix of the upper blocks (their transposes below)."""

@@ -42,8 +42,9 @@ Where ``B`` does not carry the anchors' Jacobians, the solver keeps the referenc
 (anchor_terms / the fused kernels' cross terms) for that build: fixed points (their Jp is
 zeroed), a box-constrained omega held at a bound with ``B != 0`` (its Jp column is zeroed;
 at w = 0, B = 0 and the identity holds; the chunked build, which learns that only after its
-X-space build, then builds again by cross terms). Kernel path only, dense S
-(``SchurStructure.fused``); ``BAOptions.anchor_schur = "cross"`` keeps the reference always.
+X-space build, then builds again by cross terms). Kernel path only
+(``SchurStructure.fused``), dense S or its camera-pair blocks above ``dense_max_cameras``
+(schur_sparse_jit.py); ``BAOptions.anchor_schur = "cross"`` keeps the reference always.
 """
 
 from __future__ import annotations
@@ -158,6 +159,8 @@ class AnchorElimination:
         if Li is None:
             return None
         q = np.matmul(Li, g_p[:, :, None])[:, :, 0]
+        if st.sparse_S:
+            return self._sparse_system(U, W, Li, q, g_E, diag_c)
         Nv = st.Nv
         S = np.zeros((Nv, 6, Nv, 6))
         S[st.u_ca, :, st.u_cb, :] = U
@@ -168,6 +171,20 @@ class AnchorElimination:
                                     self.em, self.ea, self.vm, self.va, Bm, b, lam, S, bvec)
         S[np.diag_indices_from(S)] += diag_c.reshape(-1)
         return S, bvec.reshape(-1), Li
+
+    def _sparse_system(self, U, W, Li, q, g_E, diag_c):
+        """:meth:`reduced_system` into the block-sparse S (schur_sparse_jit.py)."""
+        from polarref.ba import schur_sparse_jit
+        st = self.st
+        Bm, b = self.maps
+        blocks = st.blocks_with_u(U)
+        bvec = -g_E
+        if st.E:
+            schur_sparse_jit.schur_blocks_xspace(np.ascontiguousarray(W), Li, q, st.entry_bounds,
+                                                 st.entry_pt, st.entry_cam, st.pair_blk, blocks,
+                                                 bvec, self.em, self.ea, Bm, b, self.lam)
+        st.add_diagonal_blocks(blocks, diag_c)
+        return st.bsr(blocks), bvec.reshape(-1), Li
 
     def back_substitute(self, W, Li, g_p, dc: np.ndarray) -> np.ndarray:
         """Point steps dq (P, 3) from the camera step dc (Nv, 6, masked)."""

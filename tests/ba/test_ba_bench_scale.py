@@ -141,12 +141,12 @@ def test_warm_up_covers_every_kernel_signature_a_solve_uses():
         pytest.skip("numba not installed")
     import numba.core.registry
 
-    from polarref.ba import forms_jit, kernels_jit, xspace_jit
+    from polarref.ba import forms_jit, kernels_jit, schur_sparse_jit, xspace_jit
     kernels.warm_up()
 
     def overloads():
         out = {}
-        for mod in (kernels_jit, forms_jit, xspace_jit):
+        for mod in (kernels_jit, forms_jit, xspace_jit, schur_sparse_jit):
             for name, f in vars(mod).items():
                 if isinstance(f, numba.core.registry.CPUDispatcher) and not name.startswith("_"):
                     out[f"{mod.__name__}.{name}"] = len(f.overloads)
