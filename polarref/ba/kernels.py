@@ -76,7 +76,8 @@ def warm_up() -> float:
                                        euclidean_rays, parallax_jacobians, parallax_points,
                                        parallax_rays, parallax_xyz, pixel_rows, theta_row_into)
     from polarref.ba.kernels_jit import (add_cross, back_substitute_rhs, build_anchored,
-                                         build_observer, pair_keys, point_solve, point_sums,
+                                         build_observer, mark_pairs, pair_blocks, pair_keys,
+                                         point_solve, point_sums,
                                          schur_blocks, schur_dense, slot_gram, slot_w_g)
     t = time.perf_counter()
     f, i = np.zeros, np.zeros
@@ -90,7 +91,10 @@ def warm_up() -> float:
                     g, cross, f((1, 6, 4)), x3, f((1, 3, 3)), z3, np.array([0, 1], np.int64))
     b01 = np.array([0, 1], np.int64)
     pair_keys(b01, one, 1, i(1, np.int64))
-    schur_blocks(W, f((1, 3, 3)), f((1, 3)), b01, one, i(1, np.int64), U, g, one)
+    mark_pairs(b01, one, 1, i(1, bool))
+    one32 = i(1, np.int32)
+    pair_blocks(b01, one, 1, one32, i(1, np.int32))
+    schur_blocks(W, f((1, 3, 3)), f((1, 3)), b01, one, one32, U, g, one)
     slot_gram(J6, 0, J6, 0, one, -np.ones(1, np.int64), U)
     slot_gram(J6, 0, Jp, 3, one, one, U)
     slot_w_g(J6, 0, Jp, r, one, one, W, g)

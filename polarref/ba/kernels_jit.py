@@ -425,6 +425,32 @@ def pair_keys(bounds, entry_cam, nv, out):
 
 
 @_njit
+def mark_pairs(bounds, entry_cam, nv, seen):
+    """``seen[ca * nv + cb] = True`` for every entry pair a <= b of each point (the keys of
+    :func:`pair_keys`, without an array of them: tens of millions of pairs at 631 views)."""
+    for g in range(len(bounds) - 1):
+        e0, e1 = bounds[g], bounds[g + 1]
+        for a in range(e0, e1):
+            ka = entry_cam[a] * nv
+            for bb in range(a, e1):
+                seen[ka + entry_cam[bb]] = True
+
+
+@_njit
+def pair_blocks(bounds, entry_cam, nv, index, out):
+    """``out[k] = index[key]`` for the entry pairs in :func:`pair_keys`' order: each pair's
+    block from the camera-pair table ``index`` (nv * nv,); out (pairs,) int32."""
+    k = 0
+    for g in range(len(bounds) - 1):
+        e0, e1 = bounds[g], bounds[g + 1]
+        for a in range(e0, e1):
+            ka = entry_cam[a] * nv
+            for bb in range(a, e1):
+                out[k] = index[ka + entry_cam[bb]]
+                k += 1
+
+
+@_njit
 def schur_blocks(W, Li, q, bounds, entry_pt, pair_blk, blocks, b, entry_cam):
     """:func:`schur_dense` (no cross terms) into block storage: per point p with entries
     a <= b, ``blocks[pair_blk[k]] -= Z_a Z_b^T`` (k: the pair's place in :func:`pair_keys`'

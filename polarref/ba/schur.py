@@ -80,6 +80,9 @@ def _inverse_or_skip(keys: np.ndarray, bound: int) -> tuple[np.ndarray, np.ndarr
 
 
 _NO_CROSS = (np.zeros((0, 6, 4)), np.zeros((0, 3)), np.zeros((0, 3, 3)))  # schur_dense
+# camera-pair tables up to this many cells (Nv^2: 2^25 at ~5,800 variable cameras, 160 MB with
+# its int32 index); above, the pairs' keys are sorted (schur.py _build_blocks)
+_PAIR_TABLE_MAX = 1 << 25
 
 
 def _c(a: np.ndarray) -> np.ndarray:
@@ -329,21 +332,36 @@ class SchurStructure:
 
     def _build_blocks(self) -> None:
         """Kernel path, sparse S: its block pattern (the camera pairs ca <= cb of the entry
-        pairs, of U's blocks and the diagonal), each entry pair's block in the order
+        pairs, of U's blocks and the diagonal), each entry pair's block (int32) in the order
         ``kernels.schur_blocks`` visits them, and the permutation that lays the blocks and
         their transposes out as the full symmetric BSR matrix (rows sorted once, here)."""
         from polarref.ba import kernels
         nv = max(self.Nv, 1)
-        keys = np.empty(self.num_pairs, np.int64)
-        if self.E:
-            kernels.pair_keys(self.entry_bounds, self.entry_cam, nv, keys)
         self.u_up = np.flatnonzero(self.u_ca <= self.u_cb)
         u_keys = self.u_ca[self.u_up] * nv + self.u_cb[self.u_up]
-        allk, inv = unique_inverse(np.concatenate([keys, u_keys, np.arange(self.Nv) * (nv + 1)]),
-                                   nv * nv)
-        n, nu = len(keys), len(u_keys)
-        self.pair_blk = np.ascontiguousarray(inv[:n], np.int64)
-        self.u_blk, self.diag_blk = inv[n:n + nu], inv[n + nu:]
+        d_keys = np.arange(self.Nv) * (nv + 1)
+        if nv * nv <= _PAIR_TABLE_MAX:
+            # a table of the camera pairs: the per-pair int64 keys and their inverse (3 x 8
+            # bytes per entry pair, ~1 GB beside the 631-view twin's final BA) are never made
+            seen = np.zeros(nv * nv, bool)
+            if self.E:
+                kernels.mark_pairs(self.entry_bounds, self.entry_cam, nv, seen)
+            seen[u_keys] = seen[d_keys] = True
+            allk = np.flatnonzero(seen)
+            index = (np.cumsum(seen) - 1).astype(np.int32)
+            self.pair_blk = np.empty(self.num_pairs, np.int32)
+            if self.E:
+                kernels.pair_blocks(self.entry_bounds, self.entry_cam, nv, index, self.pair_blk)
+            self.u_blk, self.diag_blk = index[u_keys].astype(np.int64), index[d_keys].astype(np.int64)
+        else:
+            keys = np.empty(self.num_pairs, np.int64)
+            if self.E:
+                kernels.pair_keys(self.entry_bounds, self.entry_cam, nv, keys)
+            allk, inv = unique_inverse(np.concatenate([keys, u_keys, d_keys]), nv * nv)
+            n, nu = len(keys), len(u_keys)
+            del keys
+            self.pair_blk = inv[:n].astype(np.int32)
+            self.u_blk, self.diag_blk = inv[n:n + nu], inv[n + nu:]
         self.K = len(allk)
         self.blk_ca, self.blk_cb = ca, cb = allk // nv, allk % nv
         self.blk_off = np.flatnonzero(ca != cb)

@@ -150,8 +150,9 @@ def warm_up() -> None:
     one, none = np.zeros(1, np.int64), -np.ones(1, np.int64)
     b01, z3 = np.array([0, 1], np.int64), np.zeros((3, 1), np.int64)
     W, Li, q, g, blocks = f((1, 6, 3)), f((1, 3, 3)), f((1, 3)), f((1, 6)), f((1, 6, 6))
-    schur_blocks_cross(W, Li, q, b01, one, one, one, blocks, g, f((1, 6, 4)), q, f((1, 3, 3)),
+    one32 = np.zeros(1, np.int32)  # pair_blk (schur.py _build_blocks)
+    schur_blocks_cross(W, Li, q, b01, one, one, one32, blocks, g, f((1, 6, 4)), q, f((1, 3, 3)),
                        z3, b01)
-    schur_blocks_xspace(W, Li, q, b01, one, one, one, blocks, g, one, none, f((1, 3, 3)), q,
+    schur_blocks_xspace(W, Li, q, b01, one, one, one32, blocks, g, one, none, f((1, 3, 3)), q,
                         np.ones((1, 3)))
     zero_held_blocks(blocks, one, one, np.ones((1, 6)))

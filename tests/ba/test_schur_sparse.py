@@ -59,3 +59,40 @@ def test_block_sparse_without_held_cross_terms_is_wrong(problem, monkeypatch):
     ref, _ = _run(problem, param="parallax", kernels="numpy", anchor_schur="cross")
     broken, _ = _run(problem, param="parallax", anchor_schur="cross", dense_max_cameras=1)
     assert abs(broken.final_cost - ref.final_cost) > 1e-6 * ref.final_cost
+
+
+def test_pair_table_equals_sorted_keys_and_holds_no_per_pair_keys(monkeypatch):
+    """The camera-pair table (schur.py ``_build_blocks``) gives the blocks of the sorted-keys
+    path exactly, and its peak allocation is the int32 pair index (4 bytes per entry pair),
+    not the sorted path's int64 keys and inverse (>= 16 bytes per pair)."""
+    import tracemalloc
+
+    from polarref.ba import schur
+    from polarref.ba.options import BAOptions as Opts
+    from polarref.ba.solver import make_param
+
+    init, _ = synthetic_reconstruction(12, 3000, seed=3, track_length=-1)
+    problem = problem_from_reconstruction(init)
+    prepare(problem)
+    param = make_param(problem, Opts(param="polar"))
+    cam_var = problem.cam_mask.any(1)
+
+    def build():
+        tracemalloc.start()
+        st = schur.SchurStructure(param.slot_cams, param.slot_cols, problem.obs_pt, cam_var,
+                                  problem.num_points, 1, fast=True)
+        peak = tracemalloc.get_traced_memory()[1]
+        tracemalloc.stop()
+        return st, peak
+
+    table, _ = build()
+    base_peak = build()[1]  # the structure's other arrays (entries, U indices) are the same
+    monkeypatch.setattr(schur, "_PAIR_TABLE_MAX", 0)
+    keys, keys_peak = build()
+    assert table.num_pairs > 100_000 and table.pair_blk.dtype == keys.pair_blk.dtype == np.int32
+    for name in ("pair_blk", "u_blk", "diag_blk", "blk_ca", "blk_cb", "bsr_order", "bsr_indices",
+                 "bsr_indptr"):
+        np.testing.assert_array_equal(getattr(table, name), getattr(keys, name), err_msg=name)
+    assert table.K == keys.K
+    assert keys_peak - base_peak >= 12 * table.num_pairs
+
