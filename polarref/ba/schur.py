@@ -519,7 +519,7 @@ class SchurStructure:
         b = -g_c.copy()
         fused = self.fused and cross
         if self.fast and self.sparse_S:
-            return self._bsr(self._blocks(U_blocks, W, Li, q, b, diag_c, fused)), b.reshape(-1), Li
+            return self.bsr(self._blocks(U_blocks, W, Li, q, b, diag_c, fused)), b.reshape(-1), Li
         if self.panel is not None:
             return self._panel_system(U_blocks, W, Li, q, b, diag_c, fused), b.reshape(-1), Li
         if self.dense_blocks:  # the upper block triangle (ca <= cb), what the Cholesky reads
@@ -640,11 +640,7 @@ class SchurStructure:
             schur_sparse_jit.zero_held_blocks(blocks, self.blk_ca, self.blk_cb, _c(mask_v))
 
     def bsr(self, blocks: np.ndarray):
-        """The symmetric BSR matrix (6 Nv, 6 Nv) of the upper blocks (xspace.py's way in)."""
-        return self._bsr(blocks)
-
-    def _bsr(self, blocks: np.ndarray):
-        """The symmetric BSR matrix of the upper blocks (their transposes below)."""
+        """The symmetric BSR matrix (6 Nv, 6 Nv) of the upper blocks (their transposes below)."""
         data = np.concatenate([blocks, blocks[self.blk_off].transpose(0, 2, 1)])[self.bsr_order]
         return scipy.sparse.bsr_matrix((data, self.bsr_indices, self.bsr_indptr),
                                        shape=(6 * self.Nv, 6 * self.Nv))
