@@ -22,7 +22,13 @@ def _njit(fn):
     return numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
 
 
-@_njit
+def _inline(fn):
+    # inlined in numba's IR: as a called helper per entry pair the pass took 1.6x as long
+    # (6.35 vs 3.98 ms on synth-200-sparse, thread time; xspace_jit.py saw the same)
+    return numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")(fn)
+
+
+@_inline
 def _subtract_product(blk, za, zb):
     for i in range(6):
         z0, z1, z2 = za[i, 0], za[i, 1], za[i, 2]
@@ -30,39 +36,47 @@ def _subtract_product(blk, za, zb):
             blk[i, j] -= z0 * zb[j, 0] + z1 * zb[j, 1] + z2 * zb[j, 2]
 
 
+@_inline
+def _pair(k0, i, j, n):
+    """The place of entry pair (i, j), i <= j (offsets in a point of n entries), in the pass's
+    order: the point's first pair k0, then i * n - i (i - 1) / 2 + (j - i)."""
+    return k0 + i * n - i * (i - 1) // 2 + (j - i)
+
+
 @_njit
 def schur_blocks_cross(W, Li, q, bounds, entry_pt, entry_cam, pair_blk, blocks, b, X, h, Xma,
                        ent, obs_bounds):
     """kernels_jit.schur_blocks plus the fused build's cross-camera blocks (the compact
-    ``X = [N | t]``, ``h``, ``Xma`` of kernels_jit.build_anchored, as schur_dense adds them),
-    each into the block of its entry pair."""
+    ``X = [N | t]``, ``h``, ``Xma`` of kernels_jit.build_anchored, as kernels_jit.add_cross
+    adds them), each into the block of its entry pair: after the point's products, so the
+    pair loop carries no anchor tests."""
     Z = np.empty((_longest(bounds), 6, 3))
     k = 0
     for g in range(len(bounds) - 1):
         e0, e1 = bounds[g], bounds[g + 1]
+        n = e1 - e0
         p = entry_pt[e0]
-        em, ea = ent[1, obs_bounds[p]], ent[2, obs_bounds[p]]
         _point_factors(W, Li, q, p, e0, e1, entry_cam, Z, b)
+        k0 = k
         for a in range(e0, e1):
             for bb in range(a, e1):
-                blk = blocks[pair_blk[k]]
+                _subtract_product(blocks[pair_blk[k]], Z[a - e0], Z[bb - e0])
                 k += 1
-                _subtract_product(blk, Z[a - e0], Z[bb - e0])
-                if bb == a:
+        em, ea = ent[1, obs_bounds[p]], ent[2, obs_bounds[p]]
+        for a in range(e0, e1):  # observer entry a x each anchor's centre (entries by camera)
+            for main in (True, False):
+                ee = em if main else ea
+                if ee < 0 or ee == a:
                     continue
-                # offsets inside the (cam(a), cam(bb)) block, as schur_dense's in S
-                if bb == em:
-                    _add_cross(blk, X, h, p, a, 0, 3, True, False)
-                elif a == em:
-                    _add_cross(blk, X, h, p, bb, 3, 0, True, True)
-                if bb == ea:
-                    _add_cross(blk, X, h, p, a, 0, 3, False, False)
-                elif a == ea:
-                    _add_cross(blk, X, h, p, bb, 3, 0, False, True)
-                if a == em and bb == ea:
-                    _add_block(blk, Xma, p, 3, 3, 3, False)
-                elif a == ea and bb == em:
-                    _add_block(blk, Xma, p, 3, 3, 3, True)
+                if a < ee:
+                    blk = blocks[pair_blk[_pair(k0, a - e0, ee - e0, n)]]
+                    _add_cross(blk, X, h, p, a, 0, 3, main, False)
+                else:
+                    blk = blocks[pair_blk[_pair(k0, ee - e0, a - e0, n)]]
+                    _add_cross(blk, X, h, p, a, 3, 0, main, True)
+        if em >= 0 and ea >= 0 and em != ea:
+            blk = blocks[pair_blk[_pair(k0, min(em, ea) - e0, max(em, ea) - e0, n)]]
+            _add_block(blk, Xma, p, 3, 3, 3, em > ea)
 
 
 @_njit
@@ -73,51 +87,46 @@ def schur_blocks_xspace(W, Li, q, bounds, entry_pt, entry_cam, pair_blk, blocks,
     diagonal blocks, and the block of the (main, associate) entry pair). em, ea (P,) the
     anchors' entries (-1 = fixed camera)."""
     Z = np.empty((_longest(bounds), 6, 3))
-    w = np.empty((6, 3))
-    wl = np.empty((1, 6, 3))
+    w = np.empty((1, 6, 3))
     k = 0
     for g in range(len(bounds) - 1):
         e0, e1 = bounds[g], bounds[g + 1]
+        n = e1 - e0
         p = entry_pt[e0]
         pm, pa = em[p], ea[p]
         l0, l1, l2 = lam[p, 0], lam[p, 1], lam[p, 2]
         for a in range(e0, e1):
-            for i in range(6):
-                for j in range(3):
-                    w[i, j] = W[a, i, j]
+            w[0] = W[a]
             if a == pm:
                 for i in range(3):
-                    w[3 + i, 0] -= Bm[p, 0, i] * l0
-                    w[3 + i, 1] -= Bm[p, 1, i] * l1
-                    w[3 + i, 2] -= Bm[p, 2, i] * l2
+                    w[0, 3 + i, 0] -= Bm[p, 0, i] * l0
+                    w[0, 3 + i, 1] -= Bm[p, 1, i] * l1
+                    w[0, 3 + i, 2] -= Bm[p, 2, i] * l2
             elif a == pa:
                 for i in range(3):
-                    w[3 + i, 2] -= b[p, i] * l2
-            wl[0] = w
-            # one entry's factor: _point_factors on a one-entry W (entry 0, camera of a)
-            _point_factors(wl, Li, q, p, 0, 1, entry_cam[a:a + 1], Z[a - e0:a - e0 + 1], bvec)
+                    w[0, 3 + i, 2] -= b[p, i] * l2
+            # this entry's factor and right-hand side share: _point_factors on the damped copy
+            _point_factors(w, Li, q, p, 0, 1, entry_cam[a:a + 1], Z[a - e0:a - e0 + 1], bvec)
+        k0 = k
         for a in range(e0, e1):
             for bb in range(a, e1):
-                blk = blocks[pair_blk[k]]
+                _subtract_product(blocks[pair_blk[k]], Z[a - e0], Z[bb - e0])
                 k += 1
-                _subtract_product(blk, Z[a - e0], Z[bb - e0])
-                if a == bb:
-                    if a == pm:
-                        for i in range(3):
-                            for j in range(3):
-                                blk[3 + i, 3 + j] += (Bm[p, 0, i] * l0 * Bm[p, 0, j]
-                                                      + Bm[p, 1, i] * l1 * Bm[p, 1, j]
-                                                      + Bm[p, 2, i] * l2 * Bm[p, 2, j])
-                    if a == pa:
-                        for i in range(3):
-                            for j in range(3):
-                                blk[3 + i, 3 + j] += l2 * b[p, i] * b[p, j]
-                    if a == pm and a == pa:
-                        _add_anchor_pair(blk, Bm, b, l2, p, True)
-                elif a == pm and bb == pa:
-                    _add_anchor_pair(blk, Bm, b, l2, p, False)
-                elif a == pa and bb == pm:
-                    _add_anchor_pair(blk, Bm, b, l2, p, True)
+        if pm >= 0:
+            blk = blocks[pair_blk[_pair(k0, pm - e0, pm - e0, n)]]
+            for i in range(3):
+                for j in range(3):
+                    blk[3 + i, 3 + j] += (Bm[p, 0, i] * l0 * Bm[p, 0, j]
+                                          + Bm[p, 1, i] * l1 * Bm[p, 1, j]
+                                          + Bm[p, 2, i] * l2 * Bm[p, 2, j])
+        if pa >= 0:
+            blk = blocks[pair_blk[_pair(k0, pa - e0, pa - e0, n)]]
+            for i in range(3):
+                for j in range(3):
+                    blk[3 + i, 3 + j] += l2 * b[p, i] * b[p, j]
+        if pm >= 0 and pa >= 0:
+            blk = blocks[pair_blk[_pair(k0, min(pm, pa) - e0, max(pm, pa) - e0, n)]]
+            _add_anchor_pair(blk, Bm, b, l2, p, pm >= pa)
 
 
 @_njit
