@@ -263,7 +263,7 @@ def render(t: CampaignTable) -> str:
         c4 = tw.c4
         lines += ["", f"- C4 (polar faster, whole method): **{c4.verdict}**: speed-up Euclidean/polar per seed "
                   f"{', '.join(f'x{x:.3f}' for x in c4.ratios) or '-'}, geometric mean {_f(c4.geometric_mean, '.3f')} "
-                  f"({1 - MDE_ALPHA:.0%} CI {_f(c4.lo, '.3f')} - {_f(c4.hi, '.3f')}); supported at >= x{c4.bar:.2f}. "
+                  f"({'one seed, no interval' if c4.lo is None else f'{1 - MDE_ALPHA:.0%} CI {c4.lo:.3f} - {c4.hi:.3f}'}); supported at >= x{c4.bar:.2f}. "
                   f"BA in the mapper polar/Euclidean {', '.join(f'x{x:.2f}' for x in c4.ba_ratios) or '-'} (target <= "
                   f"x{c4.ba_ratio_max:.1f}: {'-' if c4.ba_target_met is None else 'met' if c4.ba_target_met else 'not met'})."]
         parts = [f"{s.count} {', '.join(f'{100 * x:+.3f} %' for x in s.rel) or '-'} (mean {_f(None if s.mean is None else 100 * s.mean, '+.3f')} %, "

@@ -41,6 +41,11 @@ def _peer_label(m: MethodSummary) -> str:
     return name if m.threads is None else f"{name} ({m.threads} thread{'s' if m.threads != 1 else ''})"
 
 
+def _interval(lo: float | None, hi: float | None, pct) -> str:
+    # one paired seed gives no interval: say so rather than print empty bounds
+    return "one seed, no interval" if lo is None or hi is None else f"90% CI {pct(lo)} to {pct(hi)}"
+
+
 def twin_line(t: CampaignTable, tw: TwinCampaign, where: str) -> str:
     by = {m.key: m for m in tw.methods}
     c4, pct = tw.c4, (lambda v: "-" if v is None else f"{100 * v:+.3f}")
@@ -51,7 +56,7 @@ def twin_line(t: CampaignTable, tw: TwinCampaign, where: str) -> str:
     if c4.geometric_mean is None:
         return head + body + "; C4 and C5 not tested (no seed with both BAs)."
     ci = "" if c4.lo is None else f", 95% CI {c4.lo:.3f}-{c4.hi:.3f}"
-    c5 = ", ".join(f"{s.count.replace('_', ' ')} {pct(s.mean)} % (90% CI {pct(s.lo)} to {pct(s.hi)}, {s.outcome})"
+    c5 = ", ".join(f"{s.count.replace('_', ' ')} {pct(s.mean)} % ({_interval(s.lo, s.hi, pct)}, {s.outcome})"
                    for s in tw.c5)
     ba = "" if not c4.ba_ratios else (f"; mapper BA polar/Euclidean x{_span(c4.ba_ratios, '.2f')} (target <= "
                                       f"x{c4.ba_ratio_max:.1f} {'met' if c4.ba_target_met else 'not met'})")

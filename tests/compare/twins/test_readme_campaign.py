@@ -71,3 +71,19 @@ def test_peers_quoted_from_their_cells():
                 f"{d['wall_s'] / 60:.1f} min, {d['metrics']['tie_points']:,} tie points") in line
         checked += 1
     assert checked >= 1, "no single-seed pycolmap cell committed"
+
+
+def test_one_paired_seed_claims_no_interval():
+    """A twin with one paired seed states that it has no interval, and one with several quotes one."""
+    block = findings_block(CELLS)
+    checked = 0
+    for twin_dir in sorted(p for p in CELLS.glob("*/*") if p.is_dir() and p.name in ("mappilot", "rosetta", "poets-park")):
+        paired = [s for s in twin_dir.glob("seed*")
+                  if (s / "ours-euclidean.json").is_file() and (s / "ours-polar.json").is_file()]
+        if not paired:
+            continue
+        line = next(x for x in block.splitlines() if f"/{twin_dir.parent.name[:12]}/` `{twin_dir.name}`" in x)
+        assert ("one seed, no interval" in line) == (len(paired) == 1)
+        assert ("95% CI" in line) == (len(paired) > 1)
+        checked += 1
+    assert checked >= 2
