@@ -23,6 +23,7 @@ import warnings
 from polarref import __version__
 from polarref.commands._registry import command_modules
 from polarref.core import execution, progress
+from polarref.core.heap import keep_heap
 from polarref.core.errors import PolarrefError, UsageError, is_out_of_memory
 
 log = logging.getLogger("polarref")
@@ -186,6 +187,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         args = build_parser().parse_args(argv)  # exits 2 with usage on bad commands/options/values
         _setup_logging(args.verbose, args.quiet)
+        keep_heap()  # the BA's per-iteration arrays stay mapped (core/heap.py)
         progress.enable(not args.no_progress and sys.stderr.isatty())
         spec = execution.configure(args.workers, args.scheduler)  # started on first use, closed at exit
         if args.command != "doctor":  # doctor reports an unreachable scheduler instead of failing

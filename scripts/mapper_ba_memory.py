@@ -2,14 +2,17 @@
 at 631 views for every stage"), per BA form, on a twin's cached features.
 
     PYTHONPATH=$PWD python scripts/mapper_ba_memory.py SEED_DIR RENDER --twin rosetta --seed 0 \\
-        [--forms euclidean polar] [--out reports/bench-ba-scale/mapper-ba-memory]
+        [--forms euclidean polar] [--heap keep] [--out reports/bench-ba-scale/mapper-ba-memory]
 
 SEED_DIR and RENDER as in scripts/mapper_ba_forms.py. Each form runs our whole incremental mapper
 in this process, one form per child process (a fresh peak each). Every BA call that raised the
 process's peak RSS (``ru_maxrss``) by more than 20 MiB, and every call with more than
 ``--big`` variable cameras, is recorded with its size, the reduced system's path (dense / block-sparse,
-fused three-slot build, panels, dsyrk) and its number of entry pairs. Writes OUT.json
-(provenance, every record) and OUT.md (:func:`markdown` of the JSON alone).
+fused three-slot build, panels, dsyrk) and its number of entry pairs; per form also the mapper's
+local and global BA seconds and the process's minor page faults. ``--heap keep`` runs the mapper
+as a polarref command or job does (``core.heap.keep_heap``), ``default`` under glibc's dynamic
+thresholds. Writes OUT.json (provenance, every record) and OUT.md (:func:`markdown` of the JSON
+alone).
 """
 
 from __future__ import annotations
@@ -33,7 +36,10 @@ def _peak_mib() -> int:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024
 
 
-def _run_form(seed_dir: str, render: str, form: str, work: str, big: int, queue) -> None:
+def _run_form(seed_dir: str, render: str, form: str, work: str, big: int, heap: str, queue) -> None:
+    from polarref.core.heap import keep_heap
+    if heap == "keep":
+        keep_heap()
     import polarref.ba as B
     from polarref.ba import schur
     from polarref.compare.run import jobs, presets
@@ -72,9 +78,13 @@ def _run_form(seed_dir: str, render: str, form: str, work: str, big: int, queue)
     res = jobs.ours_sfm(str(scene.image_dir), jobs.camera_to_json(scene.camera), form,
                         str(Path(work) / form), presets.DEFAULT.name, str(Path(seed_dir) / "cache"),
                         str(pairs[0]))
-    metrics = json.loads((Path(work) / form / "sfm" / "metrics.json").read_text())["metrics"]
+    doc = json.loads((Path(work) / form / "sfm" / "metrics.json").read_text())
+    metrics = doc["metrics"]
+    kinds = {k: round(sum(b["wall_s"] for b in doc["ba"] if b["kind"] == k), 2) for k in ("local", "global")}
     queue.put({"form": form, "peak_mib": _peak_mib(), "tie_points": metrics["tie_points"],
-               "ba_s": res.stage_runtime_s["bundle adjustment"], "calls": calls})
+               "ba_s": res.stage_runtime_s["bundle adjustment"], "local_ba_s": kinds["local"],
+               "global_ba_s": kinds["global"], "heap": heap,
+               "minor_faults": resource.getrusage(resource.RUSAGE_SELF).ru_minflt, "calls": calls})
 
 
 def markdown(doc: dict) -> str:
@@ -87,7 +97,10 @@ def markdown(doc: dict) -> str:
              f"20 MiB or had more than {doc['big']} variable cameras; calls are numbered in the mapper's "
              "order (local and global).", ""]
     for run in doc["runs"]:
-        lines += [f"## {run['form']}: peak {run['peak_mib']:,} MiB, mapper BA {run['ba_s']:.1f} s, "
+        split = "" if "local_ba_s" not in run else (
+            f" (local {run['local_ba_s']:.1f}, global {run['global_ba_s']:.1f}), heap {run['heap']}, "
+            f"{run['minor_faults']:,} minor page faults")
+        lines += [f"## {run['form']}: peak {run['peak_mib']:,} MiB, mapper BA {run['ba_s']:.1f} s{split}, "
                   f"{run['tie_points']:,} tie points", "",
                   "| call | cameras | observations | variable | entry pairs | path | peak before -> after MiB | wall s |",
                   "|---|---|---|---|---|---|---|---|"]
@@ -109,6 +122,8 @@ def main() -> int:
     ap.add_argument("--seed", type=int, required=True)
     ap.add_argument("--forms", nargs="+", default=["euclidean", "polar"])
     ap.add_argument("--big", type=int, default=500, help="list every call with more variable cameras")
+    ap.add_argument("--heap", choices=("keep", "default"), default="keep",
+                    help="keep: glibc thresholds as polarref's processes set them (core/heap.py)")
     ap.add_argument("--work", type=Path, default=ROOT / "polarref-out" / "mapper-ba-memory")
     ap.add_argument("--out", default=str(ROOT / "reports" / "bench-ba-scale" / "mapper-ba-memory"))
     ap.add_argument("--render-only", action="store_true", help="rewrite OUT.md from OUT.json")
@@ -123,11 +138,12 @@ def main() -> int:
     for form in a.forms:
         q = ctx.Queue()
         proc = ctx.Process(target=_run_form, args=(str(a.seed_dir), str(a.render), form, str(a.work),
-                                                    a.big, q))
+                                                    a.big, a.heap, q))
         proc.start()
         runs.append(q.get())
         proc.join()
-        print(json.dumps({k: runs[-1][k] for k in ("form", "peak_mib", "ba_s")}), flush=True)
+        print(json.dumps({k: runs[-1][k] for k in ("form", "peak_mib", "ba_s", "local_ba_s", "global_ba_s",
+                                                     "minor_faults")}), flush=True)
     doc = {"twin": a.twin, "seed": a.seed, "big": a.big, "environment": env, "runs": runs}
     atomic_write(out.with_suffix(".json"), json.dumps(doc, indent=1) + "\n")
     atomic_write(out.with_suffix(".md"), markdown(doc))

@@ -58,6 +58,7 @@ from polarref.ba.kernels import use_kernels
 from polarref.ba.reduced_solve import ReducedSolver, choose
 from polarref.ba.schur import SchurStructure
 from polarref.ba.xspace import AnchorElimination, xspace_note
+from polarref.core import heap
 from polarref.core.geometry import so3_exp
 
 log = logging.getLogger(__name__)
@@ -149,10 +150,11 @@ def solve(problem: BAProblem, options: BAOptions, *, prepared: bool = False,
     if options.refine:  # self-calibration wraps this solver: polarref.ba.entry.solve
         raise ValueError("solver.solve holds intrinsics fixed; use polarref.ba.solve to refine "
                          f"{','.join(options.refine)}")
-    if options.blas_threads is None:
-        return _solve(problem, options, prepared, param)
-    with _blas_controller().limit(limits=options.blas_threads, user_api="blas"):
-        return _solve(problem, options, prepared, param)
+    with heap.solve_scope():  # LM iterations reuse the last one's pages (core/heap.py)
+        if options.blas_threads is None:
+            return _solve(problem, options, prepared, param)
+        with _blas_controller().limit(limits=options.blas_threads, user_api="blas"):
+            return _solve(problem, options, prepared, param)
 
 
 _BLAS: list = []  # (len(sys.modules) when made, threadpoolctl's controller of the BLAS)

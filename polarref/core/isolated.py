@@ -30,6 +30,7 @@ from typing import Any, Callable, Generic, TypeVar
 from polarref.core import records
 from polarref.core.records import JsonValue
 from polarref.core.atomic import atomic_write
+from polarref.core.heap import keep_heap
 from polarref.core.status import RunStatus
 
 log = logging.getLogger(__name__)
@@ -115,6 +116,7 @@ def _child(job: Callable, kwargs: dict[str, JsonValue], result_path: str, log_pa
     os.dup2(fd, 2)
     logging.basicConfig(level=logging.INFO, stream=sys.stderr,
                         format="%(levelname)s %(name)s: %(message)s")
+    keep_heap()  # the process is ours, as a polarref command's (heap.py)
     try:
         done = _JobFile(True, job_name(job), kwargs, _encode(job(**kwargs)))
     except BaseException as exc:  # report everything, including SystemExit from a library
