@@ -21,7 +21,10 @@ log = logging.getLogger(__name__)
 # match (disk error, killed writer of an older version, hand edit) is reported once, deleted and
 # recomputed instead of breaking every later run.
 def _checksum(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+    # streamed: reading the entry whole put a second copy of the 631-view feature cache (717 MiB)
+    # on top of the features stage's peak, when it was sealed and again whenever it was checked
+    with open(path, "rb") as fh:
+        return hashlib.file_digest(fh, "sha256").hexdigest()
 
 
 def seal(path: Path) -> None:
