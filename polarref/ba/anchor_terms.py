@@ -32,6 +32,9 @@ class AnchorJacobian:
     h: np.ndarray  # (P, 3) dh/de per point
     # (Bm (P, 3, 3), b (P, 3)): the same Jacobians as maps of Jp (xspace.py), kernel path
     maps: tuple | None = None
+    # (M, 2): the residual's last row is row_map . (the two rows every Jacobian holds), so
+    # the build reads two whitened rows (row_map.py; polar, kernel path); None: all k rows
+    row_map: np.ndarray | None = None
 
     def scaled(self, w: np.ndarray) -> "AnchorJacobian":
         """Rows scaled by (M, k) weights (robust loss; the maps are weight-free)."""

@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from polarref.ba import row_map
+
 CHUNK_OBS = 1 << 16  # observations per chunk: ~40 MB of three-slot Jacobians and temporaries
 MIN_OBS = 1 << 18  # below this the eager path (per-iteration speed, benchmarks) is kept
 
@@ -77,9 +79,7 @@ def build(st, param, R, C, pts, w, pt_free, xs=None, mask_v=None):
         m0, m1 = int(bounds[p0]), int(bounds[p1])
         r, Jp, (J_obs, anc) = param.evaluate_rows(R, C, terms, m0, m1)
         Ad = anc.Ad
-        if w is not None:
-            wc = w[m0:m1]
-            r, Jp, J_obs, Ad = r * wc, Jp * wc[:, :, None], J_obs * wc[:, :, None], Ad * wc
+        r, Jp, J_obs, Ad = _weighted(r, Jp, J_obs, Ad, anc.row_map, None if w is None else w[m0:m1])
         op = st.obs_pt[m0:m1]
         if pt_free is not None:
             Jp = Jp * pt_free[op][:, :, None]
@@ -110,10 +110,9 @@ def _build_xspace(st, param, R, C, pts, w, xs, mask_v):
     bounds, c = st.obs_bounds, np.ascontiguousarray
     for p0, p1 in point_chunks(bounds, CHUNK_OBS):
         m0, m1 = int(bounds[p0]), int(bounds[p1])
-        r, Jp, (J_obs, _) = param.evaluate_rows(R, C, terms, m0, m1)
-        if w is not None:
-            wc = w[m0:m1]
-            r, Jp, J_obs = r * wc, Jp * wc[:, :, None], J_obs * wc[:, :, None]
+        r, Jp, (J_obs, anc) = param.evaluate_rows(R, C, terms, m0, m1)
+        r, Jp, J_obs, _ = _weighted(r, Jp, J_obs, anc.Ad, anc.row_map,
+                                    None if w is None else w[m0:m1])
         r, Jp, op = c(r), c(Jp), st.obs_pt[m0:m1]
         kernels.point_sums(Jp, r, op, V, g_p)
         # whole points per chunk: V, g_p of p0:p1 are complete before their anchors' share
@@ -121,3 +120,13 @@ def _build_xspace(st, param, R, C, pts, w, xs, mask_v):
                                 bounds[p0:p1 + 1] - m0, mask_v, xs.maps[0][p0:p1], xs.maps[1][p0:p1],
                                 V[p0:p1], g_p[p0:p1], W, g_c, U, xs.gx, xs.diag_f)
     return V, g_p, (g_c, W, U)
+
+
+def _weighted(r, Jp, J_obs, Ad, G, w):
+    """One chunk's rows weighted by w (its (m, k) robust weights, or None), or whitened into
+    two rows where the form maps its last row (G (m, 2), row_map.py; Jacobians in place)."""
+    if G is not None:
+        return row_map.whiten(r, w, G, Jp, J_obs, Ad), Jp, J_obs, Ad
+    if w is None:
+        return r, Jp, J_obs, Ad
+    return r * w, Jp * w[:, :, None], J_obs * w[:, :, None], Ad * w

@@ -61,8 +61,8 @@ def use_kernels(choice: str) -> bool:
 def __getattr__(name: str):
     if name.startswith("_"):
         raise AttributeError(name)
-    from polarref.ba import forms_jit, kernels_jit
-    for mod in (kernels_jit, forms_jit):
+    from polarref.ba import forms_jit, kernels_jit, row_map_jit
+    for mod in (kernels_jit, forms_jit, row_map_jit):
         if hasattr(mod, name):
             return getattr(mod, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
@@ -123,7 +123,8 @@ def warm_up() -> float:
         for k in (2, 3):
             res3, J3 = pixel_rows(x3, f((1, 6)), r, k, jac)
         theta_row_into(x3, x1, x1, res3, J3, jac)
-    from polarref.ba import schur_sparse_jit, xspace_jit
+    from polarref.ba import row_map_jit, schur_sparse_jit, xspace_jit
+    row_map_jit.warm_up()
     xspace_jit.warm_up()
     schur_sparse_jit.warm_up()
     dt = time.perf_counter() - t

@@ -15,6 +15,7 @@ from polarref.ba.refine import parse_refine
 
 SOLVERS = ("lm", "gn")  # Levenberg-Marquardt | Gauss-Newton (every step taken, no damping)
 DAMPINGS = ("ceres", "nielsen")
+VIEW_ANGLE_ROWS = ("mapped", "explicit")
 REDUCED_SOLVERS = tuple(s.value for s in ReducedSolver)
 # LM strategy per form where BAOptions leaves it None, measured (reports/bench-ba/
 # parallaxba-parity.md, iterations to the common optimum): Ceres' Jacobi-scaled trust region with
@@ -80,6 +81,10 @@ class BAOptions:
     # y = dq + B dc (ba/xspace.py: no anchor cross terms, the same LM step to rounding);
     # "cross" the reference (anchor cross terms in the build and the Schur pass)
     anchor_schur: str = "xspace"
+    # polar, kernel path: "mapped" builds the normal equations from two whitened rows per
+    # observation, the view-angle row being a map of the pixel rows (ba/row_map.py: the same
+    # normal equations to rounding); "explicit" the reference, three rows
+    view_angle_row: str = "mapped"
     # BLAS threads inside the solve (threadpoolctl); None leaves the process setting alone. One
     # thread is fastest here: the BLAS calls are small and multi-threaded OpenBLAS on 2 busy
     # cores spent 0.64 s instead of 0.014 s in the Ladybug-49 Cholesky solves.
@@ -112,6 +117,9 @@ class BAOptions:
             raise ValueError(f"unknown kernels {self.kernels!r}; choose auto, numba or numpy")
         if self.anchor_schur not in ("xspace", "cross"):
             raise ValueError(f"unknown anchor_schur {self.anchor_schur!r}; choose xspace or cross")
+        if self.view_angle_row not in VIEW_ANGLE_ROWS:
+            raise ValueError(f"unknown view_angle_row {self.view_angle_row!r}; choose "
+                             f"{', '.join(VIEW_ANGLE_ROWS)}")
         if self.axis_residual not in ("chart", "theta"):
             raise ValueError(f"unknown axis_residual {self.axis_residual!r}; choose chart or theta")
         if self.reduced_solver not in REDUCED_SOLVERS:

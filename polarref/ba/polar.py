@@ -32,6 +32,16 @@ class Polar(Parallax):
                                 "model's angular range")
         self.theta_obs = theta
         self.w_theta = 1.0 / s_theta
+        # the solver's factored Jacobians carry the view-angle row as a map of the pixel rows
+        # (row_map.py): two rows per observation in the chain rule and the normal equations
+        self.map_rows = self.fast and options.view_angle_row == "mapped"
+
+    def mapped_rows(self, Xc):
+        if not (self.map_rows and self.proj.compiled):
+            return None
+        from polarref.ba import kernels
+        return kernels.polar_rows_mapped(np.ascontiguousarray(Xc), self.proj.K, self.p.obs_uv,
+                                         self.theta_obs, self.w_theta)
 
     def residual_rows(self, Xc, jac):
         if self.fast:  # the view-angle row compiled (kernels.py), written beside the

@@ -53,7 +53,7 @@ from polarref.ba.parameterization import (AnchoredJacobians, BoundedPoints, Para
                                           Staged, make_param)
 from polarref.ba.priors import PriorTerms
 from polarref.ba.problem import BAProblem, prepare
-from polarref.ba import chunked
+from polarref.ba import chunked, row_map
 from polarref.ba.kernels import use_kernels
 from polarref.ba.reduced_solve import ReducedSolver, choose
 from polarref.ba.schur import SchurStructure
@@ -323,7 +323,11 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
                 V, g_p, blocks = chunked.build(st, param, R, C, pts, w,
                                                pt_free if any_pt_fixed else None, xs, mask_v)
             else:
-                if w is not None:
+                G = getattr(Jc[1], "row_map", None) if len(Jc) == 2 else None
+                if G is not None:  # polar: two whitened rows carry all three (row_map.py)
+                    r_w = row_map.whiten(r, w, G, Jp, Jc[0], Jc[1].Ad)
+                    Jp_w, Jc_w = Jp, [Jc[0], dataclasses.replace(Jc[1], row_map=None)]
+                elif w is not None:
                     # weighted in place: evaluate's arrays are this build's alone (dropped
                     # below); fresh copies were a tenth of a mapper's local BA. The factored
                     # anchors are weighted below, only for a build that reads their Ad.
@@ -366,7 +370,8 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             # gauge-fixed columns and fixed cameras are masked on the assembled blocks
             if not lazy:
                 use_x = xs is not None and xs.carries(Jc_w[1], active)
-                if w is not None and not use_x:  # the reference build reads the weighted Ad
+                if w is not None and not use_x and G is None:  # the reference build reads Ad
+                    # weighted (whitened rows already are)
                     Jc_w = [J if isinstance(J, np.ndarray) else J.scaled(w) for J in Jc_w]
                 blocks = (xs.build(Jc_w[0], Jc_w[1], Jp_w, r_w, V, g_p, mask_v) if use_x
                           else builder.build(Jc_w, Jp_w, r_w))

@@ -103,7 +103,7 @@ def test_schur_step_equals_dense_normal_equations(param, mode, monkeypatch):
                                        point_sigma=0.05, center_sigma=0.05)
     p = problem_from_reconstruction(init)
     prepare(p)
-    prm = make_param(p, BAOptions(param=param))
+    prm = make_param(p, BAOptions(param=param, view_angle_row="explicit"))
     mu = 1e-3
     ref, _ = _dense_step(p, prm, mu)
     fast = mode.startswith("kernels")  # compiled kernels (ba/kernels.py)

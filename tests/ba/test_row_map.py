@@ -1,0 +1,126 @@
+"""The polar form's view-angle row as a map of its pixel rows (ba/row_map.py, issue 34): the
+kernel's rows against the explicit ones, the whitening against a numpy reference and against
+the three-row normal equations, and whole solves (eager and chunked) against the explicit form."""
+
+import numpy as np
+import pytest
+
+from polarref.ba import BAOptions, chunked, kernels, prepare, row_map, solve
+from polarref.ba.adapter import problem_from_reconstruction
+from polarref.ba.schur import SchurStructure
+from polarref.ba.solver import _robust, make_param
+from polarref.ba.synthetic import ring_problem, synthetic_reconstruction
+
+pytestmark = pytest.mark.skipif(not kernels.available(), reason="numba kernels unavailable")
+
+
+def _rays_and_intrinsics(n=500, seed=0):
+    rng = np.random.default_rng(seed)
+    Xc = rng.normal(size=(n, 3)) * [1.0, 1.0, 0.3] + [0.0, 0.0, 1.0]
+    Xc[::7, 2] *= -1.0  # behind the camera: the projective ray (angular_obs.py)
+    Xc[::11] *= 1e4  # scale: both rows see the ray's direction only
+    K = np.tile([800.0, 760.0, 320.0, 240.0, -0.08, 0.01], (n, 1)) * rng.uniform(0.9, 1.1, (n, 6))
+    return Xc, K, rng.normal(size=(n, 2)) * 3 + [320, 240], rng.uniform(0.1, 1.0, n), \
+        rng.uniform(100.0, 900.0, n)
+
+
+def test_mapped_rows_kernel_equals_explicit_rows():
+    Xc, K, uv, th, wt = _rays_and_intrinsics()
+    res, J, G = kernels.polar_rows_mapped(Xc, K, uv, th, wt)
+    ref, J3 = kernels.pixel_rows(Xc, K, uv, 3, True)
+    kernels.theta_row_into(Xc, th, wt, ref, J3, True)
+    assert np.array_equal(res, ref)  # the cost reads these: bitwise
+    assert np.array_equal(J, J3[:, :2])
+    mapped = np.einsum("mk,mkj->mj", G, J)
+    err = np.abs(mapped - J3[:, 2]).max(axis=1) / np.abs(J3[:, 2]).max(axis=1)
+    assert err.max() < 1e-12
+    # not a tautology: the map is specific to each observation
+    assert np.abs(np.einsum("mk,mkj->mj", G[::-1], J) - J3[:, 2]).max() > 1e-3 * np.abs(J3[:, 2]).max()
+
+
+@pytest.mark.parametrize("weighted", [False, True])
+def test_whiten_gives_the_three_row_normal_equations(weighted):
+    rng = np.random.default_rng(5)
+    M = 300
+    r = rng.normal(size=(M, 3))
+    G = rng.normal(size=(M, 2)) * 3
+    J2 = rng.normal(size=(M, 2, 10))  # point (3) | observer (6) | A d (1)
+    w = None
+    if weighted:
+        w = np.repeat(rng.uniform(0.05, 1.0, (M, 2)), [2, 1], axis=1)  # one weight per block
+    Jp, Jo, Ad = J2[:, :, :3].copy(), J2[:, :, 3:9].copy(), J2[:, :, 9].copy()
+    r2 = row_map.whiten(r, w, G, Jp, Jo, Ad)
+    Jw = np.concatenate([Jp, Jo, Ad[:, :, None]], axis=2)
+    ref_r, ref_J = row_map.whiten_reference(r, w, G, J2)
+    np.testing.assert_allclose(r2, ref_r, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(Jw, ref_J, rtol=1e-12, atol=1e-12)
+    J3 = np.concatenate([J2, np.einsum("mk,mkj->mj", G, J2)[:, None]], axis=1)
+    w2 = np.ones((M, 3)) if w is None else w ** 2
+    H3 = np.einsum("mki,mk,mkj->ij", J3, w2, J3)
+    b3 = np.einsum("mki,mk,mk->i", J3, w2, r)
+    np.testing.assert_allclose(np.einsum("mki,mkj->ij", Jw, Jw), H3, rtol=1e-11,
+                               atol=1e-11 * np.abs(H3).max())
+    np.testing.assert_allclose(np.einsum("mki,mk->i", Jw, r2), b3, rtol=1e-11,
+                               atol=1e-11 * np.abs(b3).max())
+
+
+def _synthetic(seed=7):
+    init, _ = synthetic_reconstruction(16, 200, seed=seed, noise_px=0.5, rot_deg=0.3,
+                                       point_sigma=0.05, center_sigma=0.05, track_length=4)
+    p = problem_from_reconstruction(init)
+    prepare(p)
+    return p
+
+
+@pytest.mark.parametrize("loss", ["trivial", "huber"])
+def test_mapped_normal_equations_equal_explicit(loss):
+    """The fused kernel build of both evaluations at the same estimate: g, W, U, V, g_p."""
+    p = _synthetic()
+    out = {}
+    for rows in ("explicit", "mapped"):
+        prm = make_param(p, BAOptions(param="polar", view_angle_row=rows))
+        pts = prm.init_points()
+        st = SchurStructure(prm.slot_cams, prm.slot_cols, p.obs_pt, p.cam_mask.any(1),
+                            p.num_points, 700, fast=True, anchored=True)
+        r, Jp, (Jo, anc) = prm.evaluate(p.R, p.C, pts, True, factored=True)
+        assert Jp.shape[1] == (2 if rows == "mapped" else 3) and r.shape[1] == 3
+        _, w = _robust(r, prm.groups, loss, 2.0)
+        if rows == "mapped":
+            r = row_map.whiten(r, w, anc.row_map, Jp, Jo, anc.Ad)
+        elif w is not None:
+            r, Jp, Jo = r * w, Jp * w[:, :, None], Jo * w[:, :, None]
+            anc = anc.scaled(w)
+        V, g_p = st.point_terms(Jp, r)
+        out[rows] = (*st.build([Jo, anc], Jp, r), V, g_p)
+    for a, b in zip(out["explicit"], out["mapped"]):
+        np.testing.assert_allclose(b, a, rtol=0, atol=1e-10 * np.abs(a).max())
+
+
+def _solve(p, monkeypatch, lazy, **opts):
+    monkeypatch.setattr(chunked, "MIN_OBS", 0 if lazy else 1 << 62)
+    monkeypatch.setattr(chunked, "CHUNK_OBS", 41)
+    q = p.copy()
+    s = solve(q, BAOptions(param="polar", kernels="numba", max_iterations=12, **opts),
+              prepared=True)
+    return q, s
+
+
+@pytest.mark.parametrize("lazy", [False, True])
+@pytest.mark.parametrize("loss", ["trivial", "cauchy"])
+def test_mapped_solve_equals_explicit(monkeypatch, lazy, loss):
+    p = ring_problem(24, 300, 6.0, seed=3)
+    prepare(p)
+    a, sa = _solve(p, monkeypatch, lazy, loss=loss, view_angle_row="explicit")
+    b, sb = _solve(p, monkeypatch, lazy, loss=loss, view_angle_row="mapped")
+    assert sa.iterations == sb.iterations >= 2 and sb.final_cost < 0.5 * sb.initial_cost
+    assert sa.accepted_iterations == sb.accepted_iterations
+    ca, cb = np.array([t.cost for t in sa.trace]), np.array([t.cost for t in sb.trace])
+    np.testing.assert_allclose(cb, ca, rtol=1e-10)
+    scale = np.abs(a.C).max() + np.abs(a.X).max()
+    np.testing.assert_allclose(b.X, a.X, rtol=0, atol=1e-9 * scale)
+    np.testing.assert_allclose(b.R, a.R, rtol=0, atol=1e-10)
+
+
+def test_option_is_checked():
+    with pytest.raises(ValueError, match="view_angle_row"):
+        BAOptions(view_angle_row="implicit")
