@@ -244,29 +244,21 @@ class Parallax:
         Cm, d, sw, cw, hd, dh_dw, dh_de, dv_dab = terms
         fused = self.fused_obs(R, C, terms) if factored else None
         if fused is not None:  # ray, rows and chain rule in one pass (forms_jit.py)
-            res, Jp, J_obs, Ad = fused
-            return res, Jp, [J_obs, AnchorJacobian(Ad, dh_de)]
+            res, Jp, J_obs, Ad, *G = fused  # polar's fused kernel adds its row map
+            return res, Jp, [J_obs, AnchorJacobian(Ad, dh_de, row_map=G[0] if G else None)]
         Xc = kernels.parallax_rays(R, C, p.obs_cam, p.obs_pt, Cm, sw, hd)
-        mapped = self.mapped_rows(Xc) if factored else None
-        if mapped is None:
-            (res, Jx), G = self.residual_rows(Xc, True), None
-        else:
-            res, Jx, G = mapped
+        res, Jx = self.residual_rows(Xc, True)
         Jp, J_obs, J_m, J_a, Ad = kernels.parallax_jacobians(
             np.ascontiguousarray(Jx), Xc, R, C, p.obs_cam, p.obs_pt, Cm, d, sw, cw,
             dh_dw, dh_de, dv_dab, not factored)
         if factored:
-            return res, Jp, [J_obs, AnchorJacobian(Ad, dh_de, row_map=G)]
+            return res, Jp, [J_obs, AnchorJacobian(Ad, dh_de)]
         return res, Jp, [J_obs, J_m, J_a]
 
-    def mapped_rows(self, Xc):
-        """(res (M, k), res_D_Xc of the first two rows (M, 2, 3), row map (M, 2)) when the
-        form's later rows are maps of its first two (row_map.py); None: every row kept."""
-        return None
-
     def fused_obs(self, R, C, terms):
-        """(res, res_D_point, res_D_obs, A d) of the factored evaluation in one compiled pass,
-        or None: the form evaluates its stages one by one (forms_jit.py says why)."""
+        """(res, res_D_point, res_D_obs, A d[, row map]) of the factored evaluation in one
+        compiled pass, or None: the form evaluates its stages one by one (forms_jit.py says
+        why; polar's mapped rows add their row map, row_map.py)."""
         return None
 
     def supports_rows(self) -> bool:

@@ -20,7 +20,7 @@ class Polar(Parallax):
     name = "polar"
     k = 3
     groups = ((0, 2), (2, 3))
-    row_arrays = ("theta_obs", "w_theta")
+    row_arrays = ("theta_obs", "w_theta", "cs_theta")
 
     def __init__(self, problem, options=None):
         super().__init__(problem, options)
@@ -35,15 +35,28 @@ class Polar(Parallax):
         # the solver's factored Jacobians carry the view-angle row as a map of the pixel rows
         # (row_map.py): two rows per observation in the chain rule and the normal equations
         self.map_rows = self.fast and options.view_angle_row == "mapped"
+        # (M, 2) cos, sin of theta_obs: the mapped row's offset without arctan2 (row_map_jit.py)
+        self.cs_theta = (np.stack([np.cos(theta), np.sin(theta)], axis=1) if self.map_rows
+                         else np.empty((len(theta), 2)))
 
-    def mapped_rows(self, Xc):
+    def fused_obs(self, R, C, terms):
+        """With mapped rows (BAOptions.view_angle_row): the factored evaluation with two
+        Jacobian rows and the row map (row_map.py) in one compiled pass, else None."""
         if not (self.map_rows and self.proj.compiled):
             return None
         from polarref.ba import kernels
-        return kernels.polar_rows_mapped(np.ascontiguousarray(Xc), self.proj.K, self.p.obs_uv,
-                                         self.theta_obs, self.w_theta)
+        p = self.p
+        Cm, d, sw, cw, hd, dh_dw, _, dv_dab = terms
+        return kernels.polar_obs_mapped(R, C, p.obs_cam, p.obs_pt, Cm, d, sw, cw, hd, dh_dw,
+                                        dv_dab, self.proj.K, p.obs_uv, self.theta_obs,
+                                        self.cs_theta, self.w_theta)
 
     def residual_rows(self, Xc, jac):
+        if self.map_rows and not jac and self.proj.compiled:  # the fused kernel's residuals
+            from polarref.ba import kernels
+            return kernels.polar_residuals_mapped(np.ascontiguousarray(Xc), self.proj.K,
+                                                  self.p.obs_uv, self.theta_obs, self.cs_theta,
+                                                  self.w_theta), None
         if self.fast:  # the view-angle row compiled (kernels.py), written beside the
             # pixel rows in place: no (M, 2) / (M, 2, 3) pixel arrays copied into (M, 3)
             from polarref.ba import kernels

@@ -6,41 +6,117 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from polarref.ba.forms_jit import _pixel, _put2, _theta
+from polarref.ba.forms_jit import _parallax_chain, _parallax_ray, _pixel, _put2
 
 
 def _njit(fn):
     return numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
 
 
+# atan(t) = t (1 + t^2 A(t^2)) for |t| <= SERIES_MAX: the odd Taylor series to t^17; the first
+# term left out, t^19 / 19, is below 3e-18 |t| there
+SERIES_MAX = 0.125
+_ATAN = (-1.0 / 3, 1.0 / 5, -1.0 / 7, 1.0 / 9, -1.0 / 11, 1.0 / 13, -1.0 / 15, 1.0 / 17)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _view_angle_offset(x, y, z, theta_obs, c, s):
+    """``theta - theta_obs`` of the projective ray ``sign(Z) (x, y, z)`` (forms_jit._theta) and
+    ``theta_D_Xc``: (offset, t0, t1, t2). With ``(c, s) = (cos, sin)(theta_obs)`` the offset is
+    ``atan(t)``, ``t = (rho c - z s) / (z c + rho s)``, by its series where |t| <= SERIES_MAX (a
+    mapper's residuals: no arctan2 call, 30 % of the evaluation's time), else by arctan2."""
+    sg = -1.0 if z < 0 else 1.0
+    x, y, z = x * sg, y * sg, z * sg
+    rho2 = x * x + y * y
+    rho = np.sqrt(rho2)
+    num = rho * c - z * s
+    den = z * c + rho * s
+    if den > 0.0 and abs(num) <= SERIES_MAX * den:
+        t = num / den
+        t2 = t * t
+        a = _ATAN[7]
+        for j in range(6, -1, -1):
+            a = a * t2 + _ATAN[j]
+        off = t + t * (t2 * a)
+    else:
+        off = np.arctan2(rho, z) - theta_obs
+    q = sg / (max(rho, 1e-300) * (rho2 + z * z))  # one division for the three entries
+    f = z * q
+    return off, x * f, y * f, -rho2 * q
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _mapped_row(K, m, x, y, z, obs_uv, theta_obs, cs_obs, w_theta, res, J, mj, G):
+    """Observation m's three residuals into res[m], its pixel rows' ``res_D_Xc`` into J[mj]
+    and its row map into G[m] (see :func:`polar_rows_mapped`)."""
+    _put2(res, m, J, mj, True, _pixel(K, m, x, y, z, obs_uv, True))
+    off, t0, t1, t2 = _view_angle_offset(x, y, z, theta_obs[m], cs_obs[m, 0], cs_obs[m, 1])
+    w = w_theta[m]
+    res[m, 2] = off * w
+    # g^T P = w t solved in the row space of P (2, 3): exact, as both P and t vanish
+    # along Xc (row_map.py)
+    p00, p01, p02 = J[mj, 0, 0], J[mj, 0, 1], J[mj, 0, 2]
+    p10, p11, p12 = J[mj, 1, 0], J[mj, 1, 1], J[mj, 1, 2]
+    a = p00 * p00 + p01 * p01 + p02 * p02
+    b = p00 * p10 + p01 * p11 + p02 * p12
+    c = p10 * p10 + p11 * p11 + p12 * p12
+    h0 = (p00 * t0 + p01 * t1 + p02 * t2) * w
+    h1 = (p10 * t0 + p11 * t1 + p12 * t2) * w
+    det = a * c - b * b
+    G[m, 0] = (c * h0 - b * h1) / det
+    G[m, 1] = (a * h1 - b * h0) / det
+
+
 @_njit
-def polar_rows_mapped(Xc, K, obs_uv, theta_obs, w_theta):
-    """Polar's residuals (M, 3) (pixel rows, then the weighted view-angle row, bitwise
-    forms_jit.pixel_rows + theta_row_into), the pixel rows' ``res_D_Xc`` (M, 2, 3) and the row
-    map G (M, 2): the view-angle row's ``res_D_Xc`` is ``G[m] @ J[m]``. Xc (M, 3), K (M, 6)."""
+def polar_rows_mapped(Xc, K, obs_uv, theta_obs, cs_obs, w_theta):
+    """Polar's residuals (M, 3) (pixel rows, bitwise forms_jit.pixel_rows, then the weighted
+    view-angle row, forms_jit.theta_row_into's to rounding: :func:`_view_angle_offset`), the
+    pixel rows' ``res_D_Xc`` (M, 2, 3) and the row map G (M, 2): the view-angle row's
+    ``res_D_Xc`` is ``G[m] @ J[m]``. Xc (M, 3), K (M, 6), cs_obs (M, 2) cos, sin of theta_obs.
+    The solver reads these through :func:`polar_obs_mapped`; the tests check that fused pass
+    against this stage and against the explicit rows."""
     M = len(Xc)
     res = np.empty((M, 3))
     J = np.empty((M, 2, 3))
     G = np.empty((M, 2))
     for m in range(M):
-        x, y, z = Xc[m, 0], Xc[m, 1], Xc[m, 2]
-        _put2(res, m, J, m, True, _pixel(K, m, x, y, z, obs_uv, True))
-        th, t0, t1, t2 = _theta(x, y, z, True)
-        w = w_theta[m]
-        res[m, 2] = (th - theta_obs[m]) * w
-        # g^T P = w t solved in the row space of P (2, 3): exact, as both P and t vanish
-        # along Xc (row_map.py)
-        p00, p01, p02 = J[m, 0, 0], J[m, 0, 1], J[m, 0, 2]
-        p10, p11, p12 = J[m, 1, 0], J[m, 1, 1], J[m, 1, 2]
-        a = p00 * p00 + p01 * p01 + p02 * p02
-        b = p00 * p10 + p01 * p11 + p02 * p12
-        c = p10 * p10 + p11 * p11 + p12 * p12
-        h0 = (p00 * t0 + p01 * t1 + p02 * t2) * w
-        h1 = (p10 * t0 + p11 * t1 + p12 * t2) * w
-        det = a * c - b * b
-        G[m, 0] = (c * h0 - b * h1) / det
-        G[m, 1] = (a * h1 - b * h0) / det
+        _mapped_row(K, m, Xc[m, 0], Xc[m, 1], Xc[m, 2], obs_uv, theta_obs, cs_obs, w_theta, res,
+                    J, m, G)
     return res, J, G
+
+
+@_njit
+def polar_residuals_mapped(Xc, K, obs_uv, theta_obs, cs_obs, w_theta):
+    """The residuals (M, 3) of :func:`polar_rows_mapped` alone, bitwise (a trial step's cost)."""
+    M = len(Xc)
+    res = np.empty((M, 3))
+    J = np.empty((0, 2, 3))
+    for m in range(M):
+        x, y, z = Xc[m, 0], Xc[m, 1], Xc[m, 2]
+        _put2(res, m, J, 0, False, _pixel(K, m, x, y, z, obs_uv, False))
+        res[m, 2] = _view_angle_offset(x, y, z, theta_obs[m], cs_obs[m, 0], cs_obs[m, 1])[0] \
+            * w_theta[m]
+    return res
+
+
+@_njit
+def polar_obs_mapped(R, C, obs_cam, obs_pt, Cm, d, sw, cw, hd, dh_dw, dv_dab, K, obs_uv,
+                     theta_obs, cs_obs, w_theta):
+    """Polar's factored, mapped evaluation in one pass (forms_jit.parallax_rays,
+    :func:`polar_rows_mapped` and forms_jit.parallax_jacobians with two rows fused): residuals
+    (M, 3), ``res_D_point`` (M, 2, 3), ``res_D_obs`` (M, 2, 6), ``A d`` (M, 2) and the row map
+    (M, 2). Per-point terms from forms_jit.parallax_points."""
+    M = len(obs_cam)
+    res, G = np.empty((M, 3)), np.empty((M, 2))
+    Jp, Jo, Ad = np.empty((M, 2, 3)), np.empty((M, 2, 6)), np.empty((M, 2))
+    jx = np.empty((1, 2, 3))  # the pixel rows' res_D_Xc of the current observation
+    for m in range(M):
+        i, p = obs_cam[m], obs_pt[m]
+        x, y, z = _parallax_ray(R, C, i, p, Cm, sw, hd)
+        _mapped_row(K, m, x, y, z, obs_uv, theta_obs, cs_obs, w_theta, res, jx, 0, G)
+        _parallax_chain(jx, 0, 2, x, y, z, R, C, i, p, Cm, d, sw, cw, dh_dw, dv_dab, Jp, Jo,
+                        Ad, m)
+    return res, Jp, Jo, Ad, G
 
 
 @_njit
@@ -81,6 +157,11 @@ def warm_up() -> None:
     f = np.zeros
     x3 = np.array([[0.1, 0.2, 1.0]])
     K = np.array([[1.0, 1.0, 0.0, 0.0, 0.0, 0.0]])
-    res, J, G = polar_rows_mapped(x3, K, f((1, 2)), f(1), np.ones(1))
+    cs = np.array([[1.0, 0.0]])
+    res, J, G = polar_rows_mapped(x3, K, f((1, 2)), f(1), cs, np.ones(1))
+    polar_residuals_mapped(x3, K, f((1, 2)), f(1), cs, np.ones(1))
+    one, x1, R = np.zeros(1, np.int64), np.ones(1), np.eye(3)[None].copy()
+    polar_obs_mapped(R, x3, one, one, x3, x3, x1, x1, x3, x1, f((1, 3, 2)), K, f((1, 2)), f(1), cs,
+                     x1)
     for w in (f((0, 3)), np.ones((1, 3))):
         whiten_mapped(res, w, G, J.copy(), f((1, 2, 6)), f((1, 2)), f((1, 2)))

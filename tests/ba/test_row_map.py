@@ -24,18 +24,48 @@ def _rays_and_intrinsics(n=500, seed=0):
         rng.uniform(100.0, 900.0, n)
 
 
-def test_mapped_rows_kernel_equals_explicit_rows():
+def _cs(theta):
+    return np.stack([np.cos(theta), np.sin(theta)], axis=1)
+
+
+@pytest.mark.parametrize("near", [False, True])
+def test_mapped_rows_kernel_equals_explicit_rows(near):
     Xc, K, uv, th, wt = _rays_and_intrinsics()
-    res, J, G = kernels.polar_rows_mapped(Xc, K, uv, th, wt)
+    if near:  # observed angles near the predicted ones: the offset's series branch
+        sg = np.where(Xc[:, 2] < 0, -1.0, 1.0)[:, None]
+        th = np.arctan2(np.hypot(*(sg * Xc)[:, :2].T), (sg * Xc)[:, 2])
+        rng = np.random.default_rng(1)
+        th = th + rng.normal(size=len(th)) * 10.0 ** rng.uniform(-9, -1, len(th))
+    res, J, G = kernels.polar_rows_mapped(Xc, K, uv, th, _cs(th), wt)
     ref, J3 = kernels.pixel_rows(Xc, K, uv, 3, True)
     kernels.theta_row_into(Xc, th, wt, ref, J3, True)
-    assert np.array_equal(res, ref)  # the cost reads these: bitwise
+    assert np.array_equal(res[:, :2], ref[:, :2])  # pixel rows: bitwise
+    # the view-angle offset without arctan2 (row_map_jit._view_angle_offset): to rounding
+    np.testing.assert_allclose(res[:, 2] / wt, ref[:, 2] / wt, rtol=0, atol=2e-15)
     assert np.array_equal(J, J3[:, :2])
     mapped = np.einsum("mk,mkj->mj", G, J)
     err = np.abs(mapped - J3[:, 2]).max(axis=1) / np.abs(J3[:, 2]).max(axis=1)
     assert err.max() < 1e-12
     # not a tautology: the map is specific to each observation
     assert np.abs(np.einsum("mk,mkj->mj", G[::-1], J) - J3[:, 2]).max() > 1e-3 * np.abs(J3[:, 2]).max()
+
+
+def test_fused_evaluation_equals_its_stages():
+    """Polar's fused, mapped evaluation (rays, rows, row map and two-row chain rule in one
+    pass) against the staged kernels, bitwise."""
+    p = _synthetic()
+    prm = make_param(p, BAOptions(param="polar"))
+    pts = prm.init_points()
+    terms = prm.point_terms_for_rows(p.R, p.C, pts)
+    res, Jp, (Jo, anc) = prm.evaluate(p.R, p.C, pts, True, factored=True)
+    Cm, d, sw, cw, hd, dh_dw, dh_de, dv_dab = terms
+    Xc = kernels.parallax_rays(p.R, p.C, p.obs_cam, p.obs_pt, Cm, sw, hd)
+    r2, Jx, G = kernels.polar_rows_mapped(Xc, prm.proj.K, p.obs_uv, prm.theta_obs, prm.cs_theta,
+                                          prm.w_theta)
+    Jp2, Jo2, _, _, Ad2 = kernels.parallax_jacobians(Jx, Xc, p.R, p.C, p.obs_cam, p.obs_pt, Cm,
+                                                     d, sw, cw, dh_dw, dh_de, dv_dab, False)
+    for got, ref in ((res, r2), (Jp, Jp2), (Jo, Jo2), (anc.Ad, Ad2), (anc.row_map, G)):
+        assert np.array_equal(got, ref)
 
 
 @pytest.mark.parametrize("weighted", [False, True])
@@ -124,3 +154,26 @@ def test_mapped_solve_equals_explicit(monkeypatch, lazy, loss):
 def test_option_is_checked():
     with pytest.raises(ValueError, match="view_angle_row"):
         BAOptions(view_angle_row="implicit")
+
+
+def test_view_angle_offset_against_mpmath():
+    """Both branches of the offset (series for |t| <= 1/8, arctan2 beyond) against 50 digits."""
+    mpmath = pytest.importorskip("mpmath")
+    mpmath.mp.dps = 50
+    rng = np.random.default_rng(9)
+    n = 400
+    Xc = rng.normal(size=(n, 3)) * [1.0, 1.0, 0.4] + [0.0, 0.0, 1.0]
+    Xc[::5, 2] *= -1.0
+    sg = np.where(Xc[:, 2] < 0, -1.0, 1.0)[:, None]
+    th_true = np.arctan2(np.hypot(*(sg * Xc)[:, :2].T), (sg * Xc)[:, 2])
+    delta = rng.normal(size=n) * 10.0 ** rng.uniform(-9, 0, n)  # |t| from 1e-9 to ~1
+    th = th_true + delta
+    res, _, _ = kernels.polar_rows_mapped(Xc, np.tile([1.0, 1, 0, 0, 0, 0], (n, 1)),
+                                          np.zeros((n, 2)), th, _cs(th), np.ones(n))
+    series = 0
+    for m in range(n):
+        x, y, z = (mpmath.mpf(float(v)) * int(sg[m, 0]) for v in Xc[m])
+        exact = mpmath.atan2(mpmath.sqrt(x * x + y * y), z) - mpmath.mpf(float(th[m]))
+        assert abs(res[m, 2] - float(exact)) <= 1e-15, (m, res[m, 2], float(exact))
+        series += abs(delta[m]) < 0.1
+    assert 0.3 * n < series < n  # both branches ran
