@@ -126,5 +126,5 @@ class Angular(Parallax):
         from polarref.ba import kernels
         p = self.p
         Cm, d, sw, cw, hd, dh_dw, _, dv_dab = terms
-        return kernels.angular_obs(R, C, p.obs_cam, p.obs_pt, Cm, d, sw, cw, hd, dh_dw, dv_dab,
-                                   self.k_obs, self.k_whiten, self.w_theta, self.mode)
+        return (*kernels.angular_obs(R, C, p.obs_cam, p.obs_pt, Cm, d, sw, cw, hd, dh_dw, dv_dab,
+                                     self.k_obs, self.k_whiten, self.w_theta, self.mode), None)

@@ -112,7 +112,7 @@ def _build_xspace(st, param, R, C, pts, w, xs, mask_v):
         m0, m1 = int(bounds[p0]), int(bounds[p1])
         r, Jp, (J_obs, anc) = param.evaluate_rows(R, C, terms, m0, m1)
         r, Jp, J_obs, _ = _weighted(r, Jp, J_obs, anc.Ad, anc.row_map,
-                                    None if w is None else w[m0:m1])
+                                    None if w is None else w[m0:m1], weight_ad=False)
         r, Jp, op = c(r), c(Jp), st.obs_pt[m0:m1]
         kernels.point_sums(Jp, r, op, V, g_p)
         # whole points per chunk: V, g_p of p0:p1 are complete before their anchors' share
@@ -122,11 +122,12 @@ def _build_xspace(st, param, R, C, pts, w, xs, mask_v):
     return V, g_p, (g_c, W, U)
 
 
-def _weighted(r, Jp, J_obs, Ad, G, w):
+def _weighted(r, Jp, J_obs, Ad, G, w, weight_ad=True):
     """One chunk's rows weighted by w (its (m, k) robust weights, or None), or whitened into
-    two rows where the form maps its last row (G (m, 2), row_map.py; Jacobians in place)."""
+    two rows where the form maps its last row (G (m, 2), row_map.py; Jacobians in place).
+    ``weight_ad`` False: Ad is returned as it came (the X-space build does not read it)."""
     if G is not None:
         return row_map.whiten(r, w, G, Jp, J_obs, Ad), Jp, J_obs, Ad
     if w is None:
         return r, Jp, J_obs, Ad
-    return r * w, Jp * w[:, :, None], J_obs * w[:, :, None], Ad * w
+    return r * w, Jp * w[:, :, None], J_obs * w[:, :, None], Ad * w if weight_ad else Ad

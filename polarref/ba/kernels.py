@@ -8,9 +8,9 @@ different order than in numpy, so results agree to rounding (tests: 1e-9 relativ
 ``BAOptions.kernels`` picks the path; "auto" uses these when numba imports. Everything runs on
 one thread (no ``parallel=True``): the bench compares against one-thread Ceres.
 
-The kernels live in kernels_jit.py (normal equations, Schur) and forms_jit.py (the forms'
-residuals and Jacobians) and are reached as attributes of this module
-(``kernels.schur_dense``), so numba is imported only when a solve uses them. Compiled code is
+The kernels live in kernels_jit.py (normal equations, Schur), forms_jit.py (the forms'
+residuals and Jacobians) and row_map_jit.py (polar's mapped view-angle row) and are reached
+as attributes of this module (``kernels.schur_dense``), so numba is imported only when a solve uses them. Compiled code is
 cached on disk (``cache=True``, numba's ``__pycache__``); the first call in a fresh
 environment compiles (seconds), so the bench calls :func:`warm_up` before timing.
 """

@@ -244,8 +244,8 @@ class Parallax:
         Cm, d, sw, cw, hd, dh_dw, dh_de, dv_dab = terms
         fused = self.fused_obs(R, C, terms) if factored else None
         if fused is not None:  # ray, rows and chain rule in one pass (forms_jit.py)
-            res, Jp, J_obs, Ad, *G = fused  # polar's fused kernel adds its row map
-            return res, Jp, [J_obs, AnchorJacobian(Ad, dh_de, row_map=G[0] if G else None)]
+            res, Jp, J_obs, Ad, G = fused
+            return res, Jp, [J_obs, AnchorJacobian(Ad, dh_de, row_map=G)]
         Xc = kernels.parallax_rays(R, C, p.obs_cam, p.obs_pt, Cm, sw, hd)
         res, Jx = self.residual_rows(Xc, True)
         Jp, J_obs, J_m, J_a, Ad = kernels.parallax_jacobians(
@@ -256,9 +256,9 @@ class Parallax:
         return res, Jp, [J_obs, J_m, J_a]
 
     def fused_obs(self, R, C, terms):
-        """(res, res_D_point, res_D_obs, A d[, row map]) of the factored evaluation in one
-        compiled pass, or None: the form evaluates its stages one by one (forms_jit.py says
-        why; polar's mapped rows add their row map, row_map.py)."""
+        """(res, res_D_point, res_D_obs, A d, row map or None) of the factored evaluation in
+        one compiled pass, or None: the form evaluates its stages one by one (forms_jit.py says
+        why; the row map: polar's mapped rows, row_map.py)."""
         return None
 
     def supports_rows(self) -> bool:

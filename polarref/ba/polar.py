@@ -42,6 +42,8 @@ class Polar(Parallax):
     def fused_obs(self, R, C, terms):
         """With mapped rows (BAOptions.view_angle_row): the factored evaluation with two
         Jacobian rows and the row map (row_map.py) in one compiled pass, else None."""
+        # proj.compiled per call: self-calibration swaps in its own projector and observed
+        # angles (intrinsics.py), and then the explicit rows run
         if not (self.map_rows and self.proj.compiled):
             return None
         from polarref.ba import kernels

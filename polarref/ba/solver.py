@@ -326,7 +326,7 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
                 G = getattr(Jc[1], "row_map", None) if len(Jc) == 2 else None
                 if G is not None:  # polar: two whitened rows carry all three (row_map.py)
                     r_w = row_map.whiten(r, w, G, Jp, Jc[0], Jc[1].Ad)
-                    Jp_w, Jc_w = Jp, [Jc[0], dataclasses.replace(Jc[1], row_map=None)]
+                    Jp_w, Jc_w = Jp, Jc
                 elif w is not None:
                     # weighted in place: evaluate's arrays are this build's alone (dropped
                     # below); fresh copies were a tenth of a mapper's local BA. The factored

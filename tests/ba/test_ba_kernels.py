@@ -288,7 +288,8 @@ def test_angular_fused_kernel_equals_its_stages(problems, gated):
     pts = prm.init_points() + 1e-3
     C = p.C + 0.01
     terms = prm.point_terms_for_rows(p.R, C, pts)
-    res, Jp, Jo, Ad = prm.fused_obs(p.R, C, terms)
+    res, Jp, Jo, Ad, row_map = prm.fused_obs(p.R, C, terms)
+    assert row_map is None  # angular keeps its own rows
     Cm, d, sw, cw, hd, dh_dw, dh_de, dv_dab = terms
     Xc = kernels.parallax_rays(p.R, C, p.obs_cam, p.obs_pt, Cm, sw, hd)
     r1, Jx = prm.residual_rows(Xc, True)
