@@ -413,23 +413,59 @@ def best_associates(obs_cam, obs_pt, C, X):
     """The observation (P,) of each point whose ray makes the largest ``sin`` of the parallax
     angle with the main anchor's (the point's first observation's camera), as parallax.py's
     ``choose_anchors`` picks it, in one pass over the observations (sorted by point); a point
-    seen from the main centre only gets its first observation (omega -1 there). Profiled in
-    the mapper's local BAs: the reference's lexsort was a tenth of the polar form's time."""
+    seen from the main centre only gets its first observation (omega -1 there). The largest
+    ``sin(arccos(c))`` is the smallest ``|c|``: no arccos and sin per observation (a quarter of
+    the polar form's set-up in captured mapper BAs); the two orders differ only where sin's
+    rounding makes two distinct cosines tie."""
     P = len(X)
     best = np.empty(P, np.int64)
-    top = np.full(P, -2.0)
-    prev, mc = -1, 0
+    top = np.full(P, 3.0)
+    prev, mc, nm = -1, 0, 0.0
     for m in range(len(obs_cam)):
         p, c = obs_pt[m], obs_cam[m]
-        if p != prev:
+        new_point = p != prev
+        if new_point:
             prev, mc = p, c
         rm0, rm1, rm2 = X[p, 0] - C[mc, 0], X[p, 1] - C[mc, 1], X[p, 2] - C[mc, 2]
+        if new_point:  # the main ray's length, once per point
+            nm = np.sqrt(rm0 * rm0 + rm1 * rm1 + rm2 * rm2)
         ri0, ri1, ri2 = X[p, 0] - C[c, 0], X[p, 1] - C[c, 1], X[p, 2] - C[c, 2]
-        den = max(np.sqrt(rm0 * rm0 + rm1 * rm1 + rm2 * rm2) * np.sqrt(ri0 * ri0 + ri1 * ri1 + ri2 * ri2),
-                  1e-300)
+        den = max(nm * np.sqrt(ri0 * ri0 + ri1 * ri1 + ri2 * ri2), 1e-300)
         cosang = min(max((rm0 * ri0 + rm1 * ri1 + rm2 * ri2) / den, -1.0), 1.0)
         b0, b1, b2 = C[c, 0] - C[mc, 0], C[c, 1] - C[mc, 1], C[c, 2] - C[mc, 2]
-        score = np.sin(np.arccos(cosang)) if b0 * b0 + b1 * b1 + b2 * b2 > 0 else -1.0
-        if score > top[p]:  # strict: the first of equal scores, as the reference's stable sort
-            top[p], best[p] = score, m
+        key = abs(cosang) if b0 * b0 + b1 * b1 + b2 * b2 > 0 else 2.0
+        if key < top[p]:  # strict: the first of equal scores, as the reference's stable sort
+            top[p], best[p] = key, m
     return best
+
+
+@_njit
+def pinhole_view_angles(K, obs_uv):
+    """Observed view angle theta (M,), its weight ``1 / |theta_D_uv|`` (M,) and ``(cos, sin)``
+    of theta (M, 2) for pinhole rows of K (M, 6) (k1 = k2 = 0; the caller checks): the
+    arithmetic of ``Camera.view_angle_with_gradient`` for that model in one pass (numpy's was
+    half of the polar form's set-up per mapper BA). cos and sin come from ``tan theta = rd``
+    (no trigonometry). Where numpy gives NaN (the principal point, non-finite pixels) so does
+    this; the count of such rows is returned too."""
+    M = len(K)
+    theta, w = np.empty(M), np.empty(M)
+    cs = np.empty((M, 2))
+    bad = 0
+    for m in range(M):
+        x = (obs_uv[m, 0] - K[m, 2]) / K[m, 0]
+        y = (obs_uv[m, 1] - K[m, 3]) / K[m, 1]
+        rd2 = x * x + y * y
+        rd = np.sqrt(rd2)  # hypot's overflow guard is moot at pixel scale (and 2x slower)
+        ird = 1.0 / rd
+        dth = 1.0 / (1.0 + rd2)
+        g0 = dth * x * ird / K[m, 0]
+        g1 = dth * y * ird / K[m, 1]
+        th = np.arctan(rd)
+        s = np.sqrt(g0 * g0 + g1 * g1)
+        if not (np.isfinite(th) and np.isfinite(s) and s > 0):
+            th = s = np.nan
+            bad += 1
+        theta[m], w[m] = th, 1.0 / s
+        c = np.sqrt(dth)
+        cs[m, 0], cs[m, 1] = c, rd * c
+    return theta, w, cs, bad

@@ -74,7 +74,8 @@ def warm_up() -> float:
         return 0.0
     from polarref.ba.forms_jit import (angular_obs, angular_rows, best_associates, euclidean_jacobians,
                                        euclidean_rays, parallax_jacobians, parallax_points,
-                                       parallax_rays, parallax_xyz, pixel_rows, theta_row_into)
+                                       parallax_rays, parallax_xyz, pinhole_view_angles,
+                                       pixel_rows, theta_row_into)
     from polarref.ba.kernels_jit import (add_cross, back_substitute_rhs, build_anchored,
                                          build_observer, mark_pairs, pair_blocks, pair_keys,
                                          point_solve, point_sums,
@@ -112,6 +113,7 @@ def warm_up() -> float:
     euclidean_jacobians(Jp, euclidean_rays(R, x3, x3, one, one), R, one)
     parallax_points(R, x3, x3, one, one, True)
     best_associates(one, one, x3, x3)
+    pinhole_view_angles(f((1, 6)), f((1, 2)))
     parallax_rays(R, x3, one, one, x3, x1, x3)
     parallax_xyz(R, x3, x3, one, one, 1e8)
     for dense in (True, False):

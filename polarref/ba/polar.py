@@ -24,20 +24,32 @@ class Polar(Parallax):
 
     def __init__(self, problem, options=None):
         super().__init__(problem, options)
-        theta, grad = observed_view_angles(problem)
-        s_theta = np.linalg.norm(grad, axis=1)
-        bad = ~(np.isfinite(theta) & np.isfinite(s_theta) & (s_theta > 0))
-        if bad.any():
-            raise PolarrefError(f"polar BA: {int(bad.sum())} observations outside the camera "
-                                "model's angular range")
-        self.theta_obs = theta
-        self.w_theta = 1.0 / s_theta
         # the solver's factored Jacobians carry the view-angle row as a map of the pixel rows
         # (row_map.py): two rows per observation in the chain rule and the normal equations
         self.map_rows = self.fast and options.view_angle_row == "mapped"
+        theta, w_theta, cs = self._observed(problem)
+        self.theta_obs, self.w_theta = theta, w_theta
         # (M, 2) cos, sin of theta_obs: the mapped row's offset without arctan2 (row_map_jit.py)
-        self.cs_theta = (np.stack([np.cos(theta), np.sin(theta)], axis=1) if self.map_rows
-                         else np.empty((len(theta), 2)))
+        self.cs_theta = cs if self.map_rows else np.empty((len(theta), 2))
+
+    def _observed(self, problem):
+        """theta_obs (M,), its weight ``1 / |theta_D_uv|`` (M,) and (cos, sin) theta_obs
+        (M, 2): compiled in one pass for pinhole cameras, else through the camera model."""
+        K = self.proj.K if self.proj.compiled else None
+        if K is not None and not K[:, 4:].any():
+            from polarref.ba import kernels
+            theta, w, cs, n_bad = kernels.pinhole_view_angles(K, problem.obs_uv)
+        else:
+            theta, grad = observed_view_angles(problem)
+            s_theta = np.linalg.norm(grad, axis=1)
+            ok = np.isfinite(theta) & np.isfinite(s_theta) & (s_theta > 0)
+            n_bad = int((~ok).sum())
+            w = 1.0 / s_theta
+            cs = np.stack([np.cos(theta), np.sin(theta)], axis=1) if self.map_rows else None
+        if n_bad:
+            raise PolarrefError(f"polar BA: {n_bad} observations outside the camera model's "
+                                "angular range")
+        return theta, w, cs
 
     def fused_obs(self, R, C, terms):
         """With mapped rows (BAOptions.view_angle_row): the factored evaluation with two

@@ -85,7 +85,10 @@ class Projector:
     def __init__(self, cameras: list, obs_cam: np.ndarray, compiled: bool = False):
         """cameras: one Camera per problem camera (index = camera index); obs_cam (M,);
         compiled: :meth:`residuals` through the numba kernel (kernels.py) where it applies."""
-        table = [radial_params(c) for c in cameras]
+        # one row per camera object: a mapper's BA has hundreds of images of one camera
+        rows: dict[int, np.ndarray | None] = {}
+        table = [rows[id(c)] if id(c) in rows else rows.setdefault(id(c), radial_params(c))
+                 for c in cameras]
         self.fast = all(t is not None for t in table)
         self.compiled = compiled and self.fast
         if self.fast:
