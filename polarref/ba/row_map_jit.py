@@ -14,57 +14,68 @@ def _njit(fn):
 
 
 # atan(t) = t (1 + t^2 A(t^2)) for |t| <= SERIES_MAX: the odd Taylor series to t^17; the first
-# term left out, t^19 / 19, is below 3e-18 |t| there
+# term left out, t^19 / 19, is below 3e-18 |t| there. Where t^2 < SHORT_T2 (|t| < 1e-3, a
+# mapper's residuals: 1 px at a focal length of 1000 px) the series stops at t^5: the first term
+# left out, t^7 / 7, is below 1.5e-19 |t|.
 SERIES_MAX = 0.125
+SHORT_T2 = 1e-6
 _ATAN = (-1.0 / 3, 1.0 / 5, -1.0 / 7, 1.0 / 9, -1.0 / 11, 1.0 / 13, -1.0 / 15, 1.0 / 17)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _view_angle_offset(x, y, z, theta_obs, c, s):
-    """``theta - theta_obs`` of the projective ray ``sign(Z) (x, y, z)`` (forms_jit._theta) and
-    ``theta_D_Xc``: (offset, t0, t1, t2). With ``(c, s) = (cos, sin)(theta_obs)`` the offset is
-    ``atan(t)``, ``t = (rho c - z s) / (z c + rho s)``, by its series where |t| <= SERIES_MAX (a
-    mapper's residuals: no arctan2 call, 30 % of the evaluation's time), else by arctan2."""
-    sg = -1.0 if z < 0 else 1.0
-    x, y, z = x * sg, y * sg, z * sg
-    rho2 = x * x + y * y
-    rho = np.sqrt(rho2)
-    num = rho * c - z * s
-    den = z * c + rho * s
+def _normalized(x, y, z):
+    """(n_x, n_y, |n|^2) of the ray: forms_jit._pixel's operations, so that the compiler
+    shares them with the pixel rows."""
+    iz = 1.0 / z
+    nx, ny = x * iz, y * iz
+    return nx, ny, nx * nx + ny * ny
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _view_angle_offset(rn, theta_obs, c, s):
+    """``theta - theta_obs`` with ``theta = atan(rn)`` the view angle of a ray whose normalized
+    image radius is rn (>= 0; the projective ray's, as angular_obs.theta_rows: n is the same
+    for Xc and -Xc). With ``(c, s) = (cos, sin)(theta_obs)`` the offset is ``atan(t)``, ``t =
+    (rn c - s) / (c + rn s)``, by its series where |t| <= SERIES_MAX (no arctan call: it was
+    30 % of the evaluation's time), else by arctan."""
+    num = rn * c - s
+    den = c + rn * s
     if den > 0.0 and abs(num) <= SERIES_MAX * den:
         t = num / den
         t2 = t * t
-        a = _ATAN[7]
-        for j in range(6, -1, -1):
-            a = a * t2 + _ATAN[j]
-        off = t + t * (t2 * a)
-    else:
-        off = np.arctan2(rho, z) - theta_obs
-    q = sg / (max(rho, 1e-300) * (rho2 + z * z))  # one division for the three entries
-    f = z * q
-    return off, x * f, y * f, -rho2 * q
+        if t2 < SHORT_T2:
+            a = _ATAN[0] + t2 * _ATAN[1]
+        else:
+            a = _ATAN[7]
+            for j in range(6, -1, -1):
+                a = a * t2 + _ATAN[j]
+        return t + t * (t2 * a)
+    return np.arctan(rn) - theta_obs
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _mapped_row(K, m, x, y, z, obs_uv, theta_obs, cs_obs, w_theta, res, J, mj, G):
     """Observation m's three residuals into res[m], its pixel rows' ``res_D_Xc`` into J[mj]
-    and its row map into G[m] (see :func:`polar_rows_mapped`)."""
+    and its row map into G[m] (see :func:`polar_rows_mapped`).
+
+    The map in closed form: with normalized ``n = (x, y) / z``, ``P = diag(f) D N`` where
+    ``D = dist I + a n n^T`` (the radial distortion's Jacobian, forms_jit._pixel's ``dist``
+    and ``a``) and ``t = theta_D_n N`` with ``theta_D_n = n / (|n| (1 + |n|^2))``. ``g^T P =
+    w t`` then reads ``diag(f) D g = w theta_D_n``, and as ``theta_D_n`` is parallel to n,
+    ``D n = (dist + a |n|^2) n``: ``g = w (n_x / f_x, n_y / f_y) / (|n| (1 + |n|^2)
+    (dist + a |n|^2))``, one division instead of a 2 x 2 solve."""
     _put2(res, m, J, mj, True, _pixel(K, m, x, y, z, obs_uv, True))
-    off, t0, t1, t2 = _view_angle_offset(x, y, z, theta_obs[m], cs_obs[m, 0], cs_obs[m, 1])
+    nx, ny, r2 = _normalized(x, y, z)
+    rn = np.sqrt(r2)
     w = w_theta[m]
-    res[m, 2] = off * w
-    # g^T P = w t solved in the row space of P (2, 3): exact, as both P and t vanish
-    # along Xc (row_map.py)
-    p00, p01, p02 = J[mj, 0, 0], J[mj, 0, 1], J[mj, 0, 2]
-    p10, p11, p12 = J[mj, 1, 0], J[mj, 1, 1], J[mj, 1, 2]
-    a = p00 * p00 + p01 * p01 + p02 * p02
-    b = p00 * p10 + p01 * p11 + p02 * p12
-    c = p10 * p10 + p11 * p11 + p12 * p12
-    h0 = (p00 * t0 + p01 * t1 + p02 * t2) * w
-    h1 = (p10 * t0 + p11 * t1 + p12 * t2) * w
-    det = a * c - b * b
-    G[m, 0] = (c * h0 - b * h1) / det
-    G[m, 1] = (a * h1 - b * h0) / det
+    res[m, 2] = _view_angle_offset(rn, theta_obs[m], cs_obs[m, 0], cs_obs[m, 1]) * w
+    fx, fy, k1, k2 = K[m, 0], K[m, 1], K[m, 4], K[m, 5]
+    dist = 1.0 + r2 * (k1 + k2 * r2)
+    a = 2.0 * (k1 + 2.0 * k2 * r2)
+    # on the axis theta is a cone: n = 0 gives g = 0 (any subgradient will do)
+    q = w / (max(rn, 1e-300) * (1.0 + r2) * (dist + a * r2) * fx * fy)
+    G[m, 0] = q * nx * fy
+    G[m, 1] = q * ny * fx
 
 
 @_njit
@@ -94,8 +105,9 @@ def polar_residuals_mapped(Xc, K, obs_uv, theta_obs, cs_obs, w_theta):
     for m in range(M):
         x, y, z = Xc[m, 0], Xc[m, 1], Xc[m, 2]
         _put2(res, m, J, 0, False, _pixel(K, m, x, y, z, obs_uv, False))
-        res[m, 2] = _view_angle_offset(x, y, z, theta_obs[m], cs_obs[m, 0], cs_obs[m, 1])[0] \
-            * w_theta[m]
+        r2 = _normalized(x, y, z)[2]
+        res[m, 2] = _view_angle_offset(np.sqrt(r2), theta_obs[m], cs_obs[m, 0],
+                                       cs_obs[m, 1]) * w_theta[m]
     return res
 
 

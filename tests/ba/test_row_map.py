@@ -158,7 +158,8 @@ def test_option_is_checked():
 
 
 def test_view_angle_offset_against_mpmath():
-    """Both branches of the offset (series for |t| <= 1/8, arctan2 beyond) against 50 digits."""
+    """The three branches of the offset (the short series for |t| < 1e-3, the long one for
+    |t| <= 1/8, arctan beyond) against 50 digits."""
     mpmath = pytest.importorskip("mpmath")
     mpmath.mp.dps = 50
     rng = np.random.default_rng(9)
@@ -171,10 +172,11 @@ def test_view_angle_offset_against_mpmath():
     th = th_true + delta
     res, _, _ = kernels.polar_rows_mapped(Xc, np.tile([1.0, 1, 0, 0, 0, 0], (n, 1)),
                                           np.zeros((n, 2)), th, _cs(th), np.ones(n))
-    series = 0
+    short = series = 0
     for m in range(n):
         x, y, z = (mpmath.mpf(float(v)) * int(sg[m, 0]) for v in Xc[m])
         exact = mpmath.atan2(mpmath.sqrt(x * x + y * y), z) - mpmath.mpf(float(th[m]))
         assert abs(res[m, 2] - float(exact)) <= 1e-15, (m, res[m, 2], float(exact))
+        short += abs(delta[m]) < 0.5e-3
         series += abs(delta[m]) < 0.1
-    assert 0.3 * n < series < n  # both branches ran
+    assert 0.3 * n < short < series - 0.1 * n and series < n  # the three branches ran
