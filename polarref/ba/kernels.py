@@ -77,8 +77,8 @@ def warm_up() -> float:
                                        parallax_rays, parallax_xyz, pinhole_view_angles,
                                        pixel_rows, theta_row_into)
     from polarref.ba.kernels_jit import (add_cross, back_substitute_rhs, build_anchored,
-                                         build_observer, mark_pairs, pair_blocks, pair_keys,
-                                         point_solve, point_sums,
+                                         build_observer, count_behind, mark_pairs, pair_blocks,
+                                         pair_keys, point_solve, point_sums,
                                          schur_blocks, schur_dense, slot_gram, slot_w_g)
     t = time.perf_counter()
     f, i = np.zeros, np.zeros
@@ -113,6 +113,7 @@ def warm_up() -> float:
     euclidean_jacobians(Jp, euclidean_rays(R, x3, x3, one, one), R, one)
     parallax_points(R, x3, x3, one, one, True)
     best_associates(one, one, x3, x3)
+    count_behind(np.eye(3)[None].copy(), x3, x3, one, one)
     pinhole_view_angles(f((1, 6)), f((1, 2)))
     parallax_rays(R, x3, one, one, x3, x1, x3)
     parallax_xyz(R, x3, x3, one, one, 1e8)

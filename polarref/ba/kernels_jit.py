@@ -480,3 +480,16 @@ def triad(a, b, c, s):
     """STREAM's triad ``a = b + s c`` (roofline.triad_gbs: the machine's memory bandwidth)."""
     for i in range(len(a)):
         a[i] = b[i] + s * c[i]
+
+
+@_njit
+def count_behind(R, C, X, obs_cam, obs_pt):
+    """Observations whose point is at depth <= 0 in its camera (solver.behind_camera_xyz's
+    count, its depth by the same operations, in one pass without its (M, 3) gathers)."""
+    n = 0
+    for m in range(len(obs_cam)):
+        c, p = obs_cam[m], obs_pt[m]
+        z = (R[c, 2, 0] * (X[p, 0] - C[c, 0]) + R[c, 2, 1] * (X[p, 1] - C[c, 1])) \
+            + R[c, 2, 2] * (X[p, 2] - C[c, 2])
+        n += z <= 0.0
+    return n

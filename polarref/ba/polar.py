@@ -38,7 +38,8 @@ class Polar(Parallax):
         K = self.proj.K if self.proj.compiled else None
         if K is not None and not K[:, 4:].any():
             from polarref.ba import kernels
-            theta, w, cs, n_bad = kernels.pinhole_view_angles(K, problem.obs_uv)
+            rd, w, cs, n_bad = kernels.pinhole_view_angles(K, problem.obs_uv)
+            theta = np.arctan(rd)
         else:
             theta, grad = observed_view_angles(problem)
             s_theta = np.linalg.norm(grad, axis=1)

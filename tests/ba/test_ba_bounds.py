@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from _dense_jacobian import dense_jacobian
 
-from polarref.ba import BAOptions, adjust, prepare
+from polarref.ba import BAOptions, adjust, kernels, prepare
 from polarref.ba.adapter import problem_from_reconstruction
 from polarref.ba.solver import _clipped_model, behind_camera_xyz, make_param
 from polarref.ba.synthetic import clone, synthetic_reconstruction
@@ -84,6 +84,8 @@ def test_behind_camera_counts_written_back_geometry():
     assert prm.num_behind_camera(p.R, p.C, pts) == n_obs5
     prm.store(p.R, p.C, pts)
     assert behind_camera_xyz(p.R, p.C, p.X, p.obs_cam, p.obs_pt) == n_obs5
+    if kernels.available():  # the compiled count (the solver's, kernel path) too
+        assert behind_camera_xyz(p.R, p.C, p.X, p.obs_cam, p.obs_pt, compiled=True) == n_obs5
 
 
 def test_clipped_model_equals_dense_gauss_newton_model():
@@ -135,14 +137,22 @@ def test_held_components_kernel_path_equals_numpy(forward, param, anchor_schur, 
     points held at the bound, final costs 8.8e-6 / 2.1e-7 apart (measured)."""
     pytest.importorskip("numba")
     init, _, _ = forward
-    chaotic = anchor_schur == "xspace" and request.node.callspec.params["forward"][0] < 1e-3
+    # polar at 3e-4 by cross terms too: its pinhole set-up is compiled (ba/polar.py; the view
+    # angles' weights a few ulp from numpy's), and with three explicit rows on both sides the
+    # same 40 iterations and held points end 2e-7 apart in cost (measured)
+    chaotic = (anchor_schur == "xspace" or param == "polar") and \
+        request.node.callspec.params["forward"][0] < 1e-3
     got = {}
     # Ceres' radius growth (3), under which the parting points above were measured: with
     # ours (30) the less damped steps on these unconverged, ill-conditioned solves let the
     # paths' trajectories part at rounding level earlier (test_ba_xspace's far points too)
+    # polar's kernel path with its three explicit rows, as numpy's: the mapped rows' own
+    # arithmetic (row_map.py, tested against these in test_row_map.py) parts this unconverged
+    # solve at 3e-4 further (40 vs 36 iterations, final costs 1.7e-4 apart, measured)
     for k in ("numpy", "numba"):
         got[k] = adjust(clone(init), BAOptions(param=param, max_iterations=40, kernels=k,
-                                               anchor_schur=anchor_schur, max_radius_growth=3.0))
+                                               anchor_schur=anchor_schur, max_radius_growth=3.0,
+                                               view_angle_row="explicit"))
     a, b = got["numpy"], got["numba"]
     assert b.point_bounds["at_lower"] >= 1 and b.point_bounds["clipped_steps"] >= 1
     assert ("X-space" in b.linear_solver) == (anchor_schur == "xspace")

@@ -52,7 +52,7 @@ def test_pinhole_view_angles_equal_the_camera_model():
     # a wrong focal length would not pass: the comparison sees the intrinsics
     K = prm.proj.K.copy()
     K[:, 0] *= 1.001
-    th2, w2, _, _ = kernels.pinhole_view_angles(K, p.obs_uv)
+    _, w2, _, _ = kernels.pinhole_view_angles(K, p.obs_uv)
     assert np.abs(w2 / w - 1).max() > 1e-4
 
 
