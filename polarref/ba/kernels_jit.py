@@ -485,7 +485,7 @@ def triad(a, b, c, s):
 @_njit
 def count_behind(R, C, X, obs_cam, obs_pt):
     """Observations whose point is at depth <= 0 in its camera (solver.behind_camera_xyz's
-    count, its depth by the same operations, in one pass without its (M, 3) gathers)."""
+    count, its depth to rounding, in one pass without its (M, 3) gathers)."""
     n = 0
     for m in range(len(obs_cam)):
         c, p = obs_cam[m], obs_pt[m]

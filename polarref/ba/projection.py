@@ -87,8 +87,10 @@ class Projector:
         compiled: :meth:`residuals` through the numba kernel (kernels.py) where it applies."""
         # one row per camera object: a mapper's BA has hundreds of images of one camera
         rows: dict[int, np.ndarray | None] = {}
-        table = [rows[id(c)] if id(c) in rows else rows.setdefault(id(c), radial_params(c))
-                 for c in cameras]
+        for c in cameras:
+            if id(c) not in rows:
+                rows[id(c)] = radial_params(c)
+        table = [rows[id(c)] for c in cameras]
         self.fast = all(t is not None for t in table)
         self.compiled = compiled and self.fast
         if self.fast:

@@ -46,7 +46,7 @@ def test_pinhole_view_angles_equal_the_camera_model():
     np.testing.assert_allclose(prm.w_theta, w, rtol=2e-15, atol=0)
     cs = np.stack([np.cos(theta), np.sin(theta)], axis=1)
     np.testing.assert_allclose(prm.cs_theta, cs, rtol=0, atol=4e-16)
-    # the kernel's path was taken (the numpy one's theta is the reference's, bitwise)
+    # the numpy path (kernels off) is the reference's arithmetic, bitwise
     numpy_prm = make_param(p, BAOptions(param="polar", kernels="numpy"))
     assert np.array_equal(numpy_prm.theta_obs, theta)
     # a wrong focal length would not pass: the comparison sees the intrinsics
