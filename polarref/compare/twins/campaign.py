@@ -32,6 +32,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from polarref.ba import kernels
 from polarref.compare.run import jobs as run_jobs
 from polarref.compare.run import presets
 from polarref.compare.run.scenes import prepare
@@ -227,7 +228,11 @@ def run_campaign(plan: CampaignPlan, cells: Path, work: Path, retry_failed: bool
     cells written. ``state`` stands in for this checkout's git state (tests)."""
     check_checkout(plan.commit, state)
     written = []
-    for twin, seed, method in todo(plan, cells, retry_failed):
+    pending = list(todo(plan, cells, retry_failed))
+    if any(method in OURS for _, _, method in pending):
+        # compile into this worktree's kernel cache now, or the first cell's BA times include it
+        log.info("compiled kernels ready in %.1f s", kernels.warm_up())
+    for twin, seed, method in pending:
         twin_work = work / plan.commit[:12] / plan.twin_dir(twin) / f"seed{seed}"
         twin_work.mkdir(parents=True, exist_ok=True)
         root, render_s = render_twin(twin, plan.size, seed, work / "renders" / f"{plan.twin_dir(twin)}-seed{seed}")

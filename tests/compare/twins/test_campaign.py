@@ -151,6 +151,34 @@ def test_cells_run_only_from_the_clean_pinned_checkout(tmp_path):
         C.CampaignPlan("abc", ("mappilot",), (0,))
 
 
+def test_kernels_compile_before_the_first_cell_of_ours_only(tmp_path, monkeypatch):
+    """The first cell's BA times must not include compiling the kernels into the worktree's cache:
+    the warm-up runs once, before the first render, when one of our methods is to run."""
+    calls = []
+
+    class Stop(Exception):
+        pass
+
+    def render(*a, **k):
+        calls.append("render")
+        raise Stop
+
+    monkeypatch.setattr(C.kernels, "warm_up", lambda: calls.append("warm") or 0.0)
+    monkeypatch.setattr(C, "render_twin", render)
+    for methods, expected in ((("ours-polar", "pycolmap-global-sift"), ["warm", "render"]),
+                              (("pycolmap-global-sift",), ["render"])):
+        calls.clear()
+        plan = dataclasses.replace(_plan(), methods=methods)
+        with pytest.raises(Stop):
+            C.run_campaign(plan, tmp_path / "cells", tmp_path / "work", state=(COMMIT, False))
+        assert calls == expected
+    calls.clear()
+    _save(tmp_path / "cells2", _cell("ours-polar", 0, 5.0, 10, 20))
+    plan = dataclasses.replace(_plan(), seeds=(0,), methods=("ours-polar",))
+    assert C.run_campaign(plan, tmp_path / "cells2", tmp_path / "work", state=(COMMIT, False)) == []
+    assert calls == []                                   # nothing to run: nothing compiled
+
+
 def test_the_pinned_commit_is_checked_out_into_a_clean_worktree(tmp_path):
     repo = tmp_path / "repo"
     repo.mkdir()
