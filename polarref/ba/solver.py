@@ -499,7 +499,11 @@ def _lm(problem: BAProblem, options: BAOptions, param, t0: float,
             pts_new = np.clip(pts_new, bounds[0], bounds[1])
         times.add("update", tic)
         tic = time.perf_counter()
-        r_new, Jp_new, Jc_new = param.evaluate(R_new, C_new, pts_new, jac=not lazy,
+        # the last iteration's Jacobians would never be read (the loop ends whether its step is
+        # accepted or not): residuals only there. The mapper's local BAs all end at their
+        # iteration limit, so this was one Jacobian evaluation in seven of each
+        last = it >= options.max_iterations
+        r_new, Jp_new, Jc_new = param.evaluate(R_new, C_new, pts_new, jac=not (lazy or last),
                                                factored=factored)
         times.add("evaluate", tic)
         new_cost, w_new = _robust(r_new, param.groups, loss, scale)
