@@ -65,14 +65,34 @@ def twin_line(t: CampaignTable, tw: TwinCampaign, where: str) -> str:
             f"{ci}; bar x{c4.bar:.2f}){ba}; C5 **{tw.c5_verdict}** ({c5}){peak}.")
 
 
+def complete_pin_line(t: CampaignTable, where: str) -> str | None:
+    """What C4 and C5 show at scale, for a pin where every pre-registered twin has the rules'
+    seeds all paired; None for any other pin."""
+    r = rules()
+    by = {tw.twin: tw for tw in t.twins}
+    if any(n not in by or len(by[n].c4.seeds) < len(r.seeds) for n in r.twins):
+        return None
+    tws = [by[n] for n in r.twins]
+    c4 = ", ".join(f"{tw.twin} {tw.c4.verdict} (x{tw.c4.geometric_mean:.3f}, 95% CI {tw.c4.lo:.3f}-{tw.c4.hi:.3f})"
+                   for tw in tws)
+    c5 = ", ".join(f"{tw.twin} {tw.c5_verdict}" for tw in tws)
+    ba = [x for tw in tws for x in tw.c4.ba_ratios]
+    met = sum(x <= r.ba_ratio_max for x in ba)
+    return (f"- Complete pin `{where}/{t.commit[:12]}/` (every twin, seeds {', '.join(map(str, r.seeds))} paired): "
+            f"C4 {c4}; C5 {c5}; mapper BA polar/Euclidean x{_span(ba, '.2f')}, <= x{r.ba_ratio_max:.1f} on "
+            f"{met} of {len(ba)} seeds.")
+
+
 def findings_block(root: Path) -> str:
-    """One line per full-size twin per commit folder under ``root`` (folders in name order)."""
+    """One line per pin where every twin has all its seeds (:func:`complete_pin_line`), then one
+    line per full-size twin per commit folder under ``root`` (folders in name order)."""
     where = "/".join(root.parts[-3:]) if len(root.parts) >= 3 else str(root)
-    full, lines = set(rules().twins), []  # a reduced size is named "<twin>-<size>"
+    full, lines, summary = set(rules().twins), [], []  # a reduced size is named "<twin>-<size>"
     for d in sorted(p for p in root.iterdir() if p.is_dir()):
         t = build(d)
+        summary += [x for x in [complete_pin_line(t, where)] if x]
         lines += [twin_line(t, tw, where) for tw in t.twins if tw.twin in full]
-    return "\n".join(lines or ["- no full-size campaign cell committed (not tested)."]) + "\n"
+    return "\n".join(summary + lines or ["- no full-size campaign cell committed (not tested)."]) + "\n"
 
 
 def update_readme(readme: Path, root: Path) -> Path:

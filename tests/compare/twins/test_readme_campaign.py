@@ -87,3 +87,31 @@ def test_one_paired_seed_claims_no_interval():
         assert ("95% CI" in line) == (len(paired) > 1)
         checked += 1
     assert checked >= 2
+
+
+def test_complete_pins_summarised_from_the_raw_cells():
+    """A pin with every twin and three paired seeds gets one summary line: the mapper BA ratios'
+    range over all nine seeds and how many meet x1.3, recomputed here from the raw cells; a pin
+    missing a twin or a seed gets none."""
+    block = findings_block(CELLS)
+    summaries = [x for x in block.splitlines() if x.startswith("- Complete pin")]
+    complete = 0
+    for pin in sorted(p for p in CELLS.iterdir() if p.is_dir()):
+        ba, paired = [], {}
+        for twin in ("rosetta", "poets-park", "mappilot"):
+            for seed in (0, 1, 2):
+                e, p = pin / twin / f"seed{seed}" / "ours-euclidean.json", pin / twin / f"seed{seed}" / "ours-polar.json"
+                if e.is_file() and p.is_file():
+                    de, dp = json.loads(e.read_text()), json.loads(p.read_text())
+                    if de["status"] == dp["status"] == "ok":
+                        ba.append(dp["ba_s"] / de["ba_s"])
+                        paired[twin] = paired.get(twin, 0) + 1
+        line = [x for x in summaries if f"/{pin.name[:12]}/`" in x]
+        if len(paired) < 3 or min(paired.values()) < 3:
+            assert not line, pin.name
+            continue
+        complete += 1
+        (line,) = line
+        lo, hi = f"{min(ba):.2f}", f"{max(ba):.2f}"
+        assert f"polar/Euclidean x{lo}-{hi}, <= x1.3 on {sum(x <= 1.3 for x in ba)} of 9 seeds." in line
+    assert complete >= 1 and complete == len(summaries)
