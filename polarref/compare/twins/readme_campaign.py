@@ -12,7 +12,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from polarref.compare.twins.campaign_table import CampaignTable, MethodSummary, TwinCampaign, build, rules
+from polarref.compare.twins.campaign_table import (CampaignTable, MethodSummary, TwinCampaign, TwinsRules, build,
+                                                   rules)
 from polarref.core.markers import rewrite_block
 
 BEGIN = "<!-- campaign-findings: generated from reports/paper-tables/campaign/*/ cells, do not edit by hand -->"
@@ -65,10 +66,9 @@ def twin_line(t: CampaignTable, tw: TwinCampaign, where: str) -> str:
             f"{ci}; bar x{c4.bar:.2f}){ba}; C5 **{tw.c5_verdict}** ({c5}){peak}.")
 
 
-def complete_pin_line(t: CampaignTable, where: str) -> str | None:
-    """What C4 and C5 show at scale, for a pin where every pre-registered twin has the rules'
+def complete_pin_line(t: CampaignTable, where: str, r: TwinsRules) -> str | None:
+    """What C4 and C5 show at scale, for a pin where every twin of the rules ``r`` has their
     seeds all paired; None for any other pin."""
-    r = rules()
     by = {tw.twin: tw for tw in t.twins}
     if any(n not in by or len(by[n].c4.seeds) < len(r.seeds) for n in r.twins):
         return None
@@ -87,10 +87,13 @@ def findings_block(root: Path) -> str:
     """One line per pin where every twin has all its seeds (:func:`complete_pin_line`), then one
     line per full-size twin per commit folder under ``root`` (folders in name order)."""
     where = "/".join(root.parts[-3:]) if len(root.parts) >= 3 else str(root)
-    full, lines, summary = set(rules().twins), [], []  # a reduced size is named "<twin>-<size>"
+    r = rules()
+    full, lines, summary = set(r.twins), [], []  # a reduced size is named "<twin>-<size>"
     for d in sorted(p for p in root.iterdir() if p.is_dir()):
         t = build(d)
-        summary += [x for x in [complete_pin_line(t, where)] if x]
+        pin = complete_pin_line(t, where, r)
+        if pin is not None:
+            summary.append(pin)
         lines += [twin_line(t, tw, where) for tw in t.twins if tw.twin in full]
     return "\n".join(summary + lines or ["- no full-size campaign cell committed (not tested)."]) + "\n"
 

@@ -11,6 +11,18 @@ ROOT = Path(__file__).resolve().parents[3]
 CELLS = ROOT / "reports" / "paper-tables" / "campaign"
 
 
+def _paired(twin_dir: Path) -> list[tuple[dict, dict]]:
+    """(Euclidean, polar) raw cells of every seed under ``twin_dir`` where both ran ok."""
+    out = []
+    for seed in sorted(twin_dir.glob("seed*")):
+        e, p = seed / "ours-euclidean.json", seed / "ours-polar.json"
+        if e.is_file() and p.is_file():
+            de, dp = json.loads(e.read_text()), json.loads(p.read_text())
+            if de["status"] == dp["status"] == "ok":
+                out.append((de, dp))
+    return out
+
+
 def test_readme_block_matches_the_committed_cells():
     block = read_block((ROOT / "README.md").read_text(), BEGIN, END)
     assert block is not None, "README lost its campaign-findings markers"
@@ -25,14 +37,9 @@ def test_quoted_speedup_is_the_cells_geometric_mean():
     block = findings_block(CELLS)
     checked = 0
     for twin_dir in sorted(p for p in CELLS.glob("*/*") if p.is_dir() and p.name in ("mappilot", "rosetta", "poets-park")):
-        ratios, ba = [], []
-        for seed in sorted(twin_dir.glob("seed*")):
-            e, p = seed / "ours-euclidean.json", seed / "ours-polar.json"
-            if e.is_file() and p.is_file():
-                de, dp = json.loads(e.read_text()), json.loads(p.read_text())
-                if de["status"] == dp["status"] == "ok":
-                    ratios.append(de["wall_s"] / dp["wall_s"])
-                    ba.append(dp["ba_s"] / de["ba_s"])
+        pairs = _paired(twin_dir)
+        ratios = [de["wall_s"] / dp["wall_s"] for de, dp in pairs]
+        ba = [dp["ba_s"] / de["ba_s"] for de, dp in pairs]
         if not ratios:
             continue
         gm = math.exp(sum(map(math.log, ratios)) / len(ratios))
@@ -97,17 +104,10 @@ def test_complete_pins_summarised_from_the_raw_cells():
     summaries = [x for x in block.splitlines() if x.startswith("- Complete pin")]
     complete = 0
     for pin in sorted(p for p in CELLS.iterdir() if p.is_dir()):
-        ba, paired = [], {}
-        for twin in ("rosetta", "poets-park", "mappilot"):
-            for seed in (0, 1, 2):
-                e, p = pin / twin / f"seed{seed}" / "ours-euclidean.json", pin / twin / f"seed{seed}" / "ours-polar.json"
-                if e.is_file() and p.is_file():
-                    de, dp = json.loads(e.read_text()), json.loads(p.read_text())
-                    if de["status"] == dp["status"] == "ok":
-                        ba.append(dp["ba_s"] / de["ba_s"])
-                        paired[twin] = paired.get(twin, 0) + 1
+        pairs = {twin: _paired(pin / twin) for twin in ("rosetta", "poets-park", "mappilot")}
+        ba = [dp["ba_s"] / de["ba_s"] for twin_pairs in pairs.values() for de, dp in twin_pairs]
         line = [x for x in summaries if f"/{pin.name[:12]}/`" in x]
-        if len(paired) < 3 or min(paired.values()) < 3:
+        if min(len(x) for x in pairs.values()) < 3:
             assert not line, pin.name
             continue
         complete += 1
