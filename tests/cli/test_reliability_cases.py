@@ -184,6 +184,55 @@ def test_interrupt_swallowed_by_extension_still_exits_130(monkeypatch, capsys, t
     assert len(_err_lines(capsys)) == 1
 
 
+# A child that runs the real entry point and sends itself SIGINT when the entry's import of
+# ``module`` begins: before the fix a SIGINT there (the CLI's imports take over 0.5 s on a loaded
+# machine) ended in an import traceback and exit -2.
+_INTERRUPT_AT_IMPORT = """
+import importlib.abc, os, signal, sys
+MODULE = sys.argv[1]
+class Interrupt(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path=None, target=None):
+        if name == MODULE:
+            os.kill(os.getpid(), signal.SIGINT)
+        return None
+sys.meta_path.insert(0, Interrupt())
+sys.argv = ["polarref", "-q", "doctor"]
+import polarref.__main__
+polarref.__main__.run()
+"""
+
+
+@pytest.mark.parametrize("module", ["polarref.cli", "numpy", "ctypes", "polarref.core.execution"])
+def test_sigint_while_the_cli_imports_exits_130_with_one_line(module):
+    from polarref.__main__ import INTERRUPTED
+
+    proc = subprocess.run([sys.executable, "-c", _INTERRUPT_AT_IMPORT, module],
+                          capture_output=True, text=True, timeout=120)
+    assert (proc.returncode, proc.stderr.strip().splitlines()) == (130, [INTERRUPTED]), proc.stderr
+    assert proc.stdout == ""
+
+
+def test_entry_point_without_interrupt_returns_the_commands_code():
+    done = subprocess.run([sys.executable, "-m", "polarref", "--version"], capture_output=True, text=True,
+                          timeout=120)
+    usage = subprocess.run([sys.executable, "-m", "polarref", "no-such-command"], capture_output=True,
+                           text=True, timeout=120)
+    assert (done.returncode, usage.returncode) == (0, 2)
+    assert "0.1.0" in done.stdout and "Traceback" not in usage.stderr
+
+
+
+def test_console_script_goes_through_the_guarded_entry():
+    import importlib
+    import tomllib
+    from pathlib import Path
+
+    import polarref.__main__ as entry
+
+    pyproject = Path(__file__).resolve().parents[2] / "pyproject.toml"
+    module, func = tomllib.loads(pyproject.read_text())["project"]["scripts"]["polarref"].split(":")
+    assert getattr(importlib.import_module(module), func) is entry.run
+
 @pytest.mark.slow
 def test_sigint_during_render_always_exits_130(tmp_path):
     """Real SIGINTs at random moments of a render (imports, scene build, Mitsuba)."""
