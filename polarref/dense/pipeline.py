@@ -9,7 +9,6 @@ as soon as its stage finishes, so a later failure leaves the earlier products in
 from __future__ import annotations
 
 import logging
-import resource
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -23,6 +22,7 @@ from polarref.dense.model_check import ModelCheck, check_model, verdict
 from polarref.dense.provenance import Provenance, collect
 from polarref.metrics import align_to_gt
 from polarref.core.errors import PolarrefError
+from polarref.core.memory import own_peak_mb
 from polarref.core.progress import track
 from polarref.model.colmap import read_model
 from polarref.core.status import RunStatus
@@ -75,10 +75,6 @@ class DenseMetrics:
         return asdict(self)
 
 
-def _peak_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
-
-
 DENSE_OUTPUTS = ("depth", "fused.ply", "mesh.ply", "fused_gt.ply", "mesh_gt.ply", "metrics.json")
 
 
@@ -118,7 +114,7 @@ def run_dense(scene_dir: Path, model: str, out: Path, cfg: DenseConfig = DenseCo
                 raise PolarrefError(f"{m.message}; the finished result in {out} was kept",
                                     option=exc.option) from exc
             failure = exc
-        m.peak_memory_mb = _peak_mb()
+        m.peak_memory_mb = own_peak_mb()
         write_json(tmp / "metrics.json", m.to_dict())
     if failure is not None:
         raise PolarrefError(m.message, option=failure.option) from failure

@@ -10,7 +10,6 @@ these same functions (through :mod:`polarref.compare.run.jobs`); the twins match
 from __future__ import annotations
 
 import dataclasses
-import resource
 import time
 from pathlib import Path
 
@@ -18,6 +17,7 @@ import numpy as np
 
 from polarref.camera import Camera
 from polarref.compare.run import presets
+from polarref.core.memory import own_peak_mb
 from polarref.model.run import MethodRun, TracePoint
 from polarref.peers.colmap_sfm import count_verified_pairs
 from polarref.sfm.config import PRESETS, SfMConfig
@@ -32,8 +32,8 @@ FEATURES_CACHED = CACHED.format("features")
 
 
 def peak_rss_mb() -> float:
-    """Largest resident set of this process so far, MB (Linux reports KiB)."""
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    """Largest resident set of this process so far, MiB (its own: not the spawning parent's)."""
+    return own_peak_mb()
 
 
 def sfm_config(preset: str, cache_dir: Path, pairs_file: str = "", track_conflicts: str | None = None) -> SfMConfig:

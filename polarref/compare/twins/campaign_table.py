@@ -156,7 +156,7 @@ def _summary(cells: list[CampaignCell], twin: str, rr: TwinsRules) -> MethodSumm
     mins = tuple(c.minutes for c in ok)
     # the targets are the twins' (issue 34): a reduced size has none
     target = rr.minutes(twin, cells[0].method) if cells[0].size == "twin" else None
-    peaks = [c.peak_rss_mb for c in ok if c.peak_rss_mb is not None]
+    peaks = [c.largest_stage_mb for c in ok if c.largest_stage_mb is not None]
     threads = next((s.result.settings.parallel for c in ok for s in c.stages if s.result is not None), None)
     return MethodSummary(
         cells[0].key, tuple(c.seed for c in ok), bad, mins, float(np.median(mins)) if mins else None,

@@ -31,15 +31,19 @@ def _env(commit=COMMIT, dirty=False):
     return Provenance(commit, dirty, 2, "cpu", "x86_64", "linux", "3.12", {}, {}, {})
 
 
-def _cell(method, seed, minutes, ties, obs, ba_s=None, commit=COMMIT, dirty=False, stage_commit=None):
-    run = MethodRun(method, model_dir="m", peak_rss_mb=500.0 + seed)
+RUNNER_FLOOR = 2200.0   # ru_maxrss of a spawned stage: the runner's peak, not the stage's (core/memory.py)
+
+
+def _cell(method, seed, minutes, ties, obs, ba_s=None, commit=COMMIT, dirty=False, stage_commit=None, peak=None):
+    run = MethodRun(method, model_dir="m", peak_rss_mb=RUNNER_FLOOR)
     settings = MethodSettings("ours", 2, 2, 4096, 0, False, "file")
+    costs = (StageCost("tracks", 1.0, 1.0, 300.0), StageCost("mapping", 1.0, 1.0, peak or 500.0 + seed))
     stage = R.CellStage(method, False, RunStatus.OK, wall_s=60.0 * minutes, git_commit=stage_commit or commit,
-                        git_dirty=dirty, result=StagedRun(run, (StageCost("mapping", 1.0, 1.0, 400.0),), settings))
+                        git_dirty=dirty, result=StagedRun(run, costs, settings))
     metrics = ReconstructionMetrics(20, 20, ties, obs, 0.2, 0.2, 0.2, 3.0)
     prov = R.CellProvenance(commit, dirty, "host", "t0", "t1", (3.0, 2.0, 1.0), (5.0, 2.0, 1.0), {}, {}, _env(commit, dirty))
     return R.CampaignCell("mappilot", "tiny", seed, method, method, 20, 50, RunStatus.OK, "", 60.0 * minutes,
-                          500.0 + seed, ba_s, 0.0, (stage,), metrics, prov)
+                          RUNNER_FLOOR, ba_s, 0.0, (stage,), metrics, prov)
 
 
 def _plan(**kw):
@@ -250,10 +254,25 @@ def test_settings_of_both_pycolmap_mappers_flatten_to_json():
 
 def test_memory_target_judges_our_pipeline_not_the_peer(tmp_path):
     """A peer's larger peak stays in its own row; the twin's peak (and its target) is ours."""
-    import dataclasses
-
     _three_seeds(tmp_path)
-    _save(tmp_path, dataclasses.replace(_cell("pycolmap-global-sift-t2", 0, 5.0, 900, 4000), peak_rss_mb=9000.0))
+    _save(tmp_path, _cell("pycolmap-global-sift-t2", 0, 5.0, 900, 4000, peak=9000.0))
     (tw,) = T.build(tmp_path / COMMIT).twins
     assert tw.peak_mb_max == 502.0
     assert next(m for m in tw.methods if m.key.startswith("pycolmap")).peak_mb == 9000.0
+
+
+def test_a_stage_peak_is_its_sampled_stages_not_the_inherited_ru_maxrss():
+    """Stage peaks come from the sampled pipeline stages (process plus workers); the record's own
+    figure only where nothing was sampled (a stage that failed before its first clock)."""
+    cell = _cell("ours-polar", 1, 10.0, 1000, 5000)
+    assert R.stage_peak_mb(cell.stages[0]) == 501.0 and cell.largest_stage_mb == 501.0
+    assert cell.peak_rss_mb == RUNNER_FLOOR  # what such a cell recorded
+    (stage,) = cell.stages
+    workers = dataclasses.replace(stage, result=dataclasses.replace(
+        stage.result, stages=(StageCost("features", 1.0, 1.0, 200.0, 450.0), StageCost("mapping", 1.0, 1.0, 600.0))))
+    assert R.stage_peak_mb(workers) == 650.0
+    unsampled = dataclasses.replace(stage, result=dataclasses.replace(stage.result, stages=(StageCost("total", 1.0),)))
+    assert R.stage_peak_mb(unsampled) == RUNNER_FLOOR
+    assert R.stage_peak_mb(dataclasses.replace(stage, result=None)) is None
+    two = dataclasses.replace(cell, stages=(workers, stage))
+    assert two.largest_stage_mb == 650.0

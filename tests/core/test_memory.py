@@ -1,0 +1,47 @@
+"""A spawned process's own peak memory, not the one Linux carries over from its parent."""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import resource
+import sys
+
+import numpy as np
+import pytest
+
+from polarref.core.memory import own_peak_mb
+
+HELD_MB = 300
+
+
+def _report(queue) -> None:
+    queue.put((own_peak_mb(), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0))
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="the inherited ru_maxrss is Linux's")
+def test_spawned_child_reports_its_own_peak_not_the_parents():
+    held = np.ones(HELD_MB * 2**20 // 8)  # resident in the parent while the child starts
+    ctx = mp.get_context("spawn")
+    queue = ctx.Queue()
+    child = ctx.Process(target=_report, args=(queue,))
+    child.start()
+    own, inherited = queue.get(timeout=120)
+    child.join(60)
+    assert held.sum() == held.size
+    assert inherited >= HELD_MB  # the premise: ru_maxrss starts at the parent's mark
+    assert 10.0 < own < HELD_MB / 2  # an interpreter with numpy, far below what the parent holds
+
+
+def _resident_mb() -> float:
+    with open("/proc/self/statm") as fh:
+        return int(fh.read().split()[1]) * resource.getpagesize() / 2**20
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_own_peak_grows_with_what_this_process_touches():
+    before = own_peak_mb()
+    extra = int(before - _resident_mb()) + 64  # enough to pass the old mark by about 64 MiB
+    block = np.ones(extra * 2**20 // 8)
+    after = own_peak_mb()
+    assert block[-1] == 1.0
+    assert before + 48 <= after <= before + 64 + 32
