@@ -42,6 +42,7 @@ from polarref.bench.records import (STAGES, BenchSfMSettings, FailedCell, Method
 from polarref.bench.sfm_report import write_outputs
 from polarref.core import records
 from polarref.core.errors import PolarrefError
+from polarref.core.memory import maxrss_mb, vmhwm_mb
 from polarref.core.provenance import collect_record
 from polarref.core.status import RunStatus
 from polarref.model import Reconstruction
@@ -117,14 +118,7 @@ def _cpu_seconds() -> float:
 
 def peak_memory_mb() -> PeakMemory:
     """Peak resident memory of this process: ru_maxrss and /proc VmHWM (MiB; None if unknown)."""
-    hwm = None
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                hwm = int(line.split()[1]) / 1024.0
-    except (OSError, ValueError, IndexError):
-        pass
-    return PeakMemory(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, hwm)
+    return PeakMemory(maxrss_mb(), vmhwm_mb())
 
 
 # ---- one cell (child process) ------------------------------------------------------------------

@@ -13,12 +13,23 @@ import resource
 from pathlib import Path
 
 
-def own_peak_mb() -> float:
-    """Peak resident set of this process image, MiB: ``VmHWM``, else ``ru_maxrss`` (no ``/proc``)."""
+def vmhwm_mb() -> float | None:
+    """``VmHWM`` of this process image, MiB; None where ``/proc`` does not tell it."""
     try:
         for line in Path("/proc/self/status").read_text().splitlines():
             if line.startswith("VmHWM:"):
                 return int(line.split()[1]) / 1024.0
     except (OSError, ValueError, IndexError):
         pass
+    return None
+
+
+def maxrss_mb() -> float:
+    """``ru_maxrss`` of this process, MiB: floored at the spawning parent's mark on Linux."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def own_peak_mb() -> float:
+    """Peak resident set of this process image, MiB: ``VmHWM``, else ``ru_maxrss`` (no ``/proc``)."""
+    hwm = vmhwm_mb()
+    return maxrss_mb() if hwm is None else hwm

@@ -221,7 +221,6 @@ def test_entry_point_without_interrupt_returns_the_commands_code():
     assert "0.1.0" in done.stdout and "Traceback" not in usage.stderr
 
 
-
 def test_console_script_goes_through_the_guarded_entry():
     import importlib
     import tomllib
@@ -232,6 +231,7 @@ def test_console_script_goes_through_the_guarded_entry():
     pyproject = Path(__file__).resolve().parents[2] / "pyproject.toml"
     module, func = tomllib.loads(pyproject.read_text())["project"]["scripts"]["polarref"].split(":")
     assert getattr(importlib.import_module(module), func) is entry.run
+
 
 @pytest.mark.slow
 def test_sigint_during_render_always_exits_130(tmp_path):

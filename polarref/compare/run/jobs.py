@@ -16,6 +16,7 @@ from pathlib import Path
 
 from polarref.camera import Camera
 from polarref.compare.run import ours
+from polarref.core.memory import own_peak_mb
 from polarref.model.run import MethodRun
 from polarref.peers.colmap_sfm import (ColmapSfMOptions, copy_database, count_verified_pairs,
                                        extract_and_match_sift, run_mapper)
@@ -45,7 +46,7 @@ def pycolmap_sift_db(image_dir: str, image_names: list[str], camera: dict, db_pa
                                   _options(seed, num_threads, max_num_features), image_names=image_names,
                                   overwrite=True, pairs_file=Path(pairs_file) if pairs_file else None)
     return MethodRun("pycolmap-features", stage_runtime_s={"features": sift.features, "matching": sift.matching},
-                     verified_pairs=count_verified_pairs(Path(db_path)), peak_rss_mb=ours.peak_rss_mb())
+                     verified_pairs=count_verified_pairs(Path(db_path)), peak_rss_mb=own_peak_mb())
 
 
 def ours_features(image_dir: str, camera: dict, preset: str, cache_dir: str, pairs_file: str = "") -> MethodRun:
@@ -82,7 +83,7 @@ def pycolmap_map(db_path: str, image_dir: str, work_dir: str, mapper: str, seed:
                      stage_runtime_s={k: float(v) for k, v in run.stage_runtime_s.items()},
                      model_dir=str(model), num_models=int(run.num_models), verified_pairs=int(run.verified_pairs),
                      registered=int(run.reconstruction.num_reg_images()), counted_wall_s=counted,
-                     segments=segments, peak_rss_mb=ours.peak_rss_mb())
+                     segments=segments, peak_rss_mb=own_peak_mb())
 
 
 def write_largest_model(run, work: Path, mapper: str) -> Path:

@@ -31,11 +31,6 @@ MEASURED = "{} (measured when the cache was made)"
 FEATURES_CACHED = CACHED.format("features")
 
 
-def peak_rss_mb() -> float:
-    """Largest resident set of this process so far, MiB (its own: not the spawning parent's)."""
-    return own_peak_mb()
-
-
 def sfm_config(preset: str, cache_dir: Path, pairs_file: str = "", track_conflicts: str | None = None) -> SfMConfig:
     """The pipeline settings of a comparison under the compare preset named ``preset``
     with the shared cache; ``pairs_file`` matches only its pairs; ``track_conflicts`` None keeps
@@ -82,7 +77,7 @@ def prepare_features_staged(image_dir: Path, cam: Camera, config: SfMConfig) -> 
     return MethodRun("ours-features", stage_runtime_s=stages, verified_pairs=len(matches.geometries),
                      skipped_images=list(skipped),
                      feature_file=str(Path(config.cache_dir) / f"features-{key}.npz"),
-                     peak_rss_mb=peak_rss_mb()), tuple(clock.stages)
+                     peak_rss_mb=own_peak_mb()), tuple(clock.stages)
 
 
 def import_into_database(image_dir: Path, cam: Camera, config: SfMConfig, db_path: Path) -> MethodRun:
@@ -93,7 +88,7 @@ def import_into_database(image_dir: Path, cam: Camera, config: SfMConfig, db_pat
     t0 = time.perf_counter()
     write_colmap_database(db_path, matches, [cam], np.zeros(len(matches.names), np.int64), overwrite=True)
     return MethodRun("db-ours", stage_runtime_s={"import": time.perf_counter() - t0},
-                     verified_pairs=count_verified_pairs(db_path), peak_rss_mb=peak_rss_mb())
+                     verified_pairs=count_verified_pairs(db_path), peak_rss_mb=own_peak_mb())
 
 
 def _final_trace(bas) -> list[TracePoint] | None:
@@ -126,4 +121,4 @@ def run_staged(image_dir: Path, cam: Camera, ba: str, work_dir: Path, config: Sf
     bas = list(result.report.ba or [])
     return MethodRun(f"ours-{ba}", form=ba, stage_runtime_s=stages, wall_s=wall,
                      model_dir=str(work_dir / "sfm" / "model"), num_ba_runs=len(bas),
-                     final_ba_trace=_final_trace(bas), peak_rss_mb=peak_rss_mb()), tuple(result.stages)
+                     final_ba_trace=_final_trace(bas), peak_rss_mb=own_peak_mb()), tuple(result.stages)

@@ -39,7 +39,7 @@ from polarref.compare.run.scenes import prepare
 from polarref.compare.twins import campaign_table
 from polarref.compare.twins import campaign_jobs as J
 from polarref.compare.twins.campaign_records import (METHODS, OURS, PYCOLMAP, CampaignCell, CellProvenance,
-                                                     CellStage, read_cell, stage_peak_mb)
+                                                     CellStage, largest_stage_mb, read_cell)
 from polarref.compare.twins.pipeline import PYCOLMAP_FEATURES, PYCOLMAP_SNAPSHOT_EVERY, choose_pairs, score_model
 from polarref.core import isolated as runner
 from polarref.core import records
@@ -198,7 +198,6 @@ def run_cell(plan: CampaignPlan, twin: str, seed: int, method: str, scene: Scene
         own = stages[-1].result.run
         metrics = score_model(own.model_dir, scene.gt)
         ba_s = own.stage_runtime_s.get("bundle adjustment") if method in OURS else None
-    peaks = [p for p in map(stage_peak_mb, stages) if p is not None]
     env = collect_record(seeds={"scene": seed, "ransac": seed}, threads={"ours_frontend": plan.ours_threads,
                                                                          "pycolmap": plan.pycolmap_threads})
     commit, dirty = state or (env.git_commit, env.git_dirty)
@@ -206,7 +205,7 @@ def run_cell(plan: CampaignPlan, twin: str, seed: int, method: str, scene: Scene
                           os.getloadavg(), dict(env.threads), dict(env.seeds), env)
     return CampaignCell(twin, plan.size, seed, method, plan.cell_key(method), len(scene.image_names), pairs[1],
                         RunStatus.OK if bad is None else bad.status, "" if bad is None else f"{bad.job}: {bad.reason}"[:300],
-                        float(sum(s.wall_s for s in stages)), max(peaks) if peaks else None, ba_s, render_s,
+                        float(sum(s.wall_s for s in stages)), largest_stage_mb(stages), ba_s, render_s,
                         tuple(stages), metrics, prov)
 
 

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from polarref.model.settings import MethodSettings, flatten_settings
 from polarref.compare.run import jobs, ours
+from polarref.core.memory import own_peak_mb
 from polarref.model.colmap import global_options, incremental_options
 from polarref.model.run import MethodRun
 from polarref.peers.colmap_sfm import ColmapSfMOptions, count_verified_pairs, extract_sift, match_sift, sift_options
@@ -86,7 +87,7 @@ def pycolmap_front(image_dir: str, image_names: list[str], camera: dict, db_path
     match_sift(Path(db_path), opts, Path(pairs_file))
     clock.stop()
     run = MethodRun("pycolmap-features", stage_runtime_s={s.stage: s.wall_s for s in clock.stages},
-                    verified_pairs=count_verified_pairs(Path(db_path)), peak_rss_mb=ours.peak_rss_mb())
+                    verified_pairs=count_verified_pairs(Path(db_path)), peak_rss_mb=own_peak_mb())
     return StagedRun(run, tuple(clock.stages), _colmap_settings(opts, "incremental", f"file: {Path(pairs_file).name}"))
 
 

@@ -78,8 +78,7 @@ class CampaignCell:
     @property
     def largest_stage_mb(self) -> float | None:
         """MiB: the peak of the cell's most memory-hungry stage process (:func:`stage_peak_mb`)."""
-        peaks = [p for p in map(stage_peak_mb, self.stages) if p is not None]
-        return max(peaks) if peaks else None
+        return largest_stage_mb(self.stages)
 
 
 def stage_peak_mb(stage: CellStage) -> float | None:
@@ -93,6 +92,12 @@ def stage_peak_mb(stage: CellStage) -> float | None:
     sampled = [(c.peak_rss_mb or 0.0) + (c.workers_peak_rss_mb or 0.0) for c in stage.result.stages
                if c.peak_rss_mb is not None or c.workers_peak_rss_mb is not None]
     return max(sampled) if sampled else stage.result.run.peak_rss_mb
+
+
+def largest_stage_mb(stages: tuple[CellStage, ...] | list[CellStage]) -> float | None:
+    """MiB: the largest :func:`stage_peak_mb` over ``stages``; None where none is known."""
+    peaks = [p for p in map(stage_peak_mb, stages) if p is not None]
+    return max(peaks) if peaks else None
 
 
 def read_cell(path: Path) -> CampaignCell:
