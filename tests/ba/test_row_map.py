@@ -7,6 +7,7 @@ import pytest
 
 from polarref.ba import BAOptions, chunked, kernels, prepare, row_map, solve
 from polarref.ba.adapter import problem_from_reconstruction
+from polarref.ba.row_map_jit import MID_T2, SERIES_MAX
 from polarref.ba.schur import SchurStructure
 from polarref.ba.solver import _robust, make_param
 from polarref.ba.synthetic import ring_problem, synthetic_reconstruction
@@ -158,25 +159,26 @@ def test_option_is_checked():
 
 
 def test_view_angle_offset_against_mpmath():
-    """The three branches of the offset (the short series for |t| < 1e-3, the long one for
-    |t| <= 1/8, arctan beyond) against 50 digits."""
+    """The three branches of the offset (the mid series for |t| < 0.0316, the long one for
+    |t| <= 1/8, arctan beyond) against 50 digits, each branch with a third of the rays."""
     mpmath = pytest.importorskip("mpmath")
     mpmath.mp.dps = 50
     rng = np.random.default_rng(9)
-    n = 400
+    n = 420
     Xc = rng.normal(size=(n, 3)) * [1.0, 1.0, 0.4] + [0.0, 0.0, 1.0]
     Xc[::5, 2] *= -1.0
     sg = np.where(Xc[:, 2] < 0, -1.0, 1.0)[:, None]
     th_true = np.arctan2(np.hypot(*(sg * Xc)[:, :2].T), (sg * Xc)[:, 2])
-    delta = rng.normal(size=n) * 10.0 ** rng.uniform(-9, 0, n)  # |t| from 1e-9 to ~1
+    # |t| = |tan(delta)|: 1e-9 to 0.025 (mid), 0.035 to 0.11 (long), 0.16 to 1 (arctan)
+    tiers = [rng.uniform(lo, hi, n // 3) for lo, hi in ((-9, -1.6), (-1.45, -0.96), (-0.8, 0))]
+    delta = rng.choice([-1.0, 1.0], n) * 10.0 ** np.concatenate(tiers)
     th = th_true + delta
     res, _, _ = kernels.polar_rows_mapped(Xc, np.tile([1.0, 1, 0, 0, 0, 0], (n, 1)),
                                           np.zeros((n, 2)), th, _cs(th), np.ones(n))
-    short = series = 0
     for m in range(n):
         x, y, z = (mpmath.mpf(float(v)) * int(sg[m, 0]) for v in Xc[m])
         exact = mpmath.atan2(mpmath.sqrt(x * x + y * y), z) - mpmath.mpf(float(th[m]))
         assert abs(res[m, 2] - float(exact)) <= 1e-15, (m, res[m, 2], float(exact))
-        short += abs(delta[m]) < 0.5e-3
-        series += abs(delta[m]) < 0.1
-    assert 0.3 * n < short < series - 0.1 * n and series < n  # the three branches ran
+    t2 = np.tan(res[:, 2]) ** 2  # the offset is atan(t)
+    mid, long = (t2 < MID_T2).sum(), ((t2 >= MID_T2) & (t2 <= SERIES_MAX**2)).sum()
+    assert min(mid, long, n - mid - long) >= n // 3 - 5  # each branch ran on a third
