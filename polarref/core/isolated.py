@@ -109,6 +109,12 @@ def _job_file_from_json(path: Path) -> _JobFile | None:
                     wall_s=None if wall is None else float(wall))
 
 
+def finished_kwargs(result_path: Path) -> tuple[tuple[str, JsonValue], ...] | None:
+    """The (name, value) arguments a finished job ran with (its ``<tag>.result.json``); None if it did not finish."""
+    done = _job_file_from_json(result_path)
+    return tuple(done.kwargs.items()) if done is not None and done.ok and done.kwargs is not None else None
+
+
 def _child(job: Callable, kwargs: dict[str, JsonValue], result_path: str, log_path: str) -> None:
     fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
     sys.stdout.flush(), sys.stderr.flush()

@@ -102,3 +102,7 @@ def largest_stage_mb(stages: tuple[CellStage, ...] | list[CellStage]) -> float |
 
 def read_cell(path: Path) -> CampaignCell:
     return records.load(CampaignCell, path)
+
+
+def read_stage(path: Path) -> CellStage:
+    return records.load(CellStage, path)
