@@ -1,5 +1,5 @@
 """The mapper replay's record arithmetic and its refusals (the replay itself runs whole mappers:
-its numbers are in reports/paper-tables/campaign/replays/)."""
+its numbers are in reports/paper-tables/mapper-replays/)."""
 
 import json
 
