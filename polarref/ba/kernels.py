@@ -126,8 +126,9 @@ def warm_up() -> float:
         for k in (2, 3):
             res3, J3 = pixel_rows(x3, f((1, 6)), r, k, jac)
         theta_row_into(x3, x1, x1, res3, J3, jac)
-    from polarref.ba import row_map_jit, schur_sparse_jit, xspace_jit
+    from polarref.ba import row_map_jit, schur_panel_jit, schur_sparse_jit, xspace_jit
     row_map_jit.warm_up()
+    schur_panel_jit.warm_up()
     xspace_jit.warm_up()
     schur_sparse_jit.warm_up()
     dt = time.perf_counter() - t

@@ -42,3 +42,24 @@ def fill_panel(Z, entry_cam, r0, r1, c0, width, out):
                 else:
                     for i in range(6):
                         row[col + i] = 0.0
+
+
+@_njit
+def scatter_entries(Z, entry_pt, entry_cam, Zd):
+    """Zd[cam(e), :, pt(e), :] = Z_e for every entry (Z (E, 6, 3), Zd (Nv, 6, P, 3)): the layout
+    of the dense-visibility path's one dsyrk (schur.py). Cells of no entry are left as they are
+    (zero: the sparsity does not change between builds)."""
+    for e in range(len(Z)):
+        c, p = entry_cam[e], entry_pt[e]
+        for i in range(6):
+            for j in range(3):
+                Zd[c, i, p, j] = Z[e, i, j]
+
+
+def warm_up() -> None:
+    """Compile (or load from the disk cache) these kernels on tiny inputs (kernels.warm_up)."""
+    f, one = np.zeros, np.zeros(1, np.int64)
+    Z = f((1, 6, 3))
+    entry_factors(f((1, 6, 3)), f((1, 3, 3)), f((1, 3)), np.array([0, 1], np.int64), one, one, Z, f((1, 6)))
+    fill_panel(Z, one, one, one + 1, 0, 1, f((3, 6)))
+    scatter_entries(Z, one, one, f((1, 6, 1, 3)))

@@ -140,8 +140,11 @@ def test_held_components_kernel_path_equals_numpy(forward, param, anchor_schur, 
     # polar at 3e-4 by cross terms too: its pinhole set-up is compiled (ba/polar.py; the view
     # angles' weights a few ulp from numpy's), and with three explicit rows on both sides the
     # same 40 iterations and held points end 2e-7 apart in cost (measured)
-    chaotic = (anchor_schur == "xspace" or param == "polar") and \
-        request.node.callspec.params["forward"][0] < 1e-3
+    # and every form at 3e-4 on the dense-visibility (dsyrk) path: its compiled entry factors
+    # (Z = W L^-T without BLAS's fused multiply-adds) are a few ulp from numpy's batched matmul,
+    # and angular's cross path then clips 9 steps where numpy clips 10 (same 40 iterations and
+    # held points, final costs 8.8e-6 apart, measured)
+    chaotic = request.node.callspec.params["forward"][0] < 1e-3
     got = {}
     # Ceres' radius growth (3), under which the parting points above were measured: with
     # ours (30) the less damped steps on these unconverged, ill-conditioned solves let the

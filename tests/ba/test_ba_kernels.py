@@ -298,3 +298,37 @@ def test_angular_fused_kernel_equals_its_stages(problems, gated):
     for a, b in ((res, r1), (Jp, Jp1), (Jo, Jo1), (Ad, Ad1)):
         np.testing.assert_array_equal(a, b)
     assert np.abs(res).max() > 1e-3
+
+
+@pytest.mark.parametrize("param", ["euclidean", "polar"])
+def test_dense_visibility_reduced_system_equals_numpy(problems, param):
+    """The dsyrk path (every camera sees every point): its compiled entry factors and scatter
+    (schur_panel_jit) give numpy's S and b, to 1e-13 of their largest entries."""
+    from polarref.ba import schur
+    p = problems["dense"]
+    prm = make_param(p, BAOptions(param=param, view_angle_row="explicit", anchor_schur="cross"))
+    pts = prm.init_points() + 1e-3
+    out = []
+    for fast in (False, True):
+        st = schur.SchurStructure(prm.slot_cams, prm.slot_cols, p.obs_pt, p.cam_mask.any(1), p.num_points,
+                                  fast=fast, anchored=param == "polar")
+        assert st.use_gemm and not st.sparse_S
+        r, Jp, Jc = prm.evaluate(p.R, p.C, pts, True, factored=param == "polar")
+        if param == "polar" and not fast:
+            from polarref.ba.anchor_terms import AnchorTerms
+            builder = AnchorTerms(st, p.obs_pt, *prm.anchor_cams)
+        else:
+            builder = st
+        mask_v = p.cam_mask[st.var_cams].astype(float)
+        g_c, W, U = st.apply_mask(mask_v, *builder.build(Jc, Jp, r))
+        V, g_p = st.point_terms(Jp, r)
+        S, b, _ = st.reduced_system(U, W, V + 1e-3 * np.eye(3), g_c, g_p, np.ones((st.Nv, 6)))
+        S2, _, _ = st.reduced_system(U, W, 2.0 * V + 1e-3 * np.eye(3), g_c, g_p, np.ones((st.Nv, 6)))
+        out.append((np.triu(S), b, np.triu(S2)))
+    (S0, b0, T0), (S1, b1, T1) = out
+    assert np.abs(np.triu(S0, 6)).max() > 0 and np.abs(b0).max() > 0
+    np.testing.assert_allclose(S1, S0, rtol=0, atol=1e-13 * np.abs(S0).max())
+    np.testing.assert_allclose(b1, b0, rtol=0, atol=1e-13 * np.abs(b0).max())
+    # a second pass through the kept scatter buffer (other point blocks): nothing of the first left
+    np.testing.assert_allclose(T1, T0, rtol=0, atol=1e-13 * np.abs(T0).max())
+    assert np.abs(T0 - S0).max() > 1e-9 * np.abs(S0).max()
