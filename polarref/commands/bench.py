@@ -43,6 +43,9 @@ def add_arguments(parser) -> None:
                         "measured by separate processes, then tabulated together)")
     parser.add_argument("--no-cold", action="store_true",
                         help="ba: skip the cold-process timing of `polarref ba` per problem")
+    parser.add_argument("--ours-threads", type=int_range(1, 64), default=1, metavar="N",
+                        help="ba: BLAS threads of our forms and scipy (recorded; Ceres runs on 1 and 2 threads "
+                        "either way), default 1")
     sfm = parser.add_argument_group("sfm (our SfM vs pycolmap incremental, same images and pairs)")
     sfm.add_argument("--scene", choices=("comet", "uav"), default="comet")
     sfm.add_argument("--views", type=int_range(4, 5000), nargs="+", default=[28, 84, 168, 336],
@@ -85,8 +88,8 @@ def run(args) -> int:
         if unknown or ("euclidean" not in args.solvers and not args.cache):
             raise UsageError(f"--solvers: {'unknown ' + ', '.join(unknown) if unknown else 'euclidean is needed'}"
                              f" (known: {', '.join(solver_names())})")
-    doc = run_bench(problems, out, BAOptions(loss=args.loss,
-                                                 max_iterations=args.max_iterations),
+    doc = run_bench(problems, out, BAOptions(loss=args.loss, max_iterations=args.max_iterations,
+                                             blas_threads=args.ours_threads),
                         args.scipy_max_obs, repeat=args.repeat, merge=args.merge,
                         bisect_max_obs=args.bisect_max_obs, ceres_max_s=float(args.ceres_max_s),
                         cold=not args.no_cold, only=tuple(args.solvers or ()),

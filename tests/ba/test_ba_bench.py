@@ -186,3 +186,18 @@ def test_bench_json_refuses_unknown_keys(tmp_path):
     bad.write_text(json.dumps(data))
     with pytest.raises(RecordError, match=r"wal_s.*problems\[0\]\.rows\[0\]\.full_runs\[0\]"):
         read_json_doc(bad)
+
+
+def test_ours_threads_reach_our_solver_and_its_record(tmp_path):
+    """``--ours-threads`` (BAOptions.blas_threads): our rows and the provenance carry the count
+    the solve ran with; Ceres' settings keep their own 1 / 2 threads."""
+    from polarref.bench.ba import run_bench
+    from polarref.bench.ba_records import read_json_doc
+
+    run_bench(["synth-20"], tmp_path, BAOptions(max_iterations=3, blas_threads=2), scipy_max_obs=0, repeat=1,
+              cold=False, only=("euclidean", "ceres-colmap-tol-1t"))
+    doc = read_json_doc(tmp_path / "bench.json")
+    rows = {r.solver: r for r in doc.problems[0].rows}
+    assert rows["euclidean"].settings["threads"] == 2 and rows["euclidean"].settings["blas_threads"] == 2
+    assert rows["ceres-colmap-tol-1t"].settings["num_threads"] == 1
+    assert doc.environment.threads["ours_blas"] == 2

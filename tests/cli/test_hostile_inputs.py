@@ -138,6 +138,8 @@ def _cases():
         ("bench-garbage-problem", lambda t: ["bench", "ba", "--problem", str(_file(t, "g.txt", "x y z\n")),
                                              "--out", out(t)], 1, "g.txt:1"),
         ("bench-zero-repeat", lambda t: ["bench", "ba", "--repeat", "0", "--out", out(t)], 2, "--repeat"),
+        ("bench-absurd-threads", lambda t: ["bench", "ba", "--ours-threads", "5000", "--out", out(t)], 2,
+         "--ours-threads"),
         ("bench-out-under-file", lambda t: ["bench", "ba", "--problem", "synth-20", "--out",
                                             str(_blocker(t) / "b")], 1, "not a folder"),
         # ---- compare --------------------------------------------------------------------------
