@@ -175,7 +175,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m polarref.compare.twins.replay", description=__doc__.split("\n")[0])
     ap.add_argument("cell", type=Path, help="a campaign cell's work folder (<work>/<pin>/<twin>/seed<k>)")
     ap.add_argument("--out", type=Path, required=True, help="the replay record (JSON)")
-    ap.add_argument("--work", type=Path, default=None, help="models and logs (default: beside --out)")
+    ap.add_argument("--work", type=Path, default=None,
+                    help="models and logs, not for git (default: polarref-out/replay/<name of --out>)")
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--overwrite", action="store_true")
     a = ap.parse_args(argv)
@@ -184,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
             raise PolarrefError(f"{a.out} exists; pass --overwrite to replace it")
         if not os.access(a.out.parent if a.out.parent.exists() else Path("."), os.W_OK):
             raise PolarrefError(f"{a.out.parent}: not writable")
-        work = a.work or a.out.with_suffix("")
+        work = a.work or Path("polarref-out") / "replay" / a.out.stem
         rep = replay(a.cell.resolve(), work.resolve(), a.repeats)
         records.save(rep, a.out)
         print("\n".join(summary_lines(rep)))
