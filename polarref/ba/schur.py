@@ -542,10 +542,11 @@ class SchurStructure:
             return S, b.reshape(-1), Li
         if E and self.fast and self.use_gemm:
             # compiled: Z and b in one pass over the entries, then scattered for the dsyrk; numpy's
-            # batched 6x3 products, its b reduction and the fancy scatter were 3/4 of a synth-20 step
+            # batched 6x3 products, its b reduction and the fancy scatter were 3/4 of synth-20's
+            # Schur stage. Z differs from numpy's (BLAS fused multiply-adds) in the last bits.
             from polarref.ba import schur_panel_jit
             Z, zq = np.empty((E, 6, 3)), np.zeros_like(b)
-            # summed apart, then added: numpy's order (-g_c + sum), so both paths agree bitwise
+            # summed apart, then added: numpy's order (-g_c + sum over the entries)
             schur_panel_jit.entry_factors(_c(W), Li, q, self.entry_bounds, self.entry_pt, self.entry_cam, Z, zq)
             b += zq
         else:
