@@ -38,11 +38,14 @@ def test_spawned_child_reports_its_own_peak_not_the_parents():
     assert 10.0 < own < HELD_MB / 2  # an interpreter with numpy, far below what the parent holds
 
 
+def _resident_mb() -> float:
+    with open("/proc/self/statm") as fh:
+        return int(fh.read().split()[1]) * resource.getpagesize() / 2**20
+
+
 def _grow(queue) -> None:
     before = own_peak_mb()
-    with open("/proc/self/statm") as fh:
-        resident = int(fh.read().split()[1]) * resource.getpagesize() / 2**20
-    extra = int(before - resident) + 64  # enough to pass the old mark by about 64 MiB
+    extra = int(before - _resident_mb()) + 64  # enough to pass the old mark by about 64 MiB
     block = np.ones(extra * 2**20 // 8)
     queue.put((before, own_peak_mb(), float(block[-1])))
 
@@ -57,8 +60,7 @@ def test_own_peak_grows_with_what_this_process_touches():
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_vmhwm_is_at_least_what_is_resident_now_and_at_most_maxrss():
-    with open("/proc/self/statm") as fh:
-        resident = int(fh.read().split()[1]) * resource.getpagesize() / 2**20
+    resident = _resident_mb()
     hwm = vmhwm_mb()
     assert hwm is not None and resident - 1.0 <= hwm <= maxrss_mb() + 1.0
     assert own_peak_mb() == pytest.approx(hwm, abs=1.0)

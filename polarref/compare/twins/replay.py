@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import logging
-import os
 import statistics
 import sys
 from dataclasses import dataclass
@@ -27,6 +26,7 @@ from polarref.compare.twins import campaign_jobs as J
 from polarref.compare.twins.campaign_records import OURS, read_stage
 from polarref.core import isolated as runner
 from polarref.core import records
+from polarref.core.atomic import check_writable_parent
 from polarref.core.errors import PolarrefError
 from polarref.core.provenance import Provenance, collect_record
 from polarref.core.status import RunStatus
@@ -183,8 +183,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if a.out.exists() and not a.overwrite:
             raise PolarrefError(f"{a.out} exists; pass --overwrite to replace it")
-        if not os.access(a.out.parent if a.out.parent.exists() else Path("."), os.W_OK):
-            raise PolarrefError(f"{a.out.parent}: not writable")
+        check_writable_parent(a.out)
         work = a.work or Path("polarref-out") / "replay" / a.out.stem
         rep = replay(a.cell.resolve(), work.resolve(), a.repeats)
         records.save(rep, a.out)

@@ -88,3 +88,11 @@ def test_finished_kwargs_reads_only_a_finished_call(tmp_path):
     path.write_text("not json")
     assert runner.finished_kwargs(path) is None
     assert runner.finished_kwargs(tmp_path / "absent.json") is None
+
+
+def test_an_output_under_a_file_is_refused_before_any_run(tmp_path, capsys):
+    cell = _cell(tmp_path)
+    (tmp_path / "blocker").write_text("x")
+    assert RP.main([str(cell), "--out", str(tmp_path / "blocker" / "r.json")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "not a folder" in err[0]
