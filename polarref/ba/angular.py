@@ -35,7 +35,7 @@ class Angular(Parallax):
     # the compiled rows' per-observation inputs (refresh_kernel_rows): the chunked build
     # (chunked.py) slices them; the numpy path's chart rows are indexed over all observations,
     # but rows are only evaluated with the kernels (Parallax.supports_rows)
-    row_arrays = ("k_obs", "k_whiten", "w_theta", "mode")
+    row_arrays = ("k_obs", "k_cs", "k_whiten", "w_theta", "mode")
 
     def __init__(self, problem, options=None):
         super().__init__(problem, options)
@@ -76,8 +76,9 @@ class Angular(Parallax):
     def refresh_kernel_rows(self) -> None:
         """The compiled rows' inputs per observation (forms_jit._angular) from the stage and
         the observed angles: ``mode``, and the chart's observation and whitening in place of
-        (theta, phi)'s where the chart is used (``k_obs``, ``k_whiten``). Call again after
-        changing ``obs_ang`` or ``chart_obs`` (intrinsics.py does)."""
+        (theta, phi)'s where the chart is used (``k_obs``, ``k_whiten``), and cos, sin of the
+        observed (theta, phi) (``k_cs`` (M, 4): the kernels' offsets without arctan2). Call
+        again after changing ``obs_ang`` or ``chart_obs`` (intrinsics.py does)."""
         if not self.fast:
             return
         from polarref.ba import kernels
@@ -88,6 +89,9 @@ class Angular(Parallax):
             self.mode[ci] = kernels.CHART
             self.k_obs, self.k_whiten = self.obs_ang.copy(), self.whiten.copy()
             self.k_obs[ci], self.k_whiten[ci] = self.chart_obs, self.chart_whiten
+        ang = self.obs_ang  # the chart's rows do not read theirs
+        self.k_cs = np.stack([np.cos(ang[:, 0]), np.sin(ang[:, 0]), np.cos(ang[:, 1]),
+                              np.sin(ang[:, 1])], axis=1)
 
     def residual_rows(self, Xc, jac):
         if self.fast:
@@ -118,8 +122,8 @@ class Angular(Parallax):
     def _residual_rows_kernels(self, Xc, jac):
         """:meth:`residual_rows` compiled (forms_jit.angular_rows), axis-chart rows included."""
         from polarref.ba import kernels
-        res, J = kernels.angular_rows(np.ascontiguousarray(Xc), self.k_obs, self.k_whiten,
-                                      self.w_theta, self.mode, jac)
+        res, J = kernels.angular_rows(np.ascontiguousarray(Xc), self.k_obs, self.k_cs,
+                                      self.k_whiten, self.w_theta, self.mode, jac)
         return res, (J if jac else None)
 
     def fused_obs(self, R, C, terms):
@@ -127,4 +131,5 @@ class Angular(Parallax):
         p = self.p
         Cm, d, sw, cw, hd, dh_dw, _, dv_dab = terms
         return (*kernels.angular_obs(R, C, p.obs_cam, p.obs_pt, Cm, d, sw, cw, hd, dh_dw, dv_dab,
-                                     self.k_obs, self.k_whiten, self.w_theta, self.mode), None)
+                                     self.k_obs, self.k_cs, self.k_whiten, self.w_theta,
+                                     self.mode), None)

@@ -120,9 +120,10 @@ def warm_up() -> float:
     for dense in (True, False):
         parallax_jacobians(Jp, x3, R, x3, one, one, x3, x3, x1, x1, x1, x3, f((1, 3, 2)), dense)
     i8 = np.ones(1, np.int8)
-    angular_obs(R, x3, one, one, x3, x3, x1, x1, x3, x1, f((1, 3, 2)), r, f((1, 2, 2)), x1, i8)
+    cs = f((1, 4))
+    angular_obs(R, x3, one, one, x3, x3, x1, x1, x3, x1, f((1, 3, 2)), r, cs, f((1, 2, 2)), x1, i8)
     for jac in (True, False):
-        angular_rows(x3, r, f((1, 2, 2)), x1, i8, jac)
+        angular_rows(x3, r, cs, f((1, 2, 2)), x1, i8, jac)
         for k in (2, 3):
             res3, J3 = pixel_rows(x3, f((1, 6)), r, k, jac)
         theta_row_into(x3, x1, x1, res3, J3, jac)

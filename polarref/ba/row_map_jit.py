@@ -6,23 +6,11 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from polarref.ba.forms_jit import _parallax_chain, _parallax_ray, _pixel, _put2
+from polarref.ba.forms_jit import _atan_ratio, _parallax_chain, _parallax_ray, _pixel, _put2
 
 
 def _njit(fn):
     return numba.njit(cache=True, nogil=True, error_model="numpy")(fn)
-
-
-# atan(t) = t (1 + t^2 A(t^2)) for |t| <= SERIES_MAX: the odd Taylor series to t^17; the first
-# term left out, t^19 / 19, is below 3e-18 |t| there. Where t^2 < MID_T2 (|t| < 0.0316: a
-# mapper's residuals are ~1e-3) the series stops at t^9: the first term left out, t^11 / 11, is
-# below 9.1e-17 |t|, under half an ulp of t. One tier for nearly every residual keeps the branch
-# predictable: a cut at |t| = 1e-3 (a 1 px residual at f = 1000 px) split a mapper's residuals
-# about evenly, and the mispredictions cost a fifth of the fused evaluation's time.
-SERIES_MAX = 0.125
-MID_T2 = 1e-3
-_ATAN = (-1.0 / 3, 1.0 / 5, -1.0 / 7, 1.0 / 9, -1.0 / 11, 1.0 / 13, -1.0 / 15, 1.0 / 17)
-_A0, _A1, _A2, _A3, _A4, _A5, _A6, _A7 = _ATAN
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -39,18 +27,11 @@ def _view_angle_offset(rn, theta_obs, c, s):
     """``theta - theta_obs`` with ``theta = atan(rn)`` the view angle of a ray whose normalized
     image radius is rn (>= 0; the projective ray's, as angular_obs.theta_rows: n is the same
     for Xc and -Xc). With ``(c, s) = (cos, sin)(theta_obs)`` the offset is ``atan(t)``, ``t =
-    (rn c - s) / (c + rn s)``, by its series where |t| <= SERIES_MAX (no arctan call: it was
-    30 % of the evaluation's time), else by arctan."""
-    num = rn * c - s
-    den = c + rn * s
-    if den > 0.0 and abs(num) <= SERIES_MAX * den:
-        t = num / den
-        u = t * t
-        if u < MID_T2:
-            a = _A0 + u * (_A1 + u * (_A2 + u * _A3))
-        else:
-            a = _A0 + u * (_A1 + u * (_A2 + u * (_A3 + u * (_A4 + u * (_A5 + u * (_A6 + u * _A7))))))
-        return t + t * (u * a)
+    (rn c - s) / (c + rn s)``, by forms_jit._atan_ratio's series where it applies (no arctan
+    call: it was 30 % of the evaluation's time), else by arctan."""
+    ok, v = _atan_ratio(rn * c - s, c + rn * s)
+    if ok:
+        return v
     return np.arctan(rn) - theta_obs
 
 

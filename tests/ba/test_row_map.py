@@ -7,7 +7,7 @@ import pytest
 
 from polarref.ba import BAOptions, chunked, kernels, prepare, row_map, solve
 from polarref.ba.adapter import problem_from_reconstruction
-from polarref.ba.row_map_jit import MID_T2, SERIES_MAX
+from polarref.ba.forms_jit import MID_T2, SERIES_MAX
 from polarref.ba.schur import SchurStructure
 from polarref.ba.solver import _robust, make_param
 from polarref.ba.synthetic import ring_problem, synthetic_reconstruction
