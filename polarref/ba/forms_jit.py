@@ -127,7 +127,7 @@ def _angular(x, y, z, m, a_obs, cs, whiten, w_theta, mode, jac):
     with jac their ``res_D_Xc``: (r0, r1, j00, j01, j02, j10, j11, j12)."""
     if mode[m] == CHART:
         return _chart_row(x, y, z, m, a_obs, whiten, jac)
-    return _angle_rows(x, y, z, m, a_obs, cs, whiten, w_theta, mode, jac)
+    return _angle_rows(x, y, z, m, a_obs, cs, whiten, w_theta, mode, jac, True)[1]
 
 
 @_inline
@@ -142,10 +142,13 @@ def _chart_row(x, y, z, m, a_obs, whiten, jac):
 
 
 @_inline
-def _angle_rows(x, y, z, m, a_obs, cs, whiten, w_theta, mode, jac):
-    """:func:`_angular`'s THETA_PHI and THETA_ONLY rows. cs (M, 4) holds cos, sin of
+def _angle_rows(x, y, z, m, a_obs, cs, whiten, w_theta, mode, jac, exact):
+    """:func:`_angular`'s THETA_PHI and THETA_ONLY rows: (ok, row). cs (M, 4) holds cos, sin of
     theta_obs and phi_obs: both offsets by :func:`_atan_ratio` of the rotated ray (already
-    wrapped), arctan2 where it does not apply (angular_obs.theta_rows / phi_rows' arithmetic)."""
+    wrapped). Where that does not apply ``ok`` is False, and with ``exact`` (a literal) the
+    offset is arctan2's (angular_obs.theta_rows / phi_rows' arithmetic). The kernels' main pass
+    runs without ``exact`` and redoes the rows that are not ok in a pass of their own: a call
+    in the loop made the compiler keep the whole row in memory around it (3x the time)."""
     # the projective ray sign(z) (x, y, z), as _theta
     sg = -1.0 if z < 0 else 1.0
     xs, ys, zs = x * sg, y * sg, z * sg
@@ -153,7 +156,7 @@ def _angle_rows(x, y, z, m, a_obs, cs, whiten, w_theta, mode, jac):
     rho = np.sqrt(rho2)
     ct, st = cs[m, 0], cs[m, 1]
     ok, dt = _atan_ratio(rho * ct - zs * st, zs * ct + rho * st)
-    if not ok:
+    if exact and not ok:
         dt = np.arctan2(rho, zs) - a_obs[m, 0]
     t0 = t1 = t2 = 0.0
     if jac:  # _theta's theta_D_Xc
@@ -162,21 +165,21 @@ def _angle_rows(x, y, z, m, a_obs, cs, whiten, w_theta, mode, jac):
         t0, t1, t2 = xs * f * sg, ys * f * sg, -rho / n2 * sg
     if mode[m] == THETA_ONLY:
         w = w_theta[m]
-        return dt * w, 0.0, t0 * w, t1 * w, t2 * w, 0.0, 0.0, 0.0
+        return ok, (dt * w, 0.0, t0 * w, t1 * w, t2 * w, 0.0, 0.0, 0.0)
     w00, w01, w10, w11 = whiten[m, 0, 0], whiten[m, 0, 1], whiten[m, 1, 0], whiten[m, 1, 1]
     cp, sp = cs[m, 2], cs[m, 3]
-    ok, df = _atan_ratio(ys * cp - xs * sp, xs * cp + ys * sp)
-    if not ok:
+    ok_phi, df = _atan_ratio(ys * cp - xs * sp, xs * cp + ys * sp)
+    if exact and not ok_phi:
         a = np.arctan2(ys, xs) - a_obs[m, 1]
         # wrap to (-pi, pi] (angular_obs.wrap); the modulo only where a is outside
         df = a if -np.pi < a <= np.pi else np.pi - np.mod(np.pi - a, 2.0 * np.pi)
     r0, r1 = w00 * dt + w01 * df, w10 * dt + w11 * df
     if not jac:
-        return r0, r1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+        return ok and ok_phi, (r0, r1, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
     rr = max(rho2, 1e-300)
     f0, f1 = -ys / rr * sg, xs / rr * sg  # phi_D_Xc (third component 0)
-    return (r0, r1, w00 * t0 + w01 * f0, w00 * t1 + w01 * f1, w00 * t2,
-            w10 * t0 + w11 * f0, w10 * t1 + w11 * f1, w10 * t2)
+    return ok and ok_phi, (r0, r1, w00 * t0 + w01 * f0, w00 * t1 + w01 * f1, w00 * t2,
+                           w10 * t0 + w11 * f0, w10 * t1 + w11 * f1, w10 * t2)
 
 
 @_inline
@@ -263,7 +266,8 @@ def angular_obs(R, C, obs_cam, obs_pt, Cm, d, sw, cw, hd, dh_dw, dv_dab, a_obs, 
     res, Jp, Jo, Ad = np.empty((M, 2)), np.empty((M, 2, 3)), np.empty((M, 2, 6)), np.empty((M, 2))
     jx = np.empty((1, 2, 3))  # res_D_Xc of the current observation
     # the axis chart's rows (rare) in a pass of their own: inline beside the angle rows they
-    # made this pass 1.3x as long (3.8 vs 2.9 ms on a real mapper local BA, 70k observations)
+    # made this pass 1.3x as long (3.8 vs 2.9 ms on a real mapper local BA, 70k observations);
+    # arctan2 stays inline here (a second pass for it, as angular_rows', measured 3.5 ms)
     for chart in (False, True):
         for m in range(M):
             if (mode[m] == CHART) != chart:
@@ -271,7 +275,7 @@ def angular_obs(R, C, obs_cam, obs_pt, Cm, d, sw, cw, hd, dh_dw, dv_dab, a_obs, 
             i, p = obs_cam[m], obs_pt[m]
             x, y, z = _parallax_ray(R, C, i, p, Cm, sw, hd)
             row = (_chart_row(x, y, z, m, a_obs, whiten, True) if chart else
-                   _angle_rows(x, y, z, m, a_obs, cs, whiten, w_theta, mode, True))
+                   _angle_rows(x, y, z, m, a_obs, cs, whiten, w_theta, mode, True, True)[1])
             _put2(res, m, jx, 0, True, row)
             _parallax_chain(jx, 0, 2, x, y, z, R, C, i, p, Cm, d, sw, cw, dh_dw, dv_dab, Jp,
                             Jo, Ad, m)
@@ -463,9 +467,28 @@ def angular_rows(Xc, a_obs, cs, whiten, w_theta, mode, jac):
     M = len(Xc)
     res = np.empty((M, 2))
     J = np.empty((M if jac else 0, 2, 3))
-    for m in range(M):
-        _put2(res, m, J, m, jac, _angular(Xc[m, 0], Xc[m, 1], Xc[m, 2], m, a_obs, cs, whiten,
-                                       w_theta, mode, jac))
+    # the chart's rows apart, as in angular_obs, and the rows whose offsets need arctan2 in a
+    # last pass (no call in the main loop: 4.5 -> 0.7 ms on a real local BA's 70k rows)
+    redo = np.empty(M, np.int64)
+    n_redo = 0
+    for chart in (False, True):
+        for m in range(M):
+            if (mode[m] == CHART) != chart:
+                continue
+            x, y, z = Xc[m, 0], Xc[m, 1], Xc[m, 2]
+            if chart:
+                row = _chart_row(x, y, z, m, a_obs, whiten, jac)
+            else:
+                ok, row = _angle_rows(x, y, z, m, a_obs, cs, whiten, w_theta, mode, jac, False)
+                if not ok:
+                    redo[n_redo] = m
+                    n_redo += 1
+            _put2(res, m, J, m, jac, row)
+    for k in range(n_redo):
+        m = redo[k]
+        row = _angle_rows(Xc[m, 0], Xc[m, 1], Xc[m, 2], m, a_obs, cs, whiten, w_theta, mode,
+                          False, True)[1]
+        res[m, 0], res[m, 1] = row[0], row[1]
     return res, J
 
 
