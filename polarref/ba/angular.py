@@ -74,7 +74,7 @@ class Angular(Parallax):
         self.refresh_kernel_rows()
 
     def refresh_kernel_rows(self) -> None:
-        """The compiled rows' inputs per observation (forms_jit._angular) from the stage and
+        """The compiled rows' inputs per observation (forms_jit._angle_rows, _chart_row) from the stage and
         the observed angles: ``mode``, and the chart's observation and whitening in place of
         (theta, phi)'s where the chart is used (``k_obs``, ``k_whiten``), and cos, sin of the
         observed (theta, phi) (``k_cs`` (M, 4): the kernels' offsets without arctan2). Call

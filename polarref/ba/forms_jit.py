@@ -120,19 +120,10 @@ def _chart(x, y, z, jac):
 
 
 @_inline
-def _angular(x, y, z, m, a_obs, cs, whiten, w_theta, mode, jac):
-    """Angular residuals of one observation (angular.py): ``A^-1 (theta - theta_obs,
-    wrap(phi - phi_obs))`` (THETA_PHI), ``((theta - theta_obs) w_theta, 0)`` (THETA_ONLY) or
-    ``B^-1 (e - e_obs)`` of the axis chart (CHART; a_obs / whiten then hold the chart's), and
-    with jac their ``res_D_Xc``: (r0, r1, j00, j01, j02, j10, j11, j12)."""
-    if mode[m] == CHART:
-        return _chart_row(x, y, z, m, a_obs, whiten, jac)
-    return _angle_rows(x, y, z, m, a_obs, cs, whiten, w_theta, mode, jac, True)[1]
-
-
-@_inline
 def _chart_row(x, y, z, m, a_obs, whiten, jac):
-    """:func:`_angular`'s CHART rows."""
+    """Angular residuals of a CHART row (angular.py): ``B^-1 (e - e_obs)`` of the axis chart
+    (a_obs / whiten hold the chart's), and with jac their ``res_D_Xc``: (r0, r1, j00, j01, j02,
+    j10, j11, j12)."""
     w00, w01, w10, w11 = whiten[m, 0, 0], whiten[m, 0, 1], whiten[m, 1, 0], whiten[m, 1, 1]
     e0, e1, c00, c01, c02, c10, c11, c12 = _chart(x, y, z, jac)
     d0, d1 = e0 - a_obs[m, 0], e1 - a_obs[m, 1]
@@ -143,12 +134,15 @@ def _chart_row(x, y, z, m, a_obs, whiten, jac):
 
 @_inline
 def _angle_rows(x, y, z, m, a_obs, cs, whiten, w_theta, mode, jac, exact):
-    """:func:`_angular`'s THETA_PHI and THETA_ONLY rows: (ok, row). cs (M, 4) holds cos, sin of
+    """Angular residuals of a THETA_PHI row, ``A^-1 (theta - theta_obs, wrap(phi - phi_obs))``, or
+    of a THETA_ONLY row, ``((theta - theta_obs) w_theta, 0)`` (angular.py), with jac their
+    ``res_D_Xc``, as (ok, (r0, r1, j00, ..., j12)). cs (M, 4) holds cos, sin of
     theta_obs and phi_obs: both offsets by :func:`_atan_ratio` of the rotated ray (already
     wrapped). Where that does not apply ``ok`` is False, and with ``exact`` (a literal) the
-    offset is arctan2's (angular_obs.theta_rows / phi_rows' arithmetic). The kernels' main pass
-    runs without ``exact`` and redoes the rows that are not ok in a pass of their own: a call
-    in the loop made the compiler keep the whole row in memory around it (3x the time)."""
+    offset is arctan2's (angular_obs.theta_rows / phi_rows' arithmetic). angular_rows' main pass
+    runs without ``exact`` and redoes the rows that are not ok in a pass of their own (with the
+    call in its loop it took 4.5 instead of 0.7 ms on a local BA's 70k rows); angular_obs keeps
+    ``exact`` inline, where a second pass measured slower."""
     # the projective ray sign(z) (x, y, z), as _theta
     sg = -1.0 if z < 0 else 1.0
     xs, ys, zs = x * sg, y * sg, z * sg
@@ -261,7 +255,7 @@ def angular_obs(R, C, obs_cam, obs_pt, Cm, d, sw, cw, hd, dh_dw, dv_dab, a_obs, 
     """Angular residuals (M, 2), ``res_D_point`` (M, 2, 3), ``res_D_obs`` (M, 2, 6) and ``A d``
     (M, 2) of parallax landmarks (angular.py, factored anchors) in one pass: parallax_rays,
     angular_rows and parallax_jacobians fused. Per-point terms from parallax_points; rows per
-    ``mode`` as in :func:`_angular`."""
+    ``mode`` (:func:`_angle_rows`, :func:`_chart_row`)."""
     M = len(obs_cam)
     res, Jp, Jo, Ad = np.empty((M, 2)), np.empty((M, 2, 3)), np.empty((M, 2, 6)), np.empty((M, 2))
     jx = np.empty((1, 2, 3))  # res_D_Xc of the current observation
@@ -463,7 +457,8 @@ def theta_row_into(Xc, theta_obs, w_theta, res, J, jac):
 @_njit
 def angular_rows(Xc, a_obs, cs, whiten, w_theta, mode, jac):
     """Angular residuals (M, 2) and with jac ``res_D_Xc`` (M, 2, 3) (angular.py), per
-    ``mode`` (M,) as in :func:`_angular`; angles of the projective ray (angular_obs.py)."""
+    ``mode`` (M,) (:func:`_angle_rows`, :func:`_chart_row`); angles of the projective ray
+    (angular_obs.py)."""
     M = len(Xc)
     res = np.empty((M, 2))
     J = np.empty((M if jac else 0, 2, 3))

@@ -229,7 +229,7 @@ def test_parallax_xyz_kernel_equals_numpy(problems):
 
 
 def test_angular_rows_kernel_modes_equal_numpy():
-    """The compiled angular rows (forms_jit._angular) per mode against the numpy rows of
+    """The compiled angular rows (forms_jit._angle_rows, _chart_row) per mode against the numpy rows of
     angular.py: whitened (theta, phi) with phi wrapped across +-pi, theta alone, and the axis
     chart through its near-axis series (t < 1e-3), on the axis itself and behind the camera
     (projective ray). Equal to rounding (1e-12 of the largest)."""
